@@ -1,0 +1,119 @@
+"""Atomic, pickle-free file output and validated input.
+
+Outputs are written to a temporary file in the destination folder and renamed
+into place, so a killed stage never leaves a file that looks finished.  Arrays
+go to ``.npz`` and are read back with ``allow_pickle=False``; tables go to CSV.
+"""
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Iterator, Mapping
+
+import numpy as np
+import pandas as pd
+
+from nnsf.errors import InputError
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; rename it onto ``path`` on success.
+
+    On any exception the temporary file is removed and ``path`` is untouched.
+    ``suffix`` defaults to ``path``'s own suffix so that libraries that pick a
+    format from the file name (matplotlib, OpenCV) still do the right thing.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(
+        prefix=f".{path.name}.", suffix=path.suffix if suffix is None else suffix, dir=path.parent
+    )
+    os.close(fd)
+    tmp = Path(tmp)
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+@contextlib.contextmanager
+def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary folder beside ``path``; swap it in for ``path`` on success."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    try:
+        yield tmp
+        if path.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.old.", dir=path.parent))
+            os.replace(path, old / "x")
+            os.replace(tmp, path)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, path)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def write_json(path, obj: Mapping) -> None:
+    """Write ``obj`` as indented JSON (sorted keys, stable across runs), atomically."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(obj, indent=2, sort_keys=True, default=_json_default) + "\n")
+
+
+def _json_default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def write_csv(path, frame: pd.DataFrame, float_format: str | None = "%.10g") -> None:
+    """Write a table as CSV without the index, atomically."""
+    with atomic_path(path) as tmp:
+        frame.to_csv(tmp, index=False, float_format=float_format, lineterminator="\n")
+
+
+def write_npz(path, **arrays: np.ndarray) -> None:
+    """Write arrays to an uncompressed ``.npz``, atomically.  No object arrays."""
+    for name, a in arrays.items():
+        if np.asarray(a).dtype == object:
+            raise TypeError(f"{name}: object arrays cannot be stored without pickle")
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, **arrays)
+
+
+def read_npz(path) -> dict[str, np.ndarray]:
+    """Read every array of an ``.npz`` into memory; never unpickles."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, "file", "an existing .npz file")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+    except (ValueError, OSError) as exc:
+        raise InputError(path, "file", "a readable .npz archive without pickled objects", str(exc)) from None
+
+
+def read_json(path) -> dict:
+    """Read a JSON object, naming the file on failure."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, "file", "an existing JSON file")
+    try:
+        obj = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise InputError(path, f"line {exc.lineno}", "valid JSON", exc.msg) from None
+    if not isinstance(obj, dict):
+        raise InputError(path, "top level", "a JSON object", type(obj).__name__)
+    return obj

@@ -1,0 +1,137 @@
+"""Loading and checking ``params.yaml``.
+
+Each stage reads only the sections it lists in dvc.yaml; :func:`load` checks
+every field it knows against :data:`SCHEMA` so that a wrong type or an
+unknown choice fails with one line naming the field.
+"""
+from __future__ import annotations
+
+import numbers
+from pathlib import Path
+from typing import Any, Callable
+
+import yaml
+
+from nnsf.errors import InputError
+
+DATASETS = ("synthetic", "bvh", "frames")
+INITS = ("random", "nndsvd", "nndsvda", "nndsvdar")
+METHODS = ("nnsf", "nnsc", "nmf", "bilinear")
+LABELS = ("motion", "character")
+
+
+def _int(lo=None, hi=None):
+    def check(v):
+        ok = isinstance(v, numbers.Integral) and not isinstance(v, bool)
+        ok = ok and (lo is None or v >= lo) and (hi is None or v <= hi)
+        return ok
+    rng = f" in [{lo}, {hi}]" if hi is not None else (f" >= {lo}" if lo is not None else "")
+    return check, f"an integer{rng}"
+
+
+def _num(lo=None, strict=False):
+    def check(v):
+        ok = isinstance(v, numbers.Real) and not isinstance(v, bool)
+        return ok and (lo is None or (v > lo if strict else v >= lo))
+    return check, f"a number {'>' if strict else '>='} {lo}" if lo is not None else "a number"
+
+
+def _choice(options):
+    return (lambda v: v in options), "one of " + ", ".join(options)
+
+
+def _bool():
+    return (lambda v: isinstance(v, bool)), "true or false"
+
+
+def _str():
+    return (lambda v: isinstance(v, str) and v != ""), "a non-empty string"
+
+
+def _list(item):
+    check, what = item
+    return (lambda v: isinstance(v, list) and len(v) > 0 and all(check(x) for x in v)), \
+        f"a non-empty list of {what.replace('an ', '').replace('a ', '')}s"
+
+
+SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
+    "seed": _int(0),
+    "dataset.name": _choice(DATASETS),
+    "dataset.synthetic.characters": _int(2, 12),
+    "dataset.synthetic.clips_per_cell": _int(1),
+    "dataset.synthetic.frames": _int(4),
+    "dataset.synthetic.noise_px": _num(0),
+    "unify.margin": _num(0, strict=True),
+    "nnsf.label": _choice(LABELS),
+    "nnsf.rank": _int(1),
+    "nnsf.alpha": _num(0),
+    "nnsf.beta": _num(0),
+    "nnsf.class_in_loop": _bool(),
+    "nnsf.max_iter": _int(1),
+    "nnsf.tol": _num(0),
+    "nnsf.init": _choice(INITS),
+    "evaluate.folds": _int(2),
+    "evaluate.ranks": _list(_int(1)),
+    "evaluate.methods": _list(_choice(METHODS)),
+    "evaluate.max_iter": _int(1),
+    "isomap.samples": _int(20),
+    "isomap.neighbors": _int(2),
+    "isomap.max_dim": _int(1),
+    "sweep.folds": _int(2),
+    "sweep.alpha": _list(_num(0)),
+    "sweep.beta": _list(_num(0)),
+    "sweep.rank": _list(_int(1)),
+    "sweep.max_iter": _int(1),
+    "mlflow.experiment": _str(),
+}
+
+
+def get(params: dict, key: str):
+    """Value at a dotted key, or ``KeyError``."""
+    node = params
+    for part in key.split("."):
+        if not isinstance(node, dict) or part not in node:
+            raise KeyError(key)
+        node = node[part]
+    return node
+
+
+def validate(params: dict, source="params.yaml") -> dict:
+    """Check every known field present in ``params``; return ``params``.
+
+    A field the schema knows but the file lacks is reported only when a stage
+    asks for it (:func:`require`), so partial files for tests stay usable.
+    """
+    if not isinstance(params, dict):
+        raise InputError(source, "top level", "a mapping of sections")
+    for key, (check, what) in SCHEMA.items():
+        try:
+            value = get(params, key)
+        except KeyError:
+            continue
+        if not check(value):
+            raise InputError(source, key, what, value)
+    return params
+
+
+def load(path="params.yaml") -> dict:
+    """Read and validate a params file (``yaml.safe_load``)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, "file", "an existing params.yaml")
+    try:
+        params = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}" if mark else "file"
+        raise InputError(path, where, "valid YAML", getattr(exc, "problem", str(exc))) from None
+    return validate(params or {}, path)
+
+
+def require(params: dict, key: str, source="params.yaml"):
+    """Value at ``key``, or an :class:`InputError` saying it is missing."""
+    try:
+        return get(params, key)
+    except KeyError:
+        what = SCHEMA.get(key, (None, "a value"))[1]
+        raise InputError(source, key, what + " (the field is missing)") from None
