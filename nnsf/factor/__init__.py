@@ -1,0 +1,4 @@
+"""Factorization: the NNSF estimator and the baselines it is compared with."""
+from nnsf.factor.nnsf import NNSF, weights_for_basis
+
+__all__ = ["NNSF", "weights_for_basis"]

@@ -1,0 +1,149 @@
+"""The command line: ``python -m flows <command>``.
+
+Commands::
+
+    python -m flows data|features|factorize|evaluate|isomap|sweep [--params FILE]
+        run one DVC stage as a Prefect flow and log it to MLflow (dvc.yaml's cmd)
+    python -m flows repro [dvc repro arguments]
+        `dvc repro` with one short-lived local Prefect server shared by all stages
+    python -m flows pipeline [dvc repro arguments]
+        the scheduled pipeline flow, run once now (same server handling as repro)
+    python -m flows serve [--cron "0 3 * * *"] [--name nnsf-pipeline]
+        serve the pipeline flow as a deployment on a cron schedule
+
+Exit codes: 0 success, 2 bad input (one ``error: …`` line on stderr, never a
+traceback), 1 any other failure (also one line; set ``NNSF_DEBUG=1`` to get
+the traceback), 130 interrupted.
+"""
+from __future__ import annotations
+
+import argparse
+import atexit
+import os
+import sys
+from pathlib import Path
+
+import flows  # noqa: F401  (telemetry switches, before any heavy import)
+from flows import project
+from flows.console import error_line, one_line
+from nnsf.errors import InputError
+
+STAGES = ("data", "features", "factorize", "evaluate", "isomap", "sweep")
+USAGE = __doc__.split("Commands::", 1)[1].split("Exit codes", 1)[0].rstrip()
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] in ("-h", "--help", "help"):
+        print("usage:" + USAGE)
+        return 0 if argv else 2
+    command, rest = argv[0], argv[1:]
+    try:
+        if command in STAGES:
+            return run_stage_command(command, rest)
+        if command == "repro":
+            from flows import repro
+
+            return repro.main(rest)
+        if command == "pipeline":
+            from flows import pipeline
+
+            return pipeline.main(rest)
+        if command == "serve":
+            from flows import pipeline
+
+            return pipeline.serve_main(rest)
+        error_line(f"command line: {command!r}: expected one of "
+                   f"{', '.join(STAGES + ('repro', 'pipeline', 'serve'))}")
+        return 2
+    except InputError as err:
+        error_line(str(err))
+        return 2
+    except KeyboardInterrupt:
+        error_line("interrupted")
+        return 130
+    except Exception as err:  # a bug or an environment problem: one line unless debugging
+        if os.environ.get("NNSF_DEBUG"):
+            raise
+        error_line(f"{command}: {one_line(err)} (set NNSF_DEBUG=1 for the traceback)")
+        return 1
+
+
+def run_stage_command(stage: str, args: list[str]) -> int:
+    """Validate params, then run the stage's flow; map its final state to an exit code."""
+    parser = argparse.ArgumentParser(prog=f"python -m flows {stage}")
+    parser.add_argument("--params", default="params.yaml", help="the params file")
+    opts = parser.parse_args(args)
+    root = project.root()
+    os.chdir(root)  # nnsf.stages' default paths are relative to the project root
+    _record_imports_on_exit(stage, root)
+
+    # Cheap checks first: a wrong params.yaml costs no Prefect start-up.
+    from nnsf.params import load, require
+
+    params = load(opts.params)
+    require(params, "mlflow.experiment")
+
+    from flows.console import quiet_prefect_console
+
+    if stage == "sweep":
+        from flows import runners
+        from flows.sweep import sweep
+
+        runner = runners.task_runner()  # validates NNSF_TASK_RUNNER before the flow starts
+        quiet_prefect_console()
+        state = sweep.with_options(task_runner=runner)(params, return_state=True)
+    else:
+        from flows.stage_flows import FLOWS
+
+        quiet_prefect_console()
+        state = FLOWS[stage](params, return_state=True)
+
+    if state.is_completed():
+        return 0
+    exc = state.result(raise_on_failure=False)
+    if isinstance(exc, InputError):
+        error_line(str(exc))
+        return 2
+    if isinstance(exc, BaseException):
+        if os.environ.get("NNSF_DEBUG"):
+            raise exc
+        error_line(f"{stage}: {one_line(exc)} (the Prefect UI has the traceback; "
+                   "NNSF_DEBUG=1 prints it)")
+    else:
+        error_line(f"{stage}: flow run ended in state {state.type.value}: {state.message}")
+    return 1
+
+
+def _record_imports_on_exit(stage: str, root: Path) -> None:
+    """If ``NNSF_RECORD_IMPORTS`` names a folder, write the project files this stage ran.
+
+    One line per module file under the project root, to ``<folder>/<stage>.txt``.
+    The pipeline test compares them with the stage's deps in dvc.yaml, which
+    keeps DVC's view of "what this stage depends on" exact.
+    """
+    folder = os.environ.get("NNSF_RECORD_IMPORTS")
+    if not folder:
+        return
+
+    def write():
+        files = set()
+        for module in list(sys.modules.values()):
+            path = getattr(module, "__file__", None)
+            if not path:
+                continue
+            try:
+                rel = Path(path).resolve().relative_to(root)
+            except ValueError:
+                continue
+            if rel.parts[0] in ("nnsf", "flows"):
+                files.add(rel.as_posix())
+        out = Path(folder)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / f"{stage}.txt").write_text("".join(f"{f}\n" for f in sorted(files)))
+
+    atexit.register(write)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,85 @@
+"""One Prefect flow per DVC stage: call the ``nnsf.stages`` function, log to MLflow.
+
+A flow never lets an :class:`~nnsf.errors.InputError` escape as an exception:
+it returns a ``Failed`` state whose message is the error's one line (and whose
+data is the error), so Prefect records a failed run without printing a
+traceback, and ``python -m flows`` turns the state into ``error: …`` and exit
+code 2.  Anything else that goes wrong is a bug; Prefect keeps its traceback
+for the UI, and the console shows one line (see :mod:`flows.console`).
+"""
+from __future__ import annotations
+
+import time
+from typing import Callable
+
+from prefect import flow, get_run_logger
+from prefect.states import Failed
+
+from nnsf import stages
+from nnsf.errors import InputError
+
+from flows.mlflow_runs import ExperimentLog
+
+
+def run_stage(stage: str, fn: Callable[[dict], stages.StageResult], params: dict):
+    """Run ``fn(params)`` inside the current flow and log its result to MLflow.
+
+    Returns a small summary (metrics and the MLflow run id), or a ``Failed``
+    state carrying the :class:`InputError`.
+    """
+    logger = get_run_logger()
+    started = time.perf_counter()
+    try:
+        result = fn(params)
+    except InputError as err:
+        logger.error("%s", err)
+        return Failed(message=str(err), data=err)
+    seconds = time.perf_counter() - started
+    result.metrics.setdefault("stage_seconds", round(seconds, 3))
+    run_id = ExperimentLog(params["mlflow"]["experiment"]).log_stage(stage, result)
+    shown = ", ".join(f"{k}={_short(v)}" for k, v in list(result.metrics.items())[:8])
+    logger.info("%s done in %.1f s; MLflow run %s; %s", stage, seconds, run_id, shown)
+    return {"metrics": result.metrics, "mlflow_run_id": run_id}
+
+
+def _short(value) -> str:
+    return f"{value:.4g}" if isinstance(value, float) else str(value)
+
+
+# The flows are spelled out one by one (rather than generated) so that each has
+# a real module-level name, which Prefect deployments and the UI rely on.
+_OPTIONS = dict(persist_result=False, validate_parameters=False, log_prints=False)
+
+
+@flow(name="nnsf-data", **_OPTIONS)
+def data(params: dict):
+    """Produce the raw key-point table for ``dataset.name`` (data/raw/)."""
+    return run_stage("data", stages.data, params)
+
+
+@flow(name="nnsf-features", **_OPTIONS)
+def features(params: dict):
+    """Unify raw key points to the template (data/features/)."""
+    return run_stage("features", stages.features, params)
+
+
+@flow(name="nnsf-factorize", **_OPTIONS)
+def factorize(params: dict):
+    """Fit NNSF on all frames (models/nnsf.npz, reports/factorize.json)."""
+    return run_stage("factorize", stages.factorize, params)
+
+
+@flow(name="nnsf-evaluate", **_OPTIONS)
+def evaluate(params: dict):
+    """Grouped cross-validation, precision vs rank for every method."""
+    return run_stage("evaluate", stages.evaluate, params)
+
+
+@flow(name="nnsf-isomap", **_OPTIONS)
+def isomap(params: dict):
+    """ISOMAP of the fitted weights V: residual variance and embedding."""
+    return run_stage("isomap", stages.isomap, params)
+
+
+#: The stage flows by DVC stage name (the sweep lives in :mod:`flows.sweep`).
+FLOWS = {f.fn.__name__: f for f in (data, features, factorize, evaluate, isomap)}

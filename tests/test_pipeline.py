@@ -1,0 +1,270 @@
+"""End to end: ``python -m flows repro`` on a small params.yaml in a copy of the project.
+
+Real DVC, real Prefect flows against the session's Prefect server, a real
+sqlite MLflow store.  The tests of this module share one reproduced project
+and run in file order; the last one changes ``nnsf.alpha``.
+"""
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+from types import SimpleNamespace
+
+import pandas as pd
+import pytest
+import yaml
+
+from conftest import git, new_project, run
+
+pytestmark = pytest.mark.slow
+
+FLOWS = [sys.executable, "-m", "flows"]
+DVC = [sys.executable, "-m", "dvc"]
+ALL_STAGES = {"data", "features", "factorize", "evaluate", "isomap", "sweep"}
+EXPERIMENT = "nnsf-e2e"
+
+#: Small enough for seconds per stage, big enough for 3 grouped folds.
+SMALL_PARAMS = f"""\
+seed: 0
+dataset:
+  name: synthetic
+  synthetic:
+    characters: 3
+    clips_per_cell: 2
+    frames: 12
+    noise_px: 0.4
+unify:
+  margin: 0.5
+nnsf:
+  label: motion
+  rank: 4
+  alpha: 0.01
+  beta: 1.0
+  class_in_loop: true
+  max_iter: 30
+  tol: 1.0e-4
+  init: nndsvda
+evaluate:
+  folds: 3
+  ranks: [2, 4]
+  methods: [nnsf, nnsc, nmf, bilinear]
+  max_iter: 20
+isomap:
+  samples: 60
+  neighbors: 6
+  max_dim: 4
+sweep:
+  folds: 3
+  alpha: [0.0, 0.01]
+  beta: [0.0, 1.0]
+  rank: [4]
+  max_iter: 20
+mlflow:
+  experiment: {EXPERIMENT}
+"""
+
+
+def stages_run(output: str) -> set[str]:
+    return set(re.findall(r"Running stage '([^']+)'", output))
+
+
+@pytest.fixture(scope="module")
+def pipeline(tmp_path_factory, prefect_api, mlflow_template):
+    """A copy of the project with SMALL_PARAMS, reproduced once from scratch."""
+    base = tmp_path_factory.mktemp("e2e")
+    root, env = new_project(base / "project", mlflow_template, prefect_api)
+    (root / "params.yaml").write_text(SMALL_PARAMS)
+    git(root, "commit", "-q", "-am", "small params")
+    env["NNSF_RECORD_IMPORTS"] = str(base / "imports")
+    started = time.perf_counter()
+    cold = run(FLOWS + ["repro"], root, env, timeout=900)
+    seconds = time.perf_counter() - started
+    assert cold.returncode == 0, cold.stdout[-4000:] + cold.stderr[-4000:]
+    print(f"cold repro of the small pipeline: {seconds:.1f} s")
+    return SimpleNamespace(root=root, env=env, cold=cold, seconds=seconds,
+                           imports=base / "imports", mlflow_uri=env["MLFLOW_TRACKING_URI"])
+
+
+def dvc_yaml(root: Path) -> dict:
+    return yaml.safe_load((root / "dvc.yaml").read_text())
+
+
+def declared(entries) -> list[str]:
+    """Paths of a dvc.yaml outs/metrics/deps list (entries may carry options)."""
+    return [next(iter(e)) if isinstance(e, dict) else e for e in entries or []]
+
+
+def test_cold_repro_runs_every_stage_and_writes_every_output(pipeline):
+    assert stages_run(pipeline.cold.stdout) == ALL_STAGES
+    assert "Traceback" not in pipeline.cold.stdout + pipeline.cold.stderr
+    for name, stage in dvc_yaml(pipeline.root)["stages"].items():
+        for path in declared(stage.get("outs")) + declared(stage.get("metrics")):
+            assert (pipeline.root / path).exists(), (name, path)
+        for path in declared(stage.get("metrics")):
+            metrics = json.loads((pipeline.root / path).read_text())
+            assert isinstance(metrics, dict) and metrics, path
+
+
+def test_plot_data_has_the_declared_columns(pipeline):
+    precision = pd.read_csv(pipeline.root / "reports/plots/precision_vs_rank.csv")
+    assert {"rank", "nnsf", "nnsc", "nmf", "bilinear"} <= set(precision.columns)
+    assert sorted(precision["rank"]) == [2, 4]
+    residual = pd.read_csv(pipeline.root / "reports/plots/isomap_residual.csv")
+    assert {"dim", "residual_variance"} <= set(residual.columns)
+    shown = run(DVC + ["plots", "show", "--json"], pipeline.root, pipeline.env)
+    assert shown.returncode == 0, shown.stderr
+    rendered = json.loads(shown.stdout)
+    assert {"precision_vs_rank", "isomap_residual", "sweep"} <= set(rendered)
+    for plot in ("precision_vs_rank", "isomap_residual", "sweep"):
+        assert not rendered[plot][0].get("errors"), rendered[plot]
+
+
+def test_second_repro_is_a_noop_and_starts_no_server(pipeline):
+    env = dict(pipeline.env)
+    env.pop("PREFECT_API_URL")  # `python -m flows repro` would have to start its own server
+    started = time.perf_counter()
+    again = run(FLOWS + ["repro"], pipeline.root, env)
+    seconds = time.perf_counter() - started
+    print(f"no-op repro: {seconds:.1f} s")
+    assert again.returncode == 0, again.stderr
+    assert stages_run(again.stdout) == set()
+    assert "Data and pipelines are up to date" in again.stdout + again.stderr
+    assert not (pipeline.root / ".prefect" / "server.log").exists()  # no server was started
+    assert seconds < 30
+    status = run(DVC + ["status", "--json"], pipeline.root, pipeline.env)
+    assert json.loads(status.stdout) == {}
+
+
+def test_mlflow_has_stage_runs_and_nested_sweep_runs(pipeline):
+    import mlflow
+    from mlflow.tracking import MlflowClient
+
+    mlflow.set_tracking_uri(pipeline.mlflow_uri)
+    runs = mlflow.search_runs(experiment_names=[EXPERIMENT])
+    assert (runs["status"] == "FINISHED").all()
+    by_stage = runs.groupby("tags.nnsf.stage").size().to_dict()
+    assert by_stage == {"data": 1, "features": 1, "factorize": 1, "evaluate": 1, "isomap": 1,
+                        "sweep": 1, "sweep-point": 4}
+    experiment = mlflow.get_experiment_by_name(EXPERIMENT)
+    assert experiment.artifact_location == (pipeline.root / "mlartifacts").as_uri()
+
+    client = MlflowClient(pipeline.mlflow_uri)
+    for stage in ("factorize", "evaluate"):
+        row = runs[runs["tags.nnsf.stage"] == stage].iloc[0]
+        assert row.filter(like="params.").notna().any(), stage
+        assert row.filter(like="metrics.").notna().any(), stage
+        assert row["tags.prefect.flow_run_id"], stage
+    evaluate_id = runs.loc[runs["tags.nnsf.stage"] == "evaluate", "run_id"].iloc[0]
+    assert _artifact_files(client, evaluate_id, ".png"), "evaluate logged no figure"
+
+    parent = runs.loc[runs["tags.nnsf.stage"] == "sweep", "run_id"].iloc[0]
+    children = mlflow.search_runs(experiment_names=[EXPERIMENT],
+                                  filter_string=f"tags.mlflow.parentRunId = '{parent}'")
+    assert len(children) == 4
+    points = {(float(a), float(b), int(k)) for a, b, k in
+              children[["params.alpha", "params.beta", "params.rank"]].itertuples(index=False)}
+    assert points == {(a, b, 4) for a in (0.0, 0.01) for b in (0.0, 1.0)}
+    for child in children["run_id"]:
+        assert _artifact_files(client, child, ".png"), f"sweep point {child} logged no figure"
+
+    table = pd.read_csv(pipeline.root / "reports/sweep.csv")
+    assert set(table["run_id"]) == set(children["run_id"])
+    best = json.loads((pipeline.root / "reports/sweep.json").read_text())
+    assert best["points"] == 4 and best["best_rank"] == 4
+
+
+def _artifact_files(client, run_id: str, suffix: str, path: str | None = None) -> list[str]:
+    found = []
+    for item in client.list_artifacts(run_id, path):
+        if item.is_dir:
+            found += _artifact_files(client, run_id, suffix, item.path)
+        elif item.path.endswith(suffix):
+            found.append(item.path)
+    return found
+
+
+def test_deps_are_exactly_the_code_each_stage_runs(pipeline):
+    """Every project file a stage imported is a dep, and every code dep was imported."""
+    for name, stage in dvc_yaml(pipeline.root)["stages"].items():
+        executed = set((pipeline.imports / f"{name}.txt").read_text().split())
+        deps = [d for d in declared(stage["deps"]) if d.split("/")[0] in ("nnsf", "flows")]
+        covered = set()
+        for dep in deps:
+            path = pipeline.root / dep
+            files = ({p.relative_to(pipeline.root).as_posix() for p in path.rglob("*.py")}
+                     if path.is_dir() else {dep})
+            assert files & executed, f"{name}: dep {dep} is never executed"
+            covered |= files
+        assert executed <= covered, f"{name}: executed but not in deps: {executed - covered}"
+
+
+def test_scheduled_deployment_runs_the_pipeline(pipeline):
+    """`python -m flows serve` registers a cron deployment; a run of it completes."""
+    env = dict(pipeline.env, PREFECT_RUNNER_POLL_FREQUENCY="2")
+    api = env["PREFECT_API_URL"]
+    serve = subprocess.Popen(FLOWS + ["serve", "--cron", "*/30 * * * *", "--name", "e2e"],
+                             cwd=pipeline.root, env=env, stdin=subprocess.DEVNULL,
+                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                             start_new_session=True)
+    try:
+        deployment = _wait_for(lambda: _deployment(api, "e2e"), 90, serve)
+        assert deployment["schedules"][0]["schedule"]["cron"] == "*/30 * * * *"
+        flow_run = _post(api, f"/deployments/{deployment['id']}/create_flow_run", {})
+        final = _wait_for(lambda: _final_state(api, flow_run["id"]), 240, serve)
+        assert final == "COMPLETED", final
+    finally:
+        os.killpg(serve.pid, signal.SIGTERM)
+        try:
+            serve.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            os.killpg(serve.pid, signal.SIGKILL)
+            serve.wait()
+
+
+def _post(api: str, path: str, body: dict):
+    request = urllib.request.Request(api + path, data=json.dumps(body).encode(),
+                                     headers={"Content-Type": "application/json"})
+    with urllib.request.urlopen(request, timeout=10) as response:
+        return json.loads(response.read())
+
+
+def _deployment(api: str, name: str):
+    found = _post(api, "/deployments/filter", {"deployments": {"name": {"any_": [name]}}})
+    return found[0] if found else None
+
+
+def _final_state(api: str, flow_run_id: str):
+    with urllib.request.urlopen(f"{api}/flow_runs/{flow_run_id}", timeout=10) as response:
+        state = json.loads(response.read())["state"]
+    return state["type"] if state and state["type"] in (
+        "COMPLETED", "FAILED", "CRASHED", "CANCELLED") else None
+
+
+def _wait_for(probe, seconds: float, proc: subprocess.Popen):
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        value = probe()
+        if value:
+            return value
+        if proc.poll() is not None:
+            pytest.fail(f"serve exited early:\n{proc.stdout.read()[-3000:]}")
+        time.sleep(1)
+    pytest.fail(f"timed out after {seconds} s")
+
+
+def test_changing_alpha_reruns_only_its_dependents(pipeline):
+    params = yaml.safe_load((pipeline.root / "params.yaml").read_text())
+    params["nnsf"]["alpha"] = 0.05
+    (pipeline.root / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    status = run(DVC + ["status", "--json"], pipeline.root, pipeline.env)
+    assert set(json.loads(status.stdout)) == {"factorize", "evaluate", "isomap"}
+    rerun = run(FLOWS + ["repro"], pipeline.root, pipeline.env, timeout=600)
+    assert rerun.returncode == 0, rerun.stdout[-3000:] + rerun.stderr[-3000:]
+    assert stages_run(rerun.stdout) == {"factorize", "evaluate", "isomap"}
