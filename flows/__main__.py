@@ -26,7 +26,9 @@ from pathlib import Path
 import flows  # noqa: F401  (telemetry switches, before any heavy import)
 from flows import project
 from flows.console import error_line, one_line
-from nnsf.errors import InputError
+
+# nnsf is imported only by the commands that run stages: importing it pulls in
+# scikit-learn (about 2 s), which a no-op `python -m flows repro` does not need.
 
 STAGES = ("data", "features", "factorize", "evaluate", "isomap", "sweep")
 USAGE = __doc__.split("Commands::", 1)[1].split("Exit codes", 1)[0].rstrip()
@@ -56,17 +58,24 @@ def main(argv: list[str] | None = None) -> int:
         error_line(f"command line: {command!r}: expected one of "
                    f"{', '.join(STAGES + ('repro', 'pipeline', 'serve'))}")
         return 2
-    except InputError as err:
-        error_line(str(err))
-        return 2
     except KeyboardInterrupt:
         error_line("interrupted")
         return 130
-    except Exception as err:  # a bug or an environment problem: one line unless debugging
+    except Exception as err:
+        if _is_input_error(err):
+            error_line(str(err))
+            return 2
+        # A bug or an environment problem: one line unless debugging.
         if os.environ.get("NNSF_DEBUG"):
             raise
         error_line(f"{command}: {one_line(err)} (set NNSF_DEBUG=1 for the traceback)")
         return 1
+
+
+def _is_input_error(err: BaseException) -> bool:
+    # Only code that imported nnsf.errors can have raised an InputError.
+    errors = sys.modules.get("nnsf.errors")
+    return errors is not None and isinstance(err, errors.InputError)
 
 
 def run_stage_command(stage: str, args: list[str]) -> int:
@@ -102,7 +111,7 @@ def run_stage_command(stage: str, args: list[str]) -> int:
     if state.is_completed():
         return 0
     exc = state.result(raise_on_failure=False)
-    if isinstance(exc, InputError):
+    if _is_input_error(exc):
         error_line(str(exc))
         return 2
     if isinstance(exc, BaseException):

@@ -25,10 +25,11 @@ from mlflow.tracking import MlflowClient
 
 from flows import project
 
-# MLflow gives its logger a stderr handler on import; move it to stdout so
-# stderr keeps only the one error line (see flows.console).
+# MLflow gives its logger a handler that writes to stderr ("Creating initial
+# MLflow database tables..."); move it to stdout so stderr keeps only the one
+# error line (see flows.console).
 for _handler in logging.getLogger("mlflow").handlers:
-    if isinstance(_handler, logging.StreamHandler) and _handler.stream is sys.stderr:
+    if isinstance(_handler, logging.StreamHandler):
         _handler.setStream(sys.stdout)
 
 #: MLflow's per-request limits for ``log_batch``.

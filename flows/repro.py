@@ -67,8 +67,8 @@ def main(args: list[str]) -> int:
         return subprocess.call(repro, cwd=root, env=env)  # a no-op: DVC says so itself
     signal.signal(signal.SIGTERM, _terminate_as_interrupt)
     home = Path(env["PREFECT_HOME"])
-    print(f"Starting a local Prefect server (PREFECT_HOME={home}) for: "
-          f"{', '.join(todo) if todo else 'dvc repro'}", flush=True)
+    what = f"stages {', '.join(todo)}" if todo else "the stages to run"
+    print(f"Starting a local Prefect server (PREFECT_HOME={home}) for {what}", flush=True)
     try:
         with prefect_server.running(home) as api_url:
             print(f"Prefect API {api_url}; dashboard {api_url.removesuffix('/api')} "

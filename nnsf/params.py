@@ -14,7 +14,7 @@ import yaml
 
 from nnsf.errors import InputError
 
-DATASETS = ("synthetic", "bvh", "frames")
+DATASETS = ("synthetic",)  # the frame-set and BVH sources extend this list
 INITS = ("random", "nndsvd", "nndsvda", "nndsvdar")
 METHODS = ("nnsf", "nnsc", "nmf", "bilinear")
 LABELS = ("motion", "character")
@@ -86,6 +86,17 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
 }
 
 
+class Params(dict):
+    """A params mapping that remembers the file it came from (for error messages)."""
+
+    source: str = "params.yaml"
+
+
+def source_of(params: dict) -> str:
+    """The file ``params`` was read from, or ``"params.yaml"``."""
+    return getattr(params, "source", "params.yaml")
+
+
 def get(params: dict, key: str):
     """Value at a dotted key, or ``KeyError``."""
     node = params
@@ -125,13 +136,15 @@ def load(path="params.yaml") -> dict:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}" if mark else "file"
         raise InputError(path, where, "valid YAML", getattr(exc, "problem", str(exc))) from None
-    return validate(params or {}, path)
+    out = Params(validate(params or {}, path))
+    out.source = str(path)
+    return out
 
 
-def require(params: dict, key: str, source="params.yaml"):
+def require(params: dict, key: str):
     """Value at ``key``, or an :class:`InputError` saying it is missing."""
     try:
         return get(params, key)
     except KeyError:
         what = SCHEMA.get(key, (None, "a value"))[1]
-        raise InputError(source, key, what + " (the field is missing)") from None
+        raise InputError(source_of(params), key, what + " (the field is missing)") from None

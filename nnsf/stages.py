@@ -4,17 +4,34 @@ Each stage takes the parsed ``params.yaml`` dict and explicit paths, writes
 its outputs atomically, and returns a :class:`StageResult` that the Prefect
 flows (``flows/``) log to MLflow.  The CLI (``nnsf <stage>``) calls the same
 functions.  Paths default to the layout of ``dvc.yaml``.
+
+A stage reads only the parameters dvc.yaml lists for it, so DVC's caching
+stays correct; bad parameters or inputs raise :class:`nnsf.errors.InputError`
+before anything is written.
 """
 from __future__ import annotations
 
+import itertools
+import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from nnsf.datasets import contract
+from nnsf.errors import InputError
+from nnsf.io import atomic_dir, read_json, read_npz, write_csv, write_json, write_npz
+from nnsf.params import require, source_of
+from nnsf.skeleton import N_FEATURES, Unifier, to_points
 
 # Default locations, mirrored exactly by dvc.yaml.
 RAW_DIR = Path("data/raw")               # keypoints.csv (pixels), characters.json (ground truth)
 FEATURES_DIR = Path("data/features")     # features.csv (unified, >= 0), unifier.json
 MODEL_PATH = Path("models/nnsf.npz")     # U, V, W, class names, objective history
 REPORTS = Path("reports")
+FEATURES_CSV = FEATURES_DIR / "features.csv"
 
 
 @dataclass
@@ -31,39 +48,336 @@ class StageResult:
     artifacts: list[Path] = field(default_factory=list)
 
 
+# ---------------------------------------------------------------- helpers
+def _nnsf_params(params: dict) -> dict:
+    """NNSF keyword arguments from the ``nnsf`` section (rank excluded)."""
+    return {
+        "alpha": float(require(params, "nnsf.alpha")),
+        "beta": float(require(params, "nnsf.beta")),
+        "class_in_loop": bool(require(params, "nnsf.class_in_loop")),
+        "tol": float(require(params, "nnsf.tol")),
+        "init": require(params, "nnsf.init"),
+    }
+
+
+def _check_rank(params: dict, rank: int, field_name: str) -> None:
+    if rank > N_FEATURES:
+        raise InputError(source_of(params), field_name,
+                         f"a rank of at most the number of features ({N_FEATURES})", rank)
+
+
+def _read_features(path) -> pd.DataFrame:
+    return contract.read_table(path, non_negative=True)
+
+
+def _label_column(params: dict) -> str:
+    return require(params, "nnsf.label")
+
+
+# ---------------------------------------------------------------- stages
 def data(params: dict, out_dir=RAW_DIR) -> StageResult:
-    """Produce the raw key-point table for ``dataset.name`` into ``out_dir``."""
-    raise NotImplementedError
+    """Produce the raw key-point table for ``dataset.name`` into ``out_dir``.
+
+    Writes ``keypoints.csv`` (the contract, pixel coordinates) and
+    ``characters.json`` (the generator's ground truth).
+    """
+    from nnsf.datasets import synthetic
+
+    name = require(params, "dataset.name")
+    if name != "synthetic":
+        raise InputError(source_of(params), "dataset.name", "synthetic", name)
+    seed = int(require(params, "seed"))
+    kw = {
+        "characters": int(require(params, "dataset.synthetic.characters")),
+        "clips_per_cell": int(require(params, "dataset.synthetic.clips_per_cell")),
+        "frames": int(require(params, "dataset.synthetic.frames")),
+        "noise_px": float(require(params, "dataset.synthetic.noise_px")),
+        "seed": seed,
+    }
+    table = contract.validate(synthetic.generate(**kw), "synthetic generator")
+    with atomic_dir(out_dir) as tmp:
+        contract.write_table(tmp / "keypoints.csv", table)
+        write_json(tmp / "characters.json", synthetic.describe(**kw))
+    return StageResult(
+        params={"dataset": name, **{f"synthetic_{k}": v for k, v in kw.items()}},
+        metrics={"frames": len(table), "clips": table["clip"].nunique(),
+                 "characters": table["character"].nunique(), "motions": table["motion"].nunique()},
+    )
 
 
 def features(params: dict, raw_dir=RAW_DIR, out_dir=FEATURES_DIR) -> StageResult:
-    """Unify raw key points to the template: ``features.csv`` and ``unifier.json``."""
-    raise NotImplementedError
+    """Unify raw key points to the template (SPEC §1, Eq. 4).
+
+    Writes ``features.csv`` (the contract in template units, every value ≥
+    ``unify.margin``) and ``unifier.json`` (per-character bone ratios, root
+    scale and the shared offset, enough to map features back to pixels).
+    """
+    margin = float(require(params, "unify.margin"))
+    raw = contract.read_table(Path(raw_dir) / "keypoints.csv")
+    points = to_points(contract.features(raw))
+    try:
+        unifier = Unifier(margin=margin).fit(points, raw["character"].to_numpy())
+    except ValueError as exc:
+        raise InputError(Path(raw_dir) / "keypoints.csv", "x1..y17", "a skeleton with non-zero bones",
+                         str(exc)) from None
+    X = unifier.transform(points, raw["character"].to_numpy())
+    table = raw.copy()
+    table.loc[:, list(contract.COLUMNS[4:])] = X
+    with atomic_dir(out_dir) as tmp:
+        contract.write_table(tmp / "features.csv", table)
+        write_json(tmp / "unifier.json", unifier.to_dict())
+    return StageResult(
+        params={"unify_margin": margin},
+        metrics={"frames": len(table), "feature_min": float(X.min()), "feature_max": float(X.max())},
+    )
 
 
-def factorize(params: dict, features_csv=FEATURES_DIR / "features.csv", model=MODEL_PATH,
-              reports=REPORTS) -> StageResult:
-    """Fit NNSF on all frames; write the model and ``reports/factorize.json``."""
-    raise NotImplementedError
+def factorize(params: dict, features_csv=FEATURES_CSV, model=MODEL_PATH, reports=REPORTS) -> StageResult:
+    """Fit NNSF on all frames, labelled by ``nnsf.label``.
+
+    Writes the model (``U``, ``V``, ``W``, classes, per-row labels, objective
+    history) as ``.npz``, ``reports/factorize.json`` and two figures: the
+    objective per iteration and the basis rows drawn as poses.
+    """
+    from nnsf.factor.figures import basis_figure, objective_figure
+    from nnsf.factor.nnsf import NNSF
+
+    rank = int(require(params, "nnsf.rank"))
+    _check_rank(params, rank, "nnsf.rank")
+    kw = _nnsf_params(params)
+    max_iter = int(require(params, "nnsf.max_iter"))
+    seed = int(require(params, "seed"))
+    label = _label_column(params)
+    table = _read_features(features_csv)
+    X = contract.features(table)
+    y = table[label].to_numpy()
+
+    started = time.perf_counter()
+    est = NNSF(rank, max_iter=max_iter, random_state=seed, **kw)
+    V = est.fit_weights(X, y)
+    seconds = time.perf_counter() - started
+    U, W = est.components_, est.class_map_
+    train_pred = est.classes_[np.argmax(V @ W, axis=1)]
+    metrics = {
+        "n_iter": est.n_iter_,
+        "objective": float(est.objective_[-1]),
+        "relative_error": est.reconstruction_err_ / float(np.linalg.norm(X)),
+        "train_precision": _macro_precision(y, train_pred),
+        "v_sparsity": float(np.mean(V < 1e-6 * V.max())),
+        "fit_seconds": round(seconds, 3),
+    }
+    write_npz(
+        model, U=U, V=V, W=W, classes=est.classes_.astype(str), objective=est.objective_,
+        clip=table["clip"].to_numpy(str), character=table["character"].to_numpy(str),
+        motion=table["motion"].to_numpy(str), label=np.array(label),
+    )
+    reports = Path(reports)
+    figs = [
+        objective_figure(est.objective_, reports / "figures" / "objective.png"),
+        basis_figure(U, V, reports / "figures" / "basis.png"),
+    ]
+    write_json(reports / "factorize.json", {"rank": rank, "label": label, **metrics})
+    return StageResult(
+        params={"rank": rank, "max_iter": max_iter, "seed": seed, "label": label, **kw},
+        metrics=metrics, artifacts=figs,
+    )
 
 
-def evaluate(params: dict, features_csv=FEATURES_DIR / "features.csv", reports=REPORTS) -> StageResult:
-    """10-fold grouped CV: precision vs rank for every method; metrics, plot data, figure."""
-    raise NotImplementedError
+def _macro_precision(y_true, y_pred) -> float:
+    from sklearn.metrics import precision_score
+    return float(precision_score(y_true, y_pred, average="macro", zero_division=0))
 
 
-def isomap(params: dict, model=MODEL_PATH, features_csv=FEATURES_DIR / "features.csv",
-           reports=REPORTS) -> StageResult:
-    """ISOMAP of V: residual-variance curve, intrinsic dimension, 3D embedding figure."""
-    raise NotImplementedError
+def evaluate(params: dict, features_csv=FEATURES_CSV, reports=REPORTS) -> StageResult:
+    """Grouped 10-fold CV: precision and reconstruction vs rank for every method.
+
+    Writes ``reports/metrics.json`` (DVC metrics), the fold table
+    ``reports/cv_folds.csv``, the summary ``reports/precision_vs_rank.csv``
+    (mean ± sd), plot data ``reports/plots/{precision,recon_error}_vs_rank.csv``
+    and the figures ``reports/figures/{precision,reconstruction}_vs_rank.png``.
+    """
+    from nnsf.evaluate.crossval import precision_vs_rank, summarise, wide
+    from nnsf.evaluate.figures import precision_vs_rank_figure, reconstruction_figure
+
+    ranks = [int(r) for r in require(params, "evaluate.ranks")]
+    for r in ranks:
+        _check_rank(params, r, "evaluate.ranks")
+    methods = list(require(params, "evaluate.methods"))
+    n_splits = int(require(params, "evaluate.folds"))
+    max_iter = int(require(params, "evaluate.max_iter"))
+    seed = int(require(params, "seed"))
+    label = _label_column(params)
+    kw = _nnsf_params(params)
+    nnsf_rank = int(require(params, "nnsf.rank"))
+    table = _read_features(features_csv)
+    X = contract.features(table)
+    y = table[label].to_numpy()
+    groups = table["clip"].to_numpy()
+    styles = table["character"].to_numpy()
+    try:
+        folds_table = precision_vs_rank(
+            X, y, groups, styles=styles, methods=methods, ranks=ranks, n_splits=n_splits,
+            seed=seed, max_iter=max_iter, nnsf_params=kw, n_jobs=2,
+        )
+    except ValueError as exc:
+        if "fold" in str(exc) or "clips" in str(exc):
+            raise InputError(source_of(params), "evaluate.folds", "at most the number of clips per class",
+                             str(exc)) from None
+        raise
+    summary = summarise(folds_table)
+    reports = Path(reports)
+    write_csv(reports / "cv_folds.csv", folds_table)
+    write_csv(reports / "precision_vs_rank.csv", summary)
+    write_csv(reports / "plots" / "precision_vs_rank.csv", wide(summary, "precision_mean"))
+    write_csv(reports / "plots" / "recon_error_vs_rank.csv", wide(summary, "recon_error_mean"))
+    chance = 1.0 / len(np.unique(y))
+    figs = [
+        precision_vs_rank_figure(
+            summary, reports / "figures" / "precision_vs_rank.png", chance=chance,
+            title=f"Held-out precision vs rank ({label} classes, {n_splits}-fold CV grouped by clip)"),
+        reconstruction_figure(summary, reports / "figures" / "reconstruction_vs_rank.png"),
+    ]
+    metrics = _evaluate_metrics(summary, nnsf_rank, label, n_splits, chance)
+    write_json(reports / "metrics.json", metrics)
+    flat = {f"{m}_{k}": v for m, d in metrics["methods"].items() for k, v in d.items()
+            if isinstance(v, (int, float))}
+    return StageResult(
+        params={"ranks": ",".join(map(str, ranks)), "methods": ",".join(methods), "folds": n_splits,
+                "max_iter": max_iter, "seed": seed, "label": label, "rank": nnsf_rank, **kw},
+        metrics=flat, artifacts=figs + [reports / "precision_vs_rank.csv"],
+    )
+
+
+def _evaluate_metrics(summary: pd.DataFrame, nnsf_rank: int, label: str, folds: int, chance: float) -> dict:
+    """metrics.json: per method the best precision and the values at ``nnsf.rank``."""
+    out = {"label": label, "folds": folds, "chance_precision": chance, "methods": {}}
+    for method, part in summary.groupby("method", sort=False):
+        part = part.sort_values("rank")
+        best = part.loc[part["precision_mean"].idxmax()]
+        entry = {
+            "best_precision": float(best["precision_mean"]),
+            "best_rank": int(best["rank"]),
+        }
+        at = part[part["rank"] == nnsf_rank]
+        if len(at):
+            entry["precision_at_rank"] = float(at["precision_mean"].iloc[0])
+            entry["precision_sd_at_rank"] = float(at["precision_sd"].iloc[0])
+            entry["recon_error_at_rank"] = float(at["recon_error_mean"].iloc[0])
+        for _, row in part.iterrows():
+            entry[f"precision_k{int(row['rank'])}"] = float(row["precision_mean"])
+        out["methods"][method] = entry
+    return out
+
+
+def isomap(params: dict, model=MODEL_PATH, features_csv=FEATURES_CSV, reports=REPORTS) -> StageResult:
+    """ISOMAP of V (the paper's Fig. 6): residual variance and intrinsic dimension.
+
+    Rows of V are sampled evenly over characters (``isomap.samples``; ISOMAP
+    needs O(n²) memory).  Writes ``reports/isomap.json``, the curve
+    ``reports/plots/isomap_residual.csv`` and ``reports/figures/isomap.png``
+    (3D embedding coloured by character, residual-variance curve).
+    """
+    from nnsf.evaluate.figures import isomap_figure
+    from nnsf.evaluate.isomap import intrinsic_dimension, residual_variance, stratified_sample
+
+    samples = int(require(params, "isomap.samples"))
+    neighbors = int(require(params, "isomap.neighbors"))
+    max_dim = int(require(params, "isomap.max_dim"))
+    seed = int(require(params, "seed"))
+    fitted = read_npz(model)
+    for key in ("V", "character"):
+        if key not in fitted:
+            raise InputError(model, key, "an array written by the factorize stage")
+    V, characters = fitted["V"], fitted["character"]
+    rows = stratified_sample(characters, samples, seed)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", UserWarning)
+        dims, rv, embedding = residual_variance(V[rows], n_neighbors=neighbors, max_dim=max_dim)
+    notes = [str(w.message) for w in caught if issubclass(w.category, UserWarning)]
+    dim = intrinsic_dimension(dims, rv)
+    reports = Path(reports)
+    write_csv(reports / "plots" / "isomap_residual.csv",
+              pd.DataFrame({"dim": dims, "residual_variance": rv}))
+    fig = isomap_figure(embedding[:, :3], characters[rows], dims, rv, dim,
+                        reports / "figures" / "isomap.png",
+                        title=f"ISOMAP of the NNSF weights V ({len(rows)} frames, rank {V.shape[1]})")
+    result = {
+        "intrinsic_dimension": int(dim),
+        "residual_variance_at_intrinsic": float(rv[dim - 1]),
+        "residual_variance_3d": float(rv[min(3, len(rv)) - 1]),
+        "samples": int(len(rows)),
+        "notes": notes,
+    }
+    write_json(reports / "isomap.json", result)
+    return StageResult(
+        params={"samples": samples, "neighbors": neighbors, "max_dim": max_dim, "seed": seed},
+        metrics={k: v for k, v in result.items() if not isinstance(v, list)}, artifacts=[fig],
+    )
 
 
 def sweep_grid(params: dict) -> list[dict]:
     """The α/β/rank points of ``sweep``: a list of ``{"alpha", "beta", "rank"}`` dicts."""
-    raise NotImplementedError
+    ranks = [int(r) for r in require(params, "sweep.rank")]
+    for r in ranks:
+        _check_rank(params, r, "sweep.rank")
+    return [
+        {"alpha": float(a), "beta": float(b), "rank": r}
+        for a, b, r in itertools.product(require(params, "sweep.alpha"), require(params, "sweep.beta"), ranks)
+    ]
 
 
-def sweep_point(params: dict, point: dict, features_csv=FEATURES_DIR / "features.csv",
-                figure_dir=None) -> StageResult:
-    """Cross-validate NNSF at one sweep point (``sweep.folds`` folds)."""
-    raise NotImplementedError
+def sweep_point(params: dict, point: dict, features_csv=FEATURES_CSV, figure_dir=None) -> StageResult:
+    """Cross-validate NNSF at one sweep point (``sweep.folds`` folds, grouped by clip).
+
+    Metrics: mean and sd over folds of held-out macro precision and relative
+    reconstruction error.  With ``figure_dir``, also draws the per-fold
+    precision and the basis of a fit on all frames at this point.
+    """
+    from nnsf.evaluate.crossval import precision_vs_rank
+
+    kw = _nnsf_params(params)
+    kw.update(alpha=float(point["alpha"]), beta=float(point["beta"]))
+    rank = int(point["rank"])
+    _check_rank(params, rank, "sweep.rank")
+    seed = int(require(params, "seed"))
+    n_splits = int(require(params, "sweep.folds"))
+    max_iter = int(require(params, "sweep.max_iter"))
+    label = _label_column(params)
+    table = _read_features(features_csv)
+    X = contract.features(table)
+    y = table[label].to_numpy()
+    folds_table = precision_vs_rank(
+        X, y, table["clip"].to_numpy(), methods=["nnsf"], ranks=[rank], n_splits=n_splits, seed=seed,
+        max_iter=max_iter, nnsf_params=kw, n_jobs=1,
+    )
+    prec = folds_table["precision"].to_numpy(float)
+    err = folds_table["recon_error"].to_numpy(float)
+    metrics = {
+        "precision_mean": float(prec.mean()), "precision_sd": float(prec.std(ddof=1)) if len(prec) > 1 else 0.0,
+        "recon_error_mean": float(err.mean()), "recon_error_sd": float(err.std(ddof=1)) if len(err) > 1 else 0.0,
+        "seconds": float(folds_table["seconds"].sum()),
+    }
+    artifacts = []
+    if figure_dir is not None:
+        from nnsf.factor.figures import fold_figure
+        name = f"sweep_a{kw['alpha']:g}_b{kw['beta']:g}_k{rank}.png"
+        artifacts.append(fold_figure(folds_table, Path(figure_dir) / name,
+                                     title=f"α = {kw['alpha']:g}, β = {kw['beta']:g}, rank {rank}"))
+    return StageResult(params={"alpha": kw["alpha"], "beta": kw["beta"], "rank": rank,
+                               "folds": n_splits, "max_iter": max_iter, "label": label},
+                       metrics=metrics, artifacts=artifacts)
+
+
+def read_model(path=MODEL_PATH) -> dict:
+    """The factorize stage's output as arrays (``U``, ``V``, ``W``, ``classes``, ...)."""
+    return read_npz(path)
+
+
+def read_unifier(features_dir=FEATURES_DIR) -> Unifier:
+    """The unifier fitted by the features stage."""
+    path = Path(features_dir) / "unifier.json"
+    d = read_json(path)
+    try:
+        return Unifier.from_dict(d)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(path, "characters", "a unifier written by the features stage", str(exc)) from None

@@ -13,6 +13,7 @@ import signal
 import subprocess
 import sys
 import time
+import urllib.error
 import urllib.request
 from pathlib import Path
 from types import SimpleNamespace
@@ -121,9 +122,12 @@ def test_plot_data_has_the_declared_columns(pipeline):
     shown = run(DVC + ["plots", "show", "--json"], pipeline.root, pipeline.env)
     assert shown.returncode == 0, shown.stderr
     rendered = json.loads(shown.stdout)
-    assert {"precision_vs_rank", "isomap_residual", "sweep"} <= set(rendered)
-    for plot in ("precision_vs_rank", "isomap_residual", "sweep"):
-        assert not rendered[plot][0].get("errors"), rendered[plot]
+    assert not rendered.get("errors"), rendered.get("errors")
+    plots = rendered["data"]
+    assert {"precision_vs_rank", "recon_error_vs_rank", "isomap_residual", "sweep"} <= set(plots)
+    for name in ("precision_vs_rank", "isomap_residual", "sweep"):
+        values = plots[name][0]["content"]["data"]["values"]
+        assert values, name
 
 
 def test_second_repro_is_a_noop_and_starts_no_server(pipeline):
@@ -216,7 +220,8 @@ def test_scheduled_deployment_runs_the_pipeline(pipeline):
     try:
         deployment = _wait_for(lambda: _deployment(api, "e2e"), 90, serve)
         assert deployment["schedules"][0]["schedule"]["cron"] == "*/30 * * * *"
-        flow_run = _post(api, f"/deployments/{deployment['id']}/create_flow_run", {})
+        flow_run = _wait_for(
+            lambda: _post(api, f"/deployments/{deployment['id']}/create_flow_run", {}), 60, serve)
         final = _wait_for(lambda: _final_state(api, flow_run["id"]), 240, serve)
         assert final == "COMPLETED", final
     finally:
@@ -248,9 +253,13 @@ def _final_state(api: str, flow_run_id: str):
 
 
 def _wait_for(probe, seconds: float, proc: subprocess.Popen):
+    """Call ``probe`` until it returns something truthy; a busy server (503) means "not yet"."""
     deadline = time.monotonic() + seconds
     while time.monotonic() < deadline:
-        value = probe()
+        try:
+            value = probe()
+        except (urllib.error.URLError, ConnectionError):  # HTTPError is a URLError
+            value = None
         if value:
             return value
         if proc.poll() is not None:
@@ -263,8 +272,10 @@ def test_changing_alpha_reruns_only_its_dependents(pipeline):
     params = yaml.safe_load((pipeline.root / "params.yaml").read_text())
     params["nnsf"]["alpha"] = 0.05
     (pipeline.root / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    # Directly out of date: the stages that read nnsf.alpha.  isomap follows
+    # because the model it reads changes; data, features and sweep stay.
     status = run(DVC + ["status", "--json"], pipeline.root, pipeline.env)
-    assert set(json.loads(status.stdout)) == {"factorize", "evaluate", "isomap"}
+    assert set(json.loads(status.stdout)) == {"factorize", "evaluate"}
     rerun = run(FLOWS + ["repro"], pipeline.root, pipeline.env, timeout=600)
     assert rerun.returncode == 0, rerun.stdout[-3000:] + rerun.stderr[-3000:]
     assert stages_run(rerun.stdout) == {"factorize", "evaluate", "isomap"}

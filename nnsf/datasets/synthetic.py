@@ -22,6 +22,7 @@ image plane.
 from __future__ import annotations
 
 import zlib
+from functools import lru_cache
 from typing import Iterable
 
 import numpy as np
@@ -68,7 +69,6 @@ _LO = np.array([LIMITS.get(c, (-np.inf, np.inf))[0] for c in CHANNELS])
 _HI = np.array([LIMITS.get(c, (-np.inf, np.inf))[1] for c in CHANNELS])
 _SIDE = np.array([1 if c.endswith("_r") else -1 if c.endswith("_l") else 0 for c in CHANNELS])
 _LIFT = CHANNEL_INDEX["lift"]
-_DX = CHANNEL_INDEX["dx"]
 
 
 def _stable_hash(text: str) -> int:
@@ -78,78 +78,98 @@ def _stable_hash(text: str) -> int:
 
 def clip_variation(motion_name: str, variation: int = 0, seed: int = 0) -> dict[str, float]:
     """The random changes of one clip: factors ``tempo`` and ``amplitude``,
-    ``phase`` (start, fraction of a loop) and posture offsets in degrees.
+    ``phase`` (start, fraction of a loop) and posture offsets in degrees
+    (``lean``, ``arm_carriage``, ``knee_bend``, ``head_tilt``).
 
-    Depends only on ``(seed, motion, variation)``, not on the character.
+    Depends only on ``(seed, motion, variation)``, not on the character, so
+    one variation of a motion has the same content for every character.
     """
     rng = np.random.default_rng([int(seed), _stable_hash(str(motion_name)), int(variation)])
     z = np.clip(rng.standard_normal(6), -2.0, 2.0)
     return {
-        "tempo": 1.0 + VARIATION["tempo"] * z[0],
-        "amplitude": 1.0 + VARIATION["amplitude"] * z[1],
+        "tempo": float(1.0 + VARIATION["tempo"] * z[0]),
+        "amplitude": float(1.0 + VARIATION["amplitude"] * z[1]),
         "phase": float(rng.uniform()),
-        "lean": VARIATION["lean"] * z[2],
-        "arm_carriage": VARIATION["arm_carriage"] * z[3],
-        "knee_bend": abs(VARIATION["knee_bend"] * z[4]),
-        "head_tilt": VARIATION["head_tilt"] * z[5],
+        "lean": float(VARIATION["lean"] * z[2]),
+        "arm_carriage": float(VARIATION["arm_carriage"] * z[3]),
+        "knee_bend": float(abs(VARIATION["knee_bend"] * z[4])),
+        "head_tilt": float(VARIATION["head_tilt"] * z[5]),
     }
 
 
-def pose_channels(character, motion_name, n_frames: int, variation: int = 0,
-                  seed: int = 0) -> np.ndarray:
-    """Styled pose channels of one clip, ``(n_frames, len(CHANNELS))``.
+@lru_cache(maxsize=4096)
+def _variation_arrays(motion_name: str, variations: tuple[int, ...], seed: int):
+    draws = [clip_variation(motion_name, v, seed) for v in variations]
+    return {k: np.array([d[k] for d in draws]) for k in draws[0]}
 
-    Angles come out in radians (flexion-positive, see
-    :mod:`~nnsf.datasets.synthetic_motions`), ``lift`` and ``dx`` in leg
-    lengths.  ``character`` and ``motion_name`` may be names or specs.
+
+@lru_cache(maxsize=256)
+def _motion_tables(spec: MotionSpec):
+    times, values = spec.key_table()
+    return times, values, spec.wind_vector(), spec.base_pose()
+
+
+def _group_vector(values: dict[str, float]) -> np.ndarray:
+    return np.array([values[CHANNEL_GROUP[c]] for c in CHANNELS])
+
+
+def pose_channels(character, motion_name, n_frames: int, variation=0,
+                  seed: int = 0) -> np.ndarray:
+    """Styled pose channels of a clip, ``(n_frames, len(CHANNELS))``.
+
+    ``variation`` may also be a sequence of V variations, giving
+    ``(V, n_frames, len(CHANNELS))``.  Angles come out in radians
+    (flexion-positive, see :mod:`~nnsf.datasets.synthetic_motions`),
+    ``lift`` and ``dx`` in leg lengths.  ``character`` and ``motion_name``
+    may be names or specs.
     """
-    character_spec = _character(character)
-    spec = motion(motion_name) if not isinstance(motion_name, MotionSpec) else motion_name
-    st: Style = character_spec.style
+    st: Style = _character(character).style
+    spec = motion_name if isinstance(motion_name, MotionSpec) else motion(motion_name)
+    single = np.ndim(variation) == 0
+    variations = (int(variation),) if single else tuple(int(v) for v in variation)
+    var = _variation_arrays(spec.name, variations, int(seed))
     if st.handedness == "left":
         spec = spec.mirrored()
-    var = clip_variation(spec.name, variation, seed)
+    times, values, wind, pivot = _motion_tables(spec)
+    n = int(n_frames)
 
-    # Loop phase of each frame; each joint group runs behind the legs by its lag.
+    # Loop phase of every frame, (V, n); each joint group runs behind the
+    # legs by its lag.
     period = FPS * spec.duration / (st.tempo * var["tempo"])
-    t = var["phase"] + np.arange(int(n_frames)) / period
-    lag = {"torso": st.lag_torso, "head": st.lag_head, "arms": st.lag_arms,
-           "forearms": st.lag_forearms, "legs": 0.0, "root": 0.0}
-    lags = np.array([lag[CHANNEL_GROUP[c]] for c in CHANNELS])
-    times, values = spec.key_table()
-    wind = spec.wind_vector()
-    ch = interpolate(times, values, wind, t[:, None] - lags[None, :], tension=st.tension,
-                     overshoot=st.overshoot, snap=st.snap, skew=st.skew)
+    t = var["phase"][:, None] + np.arange(n)[None, :] / period[:, None]
+    lags = _group_vector({"torso": st.lag_torso, "head": st.lag_head, "arms": st.lag_arms,
+                          "forearms": st.lag_forearms, "legs": 0.0, "root": 0.0})
+    phase = t.reshape(-1, 1) - lags[None, :]
+    ch = interpolate(times, values, wind, phase, tension=st.tension, overshoot=st.overshoot,
+                     snap=st.snap, skew=st.skew).reshape(len(variations), n, len(CHANNELS))
 
     # Exaggeration: scale deviations from the motion's base pose per joint
     # group and side (a bigger punch from the same guard).  A winding channel
     # keeps its full turn per loop, or the loop would not close.
-    group_amp = {"torso": st.amp_torso, "head": st.amp_torso, "arms": st.amp_arms,
-                 "forearms": st.amp_arms, "legs": st.amp_legs, "root": st.amp_root}
-    amp = np.array([group_amp[CHANNEL_GROUP[c]] for c in CHANNELS]) * var["amplitude"]
+    amp = _group_vector({"torso": st.amp_torso, "head": st.amp_torso, "arms": st.amp_arms,
+                         "forearms": st.amp_arms, "legs": st.amp_legs, "root": st.amp_root})
     amp = amp * (1.0 + st.asymmetry * _SIDE)
-    amp = np.where(wind != 0, 1.0, amp)
-    pivot = spec.base_pose()
-    ch = pivot + amp * (ch - pivot)
+    amp = np.where(wind != 0, 1.0, amp[None, :] * var["amplitude"][:, None])   # (V, C)
+    ch = pivot + amp[:, None, :] * (ch - pivot)
 
     # Posture: constant offsets of the character plus the clip's small ones.
-    offset = dict.fromkeys(CHANNELS, 0.0)
-    offset["lean"] = st.lean + var["lean"]
-    offset["hunch"] = st.hunch
-    offset["nod"] = st.head_tilt + var["head_tilt"]
+    offset = np.zeros((len(variations), len(CHANNELS)))
+    offset[:, CHANNEL_INDEX["lean"]] = st.lean + var["lean"]
+    offset[:, CHANNEL_INDEX["hunch"]] = st.hunch
+    offset[:, CHANNEL_INDEX["nod"]] = st.head_tilt + var["head_tilt"]
     for side, sign in (("r", 1.0), ("l", -1.0)):
-        offset[f"knee_{side}"] = st.knee_bend + var["knee_bend"]
-        offset[f"elb_{side}"] = st.elbow_bend
-        offset[f"sho_{side}"] = st.arm_carriage + var["arm_carriage"]
-        offset[f"hip_{side}"] = sign * st.stance / 2
-    ch = ch + np.array([offset[c] for c in CHANNELS])
+        offset[:, CHANNEL_INDEX[f"knee_{side}"]] = st.knee_bend + var["knee_bend"]
+        offset[:, CHANNEL_INDEX[f"elb_{side}"]] = st.elbow_bend
+        offset[:, CHANNEL_INDEX[f"sho_{side}"]] = st.arm_carriage + var["arm_carriage"]
+        offset[:, CHANNEL_INDEX[f"hip_{side}"]] = sign * st.stance / 2
+    ch = ch + offset[:, None, :]
 
     if spec.bounces and st.bounce:
         beat = 2 * np.pi * spec.bounces * t
-        ch[:, _LIFT] += st.bounce * st.amp_root * 0.5 * (1.0 - np.cos(beat))
+        ch[..., _LIFT] += st.bounce * st.amp_root * 0.5 * (1.0 - np.cos(beat))
     ch = np.where(wind != 0, ch, np.clip(ch, _LO, _HI))
-    ch[:, _ANGLES] = np.deg2rad(ch[:, _ANGLES])
-    return ch
+    ch[..., _ANGLES] = np.deg2rad(ch[..., _ANGLES])
+    return ch[0] if single else ch
 
 
 def _dir(alpha: np.ndarray) -> np.ndarray:
@@ -239,20 +259,32 @@ def clip_points(character, motion, n_frames: int, variation: int = 0, seed: int 
     """
     char = _character(character)
     spec = motion if isinstance(motion, MotionSpec) else _motion(motion)
-    if int(n_frames) < 1:
-        raise ValueError(f"n_frames must be >= 1, got {n_frames}")
-    if noise_px < 0:
-        raise ValueError(f"noise_px must be >= 0, got {noise_px}")
+    _check_sizes(n_frames, 1, noise_px)
     pts = forward_kinematics(char.proportions, pose_channels(char, spec, n_frames, variation, seed),
                              canvas)
-    if noise_px > 0:
-        rng = np.random.default_rng([int(seed), _stable_hash(char.name),
-                                     _stable_hash(spec.name), int(variation), 1])
-        pts = pts + rng.normal(0.0, noise_px, size=pts.shape)
-    return pts
+    return _jitter(pts, char, spec, variation, seed, noise_px)
+
+
+def _check_sizes(frames, clips, noise_px) -> None:
+    if int(frames) < 1 or int(clips) < 1:
+        raise ValueError(f"frames and clips must be >= 1, got {frames} and {clips}")
+    if not noise_px >= 0:
+        raise ValueError(f"noise_px must be >= 0, got {noise_px}")
+
+
+def _jitter(pts, char: CharacterSpec, spec: MotionSpec, variation: int, seed: int,
+            noise_px: float) -> np.ndarray:
+    # Own stream per (character, motion, variation): the same clip gets the
+    # same jitter whether it is made alone or inside generate().
+    if noise_px <= 0:
+        return pts
+    rng = np.random.default_rng([int(seed), _stable_hash(char.name), _stable_hash(spec.name),
+                                 int(variation), 1])
+    return pts + rng.normal(0.0, noise_px, size=pts.shape)
 
 
 def _motion(name) -> MotionSpec:
+    # clip_points's argument ``motion`` hides the module-level function.
     return motion(name)
 
 
@@ -261,7 +293,11 @@ def _select_characters(characters) -> tuple[CharacterSpec, ...]:
         if not 1 <= characters <= len(CHARACTERS):
             raise ValueError(f"characters must be between 1 and {len(CHARACTERS)}, got {characters}")
         return CHARACTERS[: int(characters)]
-    return tuple(_character(c) for c in characters)
+    chars = tuple(_character(c) for c in characters)
+    names = [c.name for c in chars]
+    if len(set(names)) != len(names) or not names:
+        raise ValueError(f"characters must be distinct and at least one, got {names}")
+    return chars
 
 
 def _select_motions(motions) -> tuple[MotionSpec, ...]:
@@ -282,17 +318,20 @@ def generate(characters: int | Iterable = 9, clips_per_cell: int = 4, frames: in
     """
     chars = _select_characters(characters)
     specs = _select_motions(motions)
-    if int(clips_per_cell) < 1 or int(frames) < 1:
-        raise ValueError("clips_per_cell and frames must be >= 1")
+    _check_sizes(frames, clips_per_cell, noise_px)
+    frames, variations = int(frames), tuple(range(int(clips_per_cell)))
     blocks, clip_ids, char_names, motion_names = [], [], [], []
     for ch in chars:
-        for spec in specs:
-            for v in range(int(clips_per_cell)):
-                blocks.append(clip_points(ch, spec, frames, v, seed, noise_px, canvas))
+        # One forward-kinematics pass per character over all its clips.
+        channels = np.stack([pose_channels(ch, spec, frames, variations, seed) for spec in specs])
+        pts = forward_kinematics(ch.proportions, channels.reshape(-1, len(CHANNELS)), canvas)
+        pts = pts.reshape(len(specs), len(variations), frames, N_JOINTS, 2)
+        for m, spec in enumerate(specs):
+            for v in variations:
+                blocks.append(_jitter(pts[m, v], ch, spec, v, seed, noise_px))
                 clip_ids.append(f"{ch.name}-{spec.name}-{v:02d}")
                 char_names.append(ch.name)
                 motion_names.append(spec.name)
-    frames = int(frames)
     coords = np.concatenate(blocks).reshape(-1, len(FEATURE_COLUMNS))
     table = pd.DataFrame(coords, columns=list(FEATURE_COLUMNS))
     labels = pd.DataFrame({
@@ -325,6 +364,15 @@ def describe(characters: int | Iterable = 9, clips_per_cell: int = 4, frames: in
         "fps": FPS,
         "margin_px": MARGIN,
         "ground_y": float(canvas[1] - GROUND_MARGIN * min(canvas) / 256.0),
+        "root_x": float(ROOT_X * canvas[0]),
+        "units": {
+            "points": "pixels, image axes (x right, y down)",
+            "proportions": "pixels at a 256 x 256 canvas (scaled by min(canvas) / 256)",
+            "angles": "degrees, flexion-positive, character facing +x",
+            "lift, dx, bounce": "fractions of the character's leg length",
+            "lags, key times": "fractions of a motion loop",
+            "duration_s": "seconds per loop at tempo 1",
+        },
         "joints": list(JOINTS),
         "label_columns": list(LABEL_COLUMNS),
         "clip_id": "{character}-{motion}-{variation:02d}",

@@ -164,7 +164,7 @@ CHARACTERS: tuple[CharacterSpec, ...] = (
         "olga", "tall elegant dancer: long legs, small head, proud upright flow",
         _p(46, 44, 23, 23, 12, 18, 32, 30, 7, 10, 10, 6, 8, 22),
         Style(tempo=0.9, tension=0.0, overshoot=0.1, snap=0.85, lag_head=0.05,
-              lag_arms=0.05, lag_forearms=0.1, amp_legs=1.1, amp_arms=0.8, amp_torso=0.7,
+              lag_arms=0.05, lag_forearms=0.1, amp_legs=1.1, amp_arms=0.8, amp_torso=0.85,
               amp_root=1.0, lean=-6, hunch=-10, head_tilt=-10, knee_bend=0, elbow_bend=4,
               arm_carriage=-6, stance=-3),
         Palette((150, 60, 160), (200, 120, 210), (245, 215, 200), (50, 20, 60)),
@@ -181,7 +181,7 @@ CHARACTERS: tuple[CharacterSpec, ...] = (
     CharacterSpec(
         "zed", "robot: stiff pose-to-pose moves that stop dead on every key, no drag",
         _p(36, 36, 22, 26, 10, 20, 30, 30, 10, 13, 12, 9, 11, 30),
-        Style(tempo=1.0, tension=1.0, snap=2.6, amp_legs=0.9, amp_arms=1.0, amp_torso=0.5,
+        Style(tempo=1.0, tension=1.0, snap=2.6, amp_legs=0.9, amp_arms=1.0, amp_torso=0.7,
               amp_root=0.7, lean=0, hunch=0, head_tilt=0, knee_bend=0, elbow_bend=0,
               arm_carriage=0),
         Palette((150, 160, 175), (100, 110, 125), (190, 200, 210), (20, 25, 35)),

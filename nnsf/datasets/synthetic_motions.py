@@ -22,7 +22,7 @@ the phase lag between joint groups and amplitudes; see
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 

@@ -161,7 +161,7 @@ def isomap_figure(embedding3d, labels, dims, rv, intrinsic_dim: int, path,
         Residual-variance curve from :func:`nnsf.evaluate.isomap.residual_variance`.
     intrinsic_dim : int
         Dimension to mark on the curve.
-    path : path of the image (PNG, 150 dpi, 13 × 5.5 inches).
+    path : path of the image (PNG, 150 dpi, 12 × 5.5 inches).
     label_name : str
         What the labels are, for the legend title.
     """
@@ -176,8 +176,8 @@ def isomap_figure(embedding3d, labels, dims, rv, intrinsic_dim: int, path,
     if dims.shape != rv.shape:
         raise ValueError(f"dims and rv must have the same shape, got {dims.shape} and {rv.shape}")
 
-    fig = _new_figure(13, 5.5)
-    grid = fig.add_gridspec(1, 2, width_ratios=[1.25, 1])
+    fig = _new_figure(12, 5.5)
+    grid = fig.add_gridspec(1, 2, width_ratios=[1.15, 1])
     ax3 = fig.add_subplot(grid[0, 0], projection="3d")
     names = list(dict.fromkeys(sorted(labels.tolist())))
     cmap = _categorical_colors(len(names))

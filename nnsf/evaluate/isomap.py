@@ -18,6 +18,7 @@ import numbers
 import warnings
 
 import numpy as np
+from scipy.sparse import SparseEfficiencyWarning
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial.distance import pdist
 from sklearn.manifold import Isomap
@@ -135,6 +136,8 @@ def residual_variance(V, n_neighbors: int = 10, max_dim: int = 40, disconnected:
     with warnings.catch_warnings():
         # Our own warning above already says what happened to the graph.
         warnings.filterwarnings("ignore", message=".*connected components.*")
+        # scikit-learn's bridging edits a CSR matrix in place; harmless at this size.
+        warnings.filterwarnings("ignore", category=SparseEfficiencyWarning)
         embedding = iso.fit_transform(V)
     geo = iso.dist_matrix_[np.triu_indices(n, 1)]
     dims = np.arange(1, D + 1)

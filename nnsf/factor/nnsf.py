@@ -211,7 +211,14 @@ class NNSF(TransformerMixin, BaseEstimator):
         self.n_iter_ = len(history) - 1
         self.objective_ = np.asarray(history)
         self.v_update_ = mode
-        self.class_map_ = None if labels is None else _class_map(V, labels, len(self.classes_), self.eps)
+        # The class map is fitted on the training rows encoded as new rows are
+        # (U fixed, no labels), so predict() applies it to weights of the same
+        # kind it was fitted on.  The map learned in the loop belongs to the
+        # label-informed V and mis-scores transform()ed rows at high rank.
+        self.class_map_ = None
+        if labels is not None:
+            encoded = weights_for_basis(X, U, alpha=float(self.alpha), max_iter=self.max_iter, tol=float(self.tol))
+            self.class_map_ = _class_map(encoded, labels, len(self.classes_), self.eps)
         self.reconstruction_err_ = float(np.linalg.norm(X - V @ U))
         return V
 
@@ -322,18 +329,19 @@ def _solve(X, V, U, labels, *, alpha, beta, max_iter, tol, v_update, eps):
     n, d = X.shape
     k = U.shape[0]
     use_class = beta > 0
-    Y = _one_hot(labels, int(labels.max()) + 1, X.dtype) if use_class else None
+    # Yᵀ as a sparse (r, n) matrix: VᵀY = (Yᵀ V)ᵀ, the class sums of V.
+    Yt = _one_hot(labels, int(labels.max()) + 1, X.dtype).T.tocsr() if use_class else None
     XX = float(np.vdot(X, X))
     mode = "split" if v_update == "auto" else v_update
     # Two n × k work buffers reused by every weight step: the update
     # allocates nothing of size n.
-    work = (np.empty_like(V), np.empty((n, 2 * k) if use_class else (n, k), dtype=X.dtype))
+    work = (np.empty_like(V), np.empty_like(V))
 
     VtV = V.T @ V
     VtX = V.T @ X
     W = VtY = None
     if use_class:
-        VtY = np.asarray((Y.T @ V).T)
+        VtY = np.asarray((Yt @ V).T)
         W = _class_map_from_grams(VtV, VtY, eps)
     history = [_objective(XX, VtV, VtX, U, float(V.sum()), alpha, beta, W, VtY, n)]
     step = 1.0 / max(float(np.linalg.eigvalsh(VtV)[-1]), np.finfo(float).tiny)
@@ -342,8 +350,8 @@ def _solve(X, V, U, labels, *, alpha, beta, max_iter, tol, v_update, eps):
         U, step = _basis_step(U, VtV, VtX, step)
         if use_class:
             W = _class_map_from_grams(VtV, VtY, eps)
-            _class_weight_step(X, V, U, Y, alpha, beta, W, mode, work)
-            VtY = np.asarray((Y.T @ V).T)
+            _class_weight_step(X, V, U, labels, alpha, beta, W, mode, work)
+            VtY = np.asarray((Yt @ V).T)
         else:
             weight_step(X, V, U, alpha, work)
         VtV = V.T @ V
@@ -380,7 +388,7 @@ def weight_step(X, V, U, alpha, work=None, XUt=None):
     V *= num
 
 
-def _class_weight_step(X, V, U, Y, alpha, beta, W, mode, work):
+def _class_weight_step(X, V, U, labels, alpha, beta, W, mode, work):
     """Multiplicative update of V in place with the class term (β > 0).
 
     "split" (SPEC §2):
@@ -388,10 +396,10 @@ def _class_weight_step(X, V, U, Y, alpha, beta, W, mode, work):
     "ssl" (Sha, Saul & Lee 2007), per row the quadratic ½vAvᵀ + bvᵀ with
     A = UUᵀ + βWWᵀ and b = α − XUᵀ − βYWᵀ:
         v ← v ⊙ (−b + sqrt(b² + 4(vA⁺)⊙(vA⁻))) ⊘ (2vA⁺).
-    Both products with V share one matrix multiply, V [P | N].
+    Y(·)ᵀ terms are row gathers by integer label.  ``work`` is a pair of
+    contiguous ``(n, k)`` buffers.
     """
-    k = V.shape[1]
-    num, both = work
+    num, den = work
     UUt = U @ U.T
     WWt = W @ W.T
     if mode == "ssl":
@@ -400,28 +408,31 @@ def _class_weight_step(X, V, U, Y, alpha, beta, W, mode, work):
     else:
         P = UUt + beta * np.maximum(WWt, 0)
         N = beta * np.maximum(-WWt, 0)
-    np.matmul(V, np.hstack([P, N]), out=both)
-    pos, neg = both[:, :k], both[:, k:]
     np.matmul(X, U.T, out=num)
     if mode == "ssl":
-        num += Y @ (beta * W.T)
-        np.subtract(alpha, num, out=num)  # b
-        neg *= pos
-        neg *= 4.0
-        neg += np.square(num)
-        np.sqrt(neg, out=neg)
-        neg -= num
+        num += (beta * W.T)[labels]
+        np.subtract(alpha, num, out=num)        # b
+        np.matmul(V, N, out=den)
+        pos = V @ P
+        den *= pos
+        den *= 4.0
+        den += np.square(num)
+        np.sqrt(den, out=den)
+        den -= num                              # −b + sqrt(b² + 4 (vA⁺)(vA⁻))
         pos *= 2.0
         np.maximum(pos, EPSILON, out=pos)
-        neg /= pos
-        V *= neg
+        den /= pos
+        V *= den
     else:
-        num += neg
-        num += Y @ (beta * np.maximum(W, 0).T)
-        pos += alpha
-        pos += Y @ (beta * np.maximum(-W, 0).T)
-        np.maximum(pos, EPSILON, out=pos)
-        num /= pos
+        np.matmul(V, N, out=den)
+        num += den
+        num += (beta * np.maximum(W, 0).T)[labels]
+        np.matmul(V, P, out=den)
+        den += (beta * np.maximum(-W, 0).T)[labels]
+        if alpha > 0:
+            den += alpha
+        np.maximum(den, EPSILON, out=den)
+        num /= den
         V *= num
 
 

@@ -7,8 +7,12 @@ X = W_char P + o, with W_char = D⁻¹ R D acting on the 17 points of a frame:
 * R scales every bone b by r_b = L_b(template) / median_t L_b(character), and
   the root by s, the ratio of the template's to the character's leg-plus-torso
   length, so a jump's height is unified along with the body;
-* o is one 2-vector added to every point, chosen when the unifier is fitted
-  so that every unified coordinate is at least ``margin`` above zero.
+* o is a 2-vector per character added to every point: o = c − s·m, with m the
+  character's median root position, so root *motion* is scaled about m (a
+  scaled absolute position would encode the body's size, where the character
+  stands on the canvas times s); c is shared by all characters and chosen when
+  the unifier is fitted so that every unified coordinate is at least
+  ``margin`` above zero.
 
 The inverse P = W_char⁻¹ (X − o) maps features, including synthesized ones,
 back onto a character's own proportions.
@@ -39,11 +43,13 @@ def difference_operator() -> np.ndarray:
 class CharacterScale:
     """Per-character unification factors.
 
-    ``bone_ratio`` is r_b, shape ``(16,)``; ``root_scale`` is s.
+    ``bone_ratio`` is r_b, shape ``(16,)``; ``root_scale`` is s;
+    ``root_ref`` is m, the median root position ``(2,)`` in pixels.
     """
 
     bone_ratio: np.ndarray
     root_scale: float
+    root_ref: np.ndarray = field(default_factory=lambda: np.zeros(2))
 
     def matrix(self) -> np.ndarray:
         """W_char = D⁻¹ R D, ``(17, 17)``."""
@@ -69,7 +75,8 @@ def character_scale(points: np.ndarray) -> CharacterScale:
         raise ValueError(f"bone {BONE_NAMES[bad[0]]} has zero median length")
     ratio = TEMPLATE_BONE_LENGTHS / lengths
     scale = TEMPLATE_BONE_LENGTHS[_SCALE_BONES].sum() / lengths[_SCALE_BONES].sum()
-    return CharacterScale(bone_ratio=ratio, root_scale=float(scale))
+    return CharacterScale(bone_ratio=ratio, root_scale=float(scale),
+                          root_ref=np.median(points[:, 0, :], axis=0))
 
 
 @dataclass
@@ -104,7 +111,8 @@ class Unifier:
             if c not in self.scales:
                 raise KeyError(c)
             rows = characters == c
-            out[rows] = np.einsum("ij,njc->nic", self.scales[c].matrix(), points[rows])
+            sc = self.scales[c]
+            out[rows] = np.einsum("ij,njc->nic", sc.matrix(), points[rows]) - sc.root_scale * sc.root_ref
         return out
 
     def transform(self, points: np.ndarray, characters) -> np.ndarray:
@@ -130,8 +138,9 @@ class Unifier:
         """Unified features ``(n, 34)`` -> pixel points ``(n, 17, 2)`` of ``character``."""
         if character not in self.scales:
             raise ValueError(f"unknown character {character!r}; fitted on {sorted(self.scales)}")
-        P = to_points(features) - self.offset
-        return np.einsum("ij,njc->nic", self.scales[character].inverse_matrix(), P)
+        sc = self.scales[character]
+        P = to_points(features) - self.offset + sc.root_scale * sc.root_ref
+        return np.einsum("ij,njc->nic", sc.inverse_matrix(), P)
 
     def to_dict(self) -> dict:
         """JSON-ready description (round-trips through :meth:`from_dict`)."""
@@ -140,7 +149,8 @@ class Unifier:
             "offset": self.offset.tolist(),
             "bones": list(BONE_NAMES),
             "characters": {
-                c: {"bone_ratio": s.bone_ratio.tolist(), "root_scale": s.root_scale}
+                c: {"bone_ratio": s.bone_ratio.tolist(), "root_scale": s.root_scale,
+                    "root_ref": s.root_ref.tolist()}
                 for c, s in sorted(self.scales.items())
             },
         }
@@ -151,7 +161,8 @@ class Unifier:
             margin=float(d["margin"]),
             offset=np.asarray(d["offset"], dtype=float),
             scales={
-                c: CharacterScale(np.asarray(v["bone_ratio"], dtype=float), float(v["root_scale"]))
+                c: CharacterScale(np.asarray(v["bone_ratio"], dtype=float), float(v["root_scale"]),
+                                  np.asarray(v["root_ref"], dtype=float))
                 for c, v in d["characters"].items()
             },
         )
