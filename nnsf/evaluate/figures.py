@@ -30,13 +30,13 @@ METHOD_STYLE: dict[str, dict] = {
 }
 
 
-def _new_figure(width, height):
+def new_figure(width, height):
     fig = Figure(figsize=(width, height), dpi=DPI, layout="constrained")
     FigureCanvasAgg(fig)
     return fig
 
 
-def _save(fig, path) -> Path:
+def save_figure(fig, path) -> Path:
     path = Path(path)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=DPI, format=path.suffix.lstrip(".") or "png")
@@ -54,7 +54,7 @@ def _per_rank_figure(summary, value, path, title, ylabel, ylim=None, log=False, 
     missing = [c for c in need if c not in summary]
     if missing:
         raise ValueError(f"summary lacks column(s) {missing}; build it with crossval.summarise()")
-    fig = _new_figure(8, 5)
+    fig = new_figure(8, 5)
     ax = fig.add_subplot()
     methods = list(dict.fromkeys(summary["method"]))
     clipped_any = False
@@ -109,7 +109,7 @@ def _per_rank_figure(summary, value, path, title, ylabel, ylim=None, log=False, 
     ax.grid(True, which="major", alpha=0.35)
     # Below the axes, so it never hides a curve and the plot keeps the full width.
     fig.legend(handles, labels, loc="outside lower center", ncols=3, fontsize=9.5, frameon=False)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def precision_vs_rank_figure(summary: pd.DataFrame, path, title: str = "Held-out precision vs rank",
@@ -176,7 +176,7 @@ def isomap_figure(embedding3d, labels, dims, rv, intrinsic_dim: int, path,
     if dims.shape != rv.shape:
         raise ValueError(f"dims and rv must have the same shape, got {dims.shape} and {rv.shape}")
 
-    fig = _new_figure(12, 5.5)
+    fig = new_figure(12, 5.5)
     grid = fig.add_gridspec(1, 2, width_ratios=[1.15, 1])
     ax3 = fig.add_subplot(grid[0, 0], projection="3d")
     names = list(dict.fromkeys(sorted(labels.tolist())))
@@ -211,7 +211,7 @@ def isomap_figure(embedding3d, labels, dims, rv, intrinsic_dim: int, path,
     ax.grid(True, alpha=0.35)
     ax.legend(loc="upper right", fontsize=10)
     fig.suptitle(title, fontsize=13)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def _categorical_colors(n):

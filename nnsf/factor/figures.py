@@ -5,40 +5,29 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
 
-from nnsf.io import atomic_path
+from nnsf.evaluate.figures import new_figure, save_figure
 from nnsf.skeleton import BONES, to_points
-
-DPI = 150
-
-
-def _figure(w, h):
-    fig = Figure(figsize=(w, h), dpi=DPI, layout="constrained")
-    FigureCanvasAgg(fig)
-    return fig
-
-
-def _save(fig, path) -> Path:
-    path = Path(path)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=DPI, format="png")
-    return path
 
 
 def objective_figure(objective, path) -> Path:
-    """Objective C per iteration (log scale), ``objective`` of shape ``(n_iter + 1,)``."""
+    """Objective C per iteration (log scale), ``objective`` of shape ``(n_iter + 1,)``.
+
+    The value at the initialisation is given in the title but not drawn: the
+    NNDSVD-type starts overshoot X by orders of magnitude, which would flatten
+    the rest of the curve.
+    """
     objective = np.asarray(objective, dtype=float)
-    fig = _figure(7, 4)
+    fig = new_figure(7, 4)
     ax = fig.add_subplot()
-    ax.semilogy(np.arange(len(objective)), objective, color="#d62728", linewidth=1.8)
+    start = 1 if len(objective) > 2 else 0
+    ax.semilogy(np.arange(start, len(objective)), objective[start:], color="#d62728", linewidth=1.8)
     ax.set_xlabel("iteration", fontsize=11)
     ax.set_ylabel("objective C (log scale)", fontsize=11)
-    ax.set_title(f"NNSF objective: {objective[0]:.4g} → {objective[-1]:.4g} in {len(objective) - 1} iterations",
-                 fontsize=12)
+    ax.set_title(f"NNSF objective: {objective[0]:.3g} at init → {objective[-1]:.4g} "
+                 f"after {len(objective) - 1} iterations", fontsize=12)
     ax.grid(True, which="both", alpha=0.3)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def basis_figure(U, V, path, per_row: int = 8) -> Path:
@@ -58,7 +47,7 @@ def basis_figure(U, V, path, per_row: int = 8) -> Path:
     share = V.sum(axis=0) / max(V.sum(), 1e-300)
     cols = min(per_row, k)
     rows = int(np.ceil(k / cols))
-    fig = _figure(1.6 * cols + 0.4, 2.1 * rows + 0.6)
+    fig = new_figure(1.6 * cols + 0.4, 2.1 * rows + 0.6)
     pts = to_points(U * scale[:, None])
     strong = U.reshape(k, -1, 2).max(axis=2) > 0.05 * U.max(axis=1, keepdims=True)
     spans = [np.ptp(pts[i][strong[i]], axis=0).max() if strong[i].any() else 0.0 for i in range(k)]
@@ -81,13 +70,13 @@ def basis_figure(U, V, path, per_row: int = 8) -> Path:
     fig.suptitle("NNSF style basis U: each row as the pose it adds (× its 95th-percentile weight; "
                  "one scale for all panels)",
                  fontsize=11)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def fold_figure(folds_table: pd.DataFrame, path, title: str) -> Path:
     """Held-out precision and reconstruction error per fold of one sweep point."""
     t = folds_table.sort_values("fold")
-    fig = _figure(7, 3.6)
+    fig = new_figure(7, 3.6)
     ax = fig.add_subplot(1, 2, 1)
     ax.bar(t["fold"] + 1, t["precision"], color="#d62728")
     ax.axhline(t["precision"].mean(), color="0.2", linestyle="--", linewidth=1,
@@ -101,4 +90,4 @@ def fold_figure(folds_table: pd.DataFrame, path, title: str) -> Path:
     ax2.set_xlabel("fold")
     ax2.set_ylabel("held-out ‖X − VU‖ / ‖X‖")
     fig.suptitle(title, fontsize=11)
-    return _save(fig, path)
+    return save_figure(fig, path)
