@@ -1,0 +1,1 @@
+"""Evaluation: grouped cross-validation of precision vs rank, ISOMAP diagnostics, figures."""
