@@ -18,7 +18,6 @@ the traceback), 130 interrupted.
 from __future__ import annotations
 
 import argparse
-import atexit
 import os
 import sys
 from pathlib import Path
@@ -85,7 +84,6 @@ def run_stage_command(stage: str, args: list[str]) -> int:
     opts = parser.parse_args(args)
     root = project.root()
     os.chdir(root)  # nnsf.stages' default paths are relative to the project root
-    _record_imports_on_exit(stage, root)
 
     # Cheap checks first: a wrong params.yaml costs no Prefect start-up.
     from nnsf.params import load, require
@@ -109,6 +107,7 @@ def run_stage_command(stage: str, args: list[str]) -> int:
         state = FLOWS[stage](params, return_state=True)
 
     if state.is_completed():
+        _record_imports(stage, root)
         return 0
     exc = state.result(raise_on_failure=False)
     if _is_input_error(exc):
@@ -124,34 +123,31 @@ def run_stage_command(stage: str, args: list[str]) -> int:
     return 1
 
 
-def _record_imports_on_exit(stage: str, root: Path) -> None:
+def _record_imports(stage: str, root: Path) -> None:
     """If ``NNSF_RECORD_IMPORTS`` names a folder, write the project files this stage ran.
 
-    One line per module file under the project root, to ``<folder>/<stage>.txt``.
-    The pipeline test compares them with the stage's deps in dvc.yaml, which
-    keeps DVC's view of "what this stage depends on" exact.
+    One line per module file under the project root, to ``<folder>/<stage>.txt``,
+    after a completed run only (a run stopped by bad input imports less).  The
+    pipeline test compares them with the stage's deps in dvc.yaml, which keeps
+    DVC's view of "what this stage depends on" exact.
     """
     folder = os.environ.get("NNSF_RECORD_IMPORTS")
     if not folder:
         return
-
-    def write():
-        files = set()
-        for module in list(sys.modules.values()):
-            path = getattr(module, "__file__", None)
-            if not path:
-                continue
-            try:
-                rel = Path(path).resolve().relative_to(root)
-            except ValueError:
-                continue
-            if rel.parts[0] in ("nnsf", "flows"):
-                files.add(rel.as_posix())
-        out = Path(folder)
-        out.mkdir(parents=True, exist_ok=True)
-        (out / f"{stage}.txt").write_text("".join(f"{f}\n" for f in sorted(files)))
-
-    atexit.register(write)
+    files = set()
+    for module in list(sys.modules.values()):
+        path = getattr(module, "__file__", None)
+        if not path:
+            continue
+        try:
+            rel = Path(path).resolve().relative_to(root)
+        except ValueError:
+            continue
+        if rel.parts[0] in ("nnsf", "flows"):
+            files.add(rel.as_posix())
+    out = Path(folder)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{stage}.txt").write_text("".join(f"{f}\n" for f in sorted(files)))
 
 
 if __name__ == "__main__":

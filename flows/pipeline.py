@@ -33,7 +33,14 @@ _PREFECT_LINE = re.compile(r"^\d\d:\d\d:\d\d\.\d{3} \| ")
 
 
 class StageInputError(InputError):
-    """A stage rejected its input; re-running it cannot help."""
+    """A stage rejected its input; re-running it cannot help.
+
+    Its message is the stage's own one-line error, unchanged.
+    """
+
+    def __init__(self, stage: str, message: str):
+        ValueError.__init__(self, message)
+        self.source, self.field, self.expected, self.got = "dvc repro", stage, message, None
 
 
 def _no_retry_on_bad_input(task, task_run, state) -> bool:
@@ -82,7 +89,7 @@ def dvc_repro(root: str, args: list[str]) -> list[str]:
     if proc.wait() != 0:
         message = "; ".join(errors) or "see the log above"
         if bad_input:
-            raise StageInputError("dvc repro", ran[-1] if ran else "stage", "valid input", message)
+            raise StageInputError(ran[-1] if ran else "dvc repro", message)
         raise RuntimeError(f"dvc repro failed: {message}")
     return ran
 

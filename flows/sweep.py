@@ -134,8 +134,16 @@ def _one_blas_thread_per_worker():
         yield
 
 
+#: Metrics that vary from run to run with the same inputs.
+VOLATILE_METRICS = ("metrics.seconds", "metrics.stage_seconds")
+
+
 def _comparison_table(runs: pd.DataFrame, expected: int) -> pd.DataFrame:
-    """One row per point: α, β, rank, every metric, run id; sorted by the point."""
+    """One row per point: α, β, rank and every metric; sorted by the point.
+
+    Run ids and wall times are left out: the table is a versioned output whose
+    hash must depend on the inputs only (the MLflow runs keep both).
+    """
     if len(runs) != expected:
         raise RuntimeError(f"MLflow returned {len(runs)} nested sweep runs, expected {expected}")
     table = pd.DataFrame({
@@ -143,10 +151,10 @@ def _comparison_table(runs: pd.DataFrame, expected: int) -> pd.DataFrame:
         "beta": runs["params.beta"].astype(float),
         "rank": runs["params.rank"].astype(int),
     })
-    metric_cols = sorted(c for c in runs.columns if c.startswith("metrics."))
+    metric_cols = sorted(c for c in runs.columns
+                         if c.startswith("metrics.") and c not in VOLATILE_METRICS)
     for col in metric_cols:
         table[col.removeprefix("metrics.")] = runs[col].astype(float)
-    table["run_id"] = runs["run_id"]
     return table.sort_values(list(POINT), kind="stable").reset_index(drop=True)
 
 

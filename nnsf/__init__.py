@@ -4,7 +4,15 @@ The library part of the project: pure functions and scikit-learn estimators.
 It imports none of the orchestration or experiment-tracking tools; those live
 in the top-level ``flows`` package.
 """
-from nnsf.factor.nnsf import NNSF
-
 __version__ = "0.1.0"
 __all__ = ["NNSF", "__version__"]
+
+
+def __getattr__(name):
+    # Lazy: `import nnsf.params` (checked before every stage) should not pay
+    # for importing scikit-learn.
+    if name == "NNSF":
+        from nnsf.factor.nnsf import NNSF
+
+        return NNSF
+    raise AttributeError(f"module 'nnsf' has no attribute {name!r}")

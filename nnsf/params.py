@@ -29,6 +29,11 @@ def _int(lo=None, hi=None):
     return check, f"an integer{rng}"
 
 
+def _rank():
+    check, _ = _int(1, 34)
+    return check, "an integer from 1 to 34 (a rank cannot exceed the 34 features)"
+
+
 def _num(lo=None, strict=False):
     def check(v):
         ok = isinstance(v, numbers.Real) and not isinstance(v, bool)
@@ -51,7 +56,7 @@ def _str():
 def _list(item):
     check, what = item
     return (lambda v: isinstance(v, list) and len(v) > 0 and all(check(x) for x in v)), \
-        f"a non-empty list of {what.replace('an ', '').replace('a ', '')}s"
+        f"a non-empty list, each item {what}"
 
 
 SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
@@ -63,7 +68,7 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "dataset.synthetic.noise_px": _num(0),
     "unify.margin": _num(0, strict=True),
     "nnsf.label": _choice(LABELS),
-    "nnsf.rank": _int(1),
+    "nnsf.rank": _rank(),
     "nnsf.alpha": _num(0),
     "nnsf.beta": _num(0),
     "nnsf.class_in_loop": _bool(),
@@ -71,7 +76,7 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "nnsf.tol": _num(0),
     "nnsf.init": _choice(INITS),
     "evaluate.folds": _int(2),
-    "evaluate.ranks": _list(_int(1)),
+    "evaluate.ranks": _list(_rank()),
     "evaluate.methods": _list(_choice(METHODS)),
     "evaluate.max_iter": _int(1),
     "isomap.samples": _int(20),
@@ -80,7 +85,7 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "sweep.folds": _int(2),
     "sweep.alpha": _list(_num(0)),
     "sweep.beta": _list(_num(0)),
-    "sweep.rank": _list(_int(1)),
+    "sweep.rank": _list(_rank()),
     "sweep.max_iter": _int(1),
     "mlflow.experiment": _str(),
 }
