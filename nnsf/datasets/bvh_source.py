@@ -1,0 +1,337 @@
+"""A folder of BVH clips -> the feature-matrix contract table, with labels.
+
+Each clip goes BVH -> forward kinematics -> the 17 key points in 3D
+(:mod:`~nnsf.datasets.bvh_skeletons`) -> resampled to ``fps`` -> projected to
+2D (:func:`nnsf.datasets.bvh.project`).  Rows are ``clip, frame, character,
+motion, x1, y1 … x17, y17`` with ``clip`` = file stem, ``character`` = the
+style and ``motion`` = the content (styles play the paper's characters).
+Coordinates are in the BVH's own units times ``scale`` (Bandai-Namco:
+centimetres), image axes x right, y down, origin at the root's (smoothed)
+ground position when ``center`` is on; the template unifier normalises body
+size and makes them non-negative later.
+
+Labels come from a JSON label file beside the clip (``<stem>.json``) when
+there is one, else from the file name ``{dataset}_{motion}_{style}_{id}.bvh``.
+A JSON label holds ``content`` and ``style`` (or ``motion`` and
+``character``), each a name or a 0-based index into the label lists
+``cfg/content_label.txt`` / ``cfg/style_label.txt`` found in the folder or
+its parent (entries like ``dataset-1_walk`` lose their ``dataset-1_``
+prefix).  It may name its motion file with ``"bvh": "relative/path.bvh"``;
+such paths must stay inside the folder given.
+
+Problems never stop the whole folder: a bad or unlabelled clip, a label file
+whose BVH is missing (Bandai-Namco's ``dance-long``) or a style seen in only
+one motion each become a line of the returned ``report`` and the rest is read.
+"""
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from nnsf.datasets.bvh import (
+    detect_up_axis, forward_kinematics, project, read_bvh, resample, up_rotation,
+)
+from nnsf.datasets.bvh_skeletons import FAMILIES, SkeletonFamily, detect_family, keypoints_3d
+from nnsf.datasets.contract import validate
+from nnsf.errors import InputError
+from nnsf.skeleton.layout import FEATURE_COLUMNS, JOINT_INDEX, N_JOINTS
+
+__all__ = [
+    "NAME_PATTERN", "DEPTH_COLUMNS", "FACING_PAIRS", "BVHClip", "ClipLabels", "LabelLists",
+    "load_clip", "label_lists", "labels_from_name", "labels_from_json", "read_folder",
+]
+
+#: ``{dataset}_{motion}_{style}_{id}``; motions and styles may contain '-' but not '_'.
+NAME_PATTERN = re.compile(r"^(?P<dataset>[^_]+)_(?P<motion>[^_]+)_(?P<style>[^_]+)_(?P<id>\d+)$")
+
+#: Depth columns added by ``read_folder(..., depth=True)`` (outside the contract).
+DEPTH_COLUMNS: tuple[str, ...] = tuple(f"z{j + 1}" for j in range(N_JOINTS))
+
+#: Left/right key-point pairs whose (left - right) x up gives the facing
+#: direction for facing normalisation: the hips and the shoulders.
+FACING_PAIRS = (JOINT_INDEX["l_hip"], JOINT_INDEX["r_hip"],
+                JOINT_INDEX["l_shoulder"], JOINT_INDEX["r_shoulder"])
+
+
+@dataclass
+class ClipLabels:
+    """Labels of one clip: ``motion`` (content) and ``style`` (the character)."""
+
+    motion: str
+    style: str
+    origin: str  # "name" or the JSON file it came from
+
+
+@dataclass
+class BVHClip:
+    """One projected clip.
+
+    points : ``(F, 17, 2)`` image coordinates (x right, y down), BVH units x scale.
+    depth : ``(F, 17)`` camera-space depth, larger is farther (same units).
+    points3d : ``(F, 17, 3)`` key points in Y-up world axes before projection.
+    fps : frame rate of the rows; ``source_fps``: the file's.
+    family : skeleton family used; ``up``: the file's detected up axis.
+    """
+
+    name: str
+    path: Path
+    points: np.ndarray
+    depth: np.ndarray
+    points3d: np.ndarray
+    fps: float
+    source_fps: float
+    family: str
+    up: str
+    yaw: np.ndarray = field(repr=False, default=None)
+
+
+@dataclass
+class LabelLists:
+    """Index -> name lists from ``cfg/content_label.txt`` and ``cfg/style_label.txt``."""
+
+    contents: list[str]
+    styles: list[str]
+    source: str = ""
+
+
+def _strip_dataset(label: str) -> str:
+    # "dataset-1_walk-back" -> "walk-back"
+    return label.split("_", 1)[1] if "_" in label else label
+
+
+def label_lists(folder) -> LabelLists | None:
+    """The label lists of a dataset folder (its ``cfg/`` or its parent's), or None."""
+    folder = Path(folder)
+    for base in (folder, folder.parent):
+        c, s = base / "cfg" / "content_label.txt", base / "cfg" / "style_label.txt"
+        if c.is_file() and s.is_file():
+            read = lambda p: [_strip_dataset(l.strip()) for l in p.read_text().splitlines() if l.strip()]
+            return LabelLists(read(c), read(s), str(base / "cfg"))
+    return None
+
+
+def labels_from_name(path) -> ClipLabels:
+    """Labels from ``{dataset}_{motion}_{style}_{id}.bvh``; InputError otherwise."""
+    path = Path(path)
+    m = NAME_PATTERN.match(path.stem)
+    if m is None:
+        raise InputError(path, "file name", "{dataset}_{motion}_{style}_{id}.bvh (e.g. "
+                         "dataset-1_walk_happy_001.bvh) or a <stem>.json label beside it", path.name)
+    return ClipLabels(m.group("motion"), m.group("style"), "name")
+
+
+def _inside(root: Path, p: Path) -> bool:
+    try:
+        p.resolve().relative_to(root.resolve())
+        return True
+    except ValueError:
+        return False
+
+
+def labels_from_json(path, root, lists: LabelLists | None) -> tuple[ClipLabels, Path]:
+    """Labels and motion file of a JSON label; InputError names file and field.
+
+    The motion file is ``"bvh"`` (or ``"file"``) relative to the JSON's folder,
+    else ``<stem>.bvh``; it must lie inside ``root``.
+    """
+    path = Path(path)
+    try:
+        obj = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(path, f"line {getattr(exc, 'lineno', 1)}", "a JSON label object") from None
+    if not isinstance(obj, dict):
+        raise InputError(path, "top level", "a JSON object", type(obj).__name__)
+
+    def pick(keys, names, what):
+        key = next((k for k in keys if k in obj), None)
+        if key is None:
+            raise InputError(path, "/".join(keys), f"a {what} label")
+        v = obj[key]
+        if isinstance(v, bool):
+            raise InputError(path, key, f"a {what} name or index", v)
+        if isinstance(v, int):
+            if names is None:
+                raise InputError(path, key, f"a {what} name (no cfg/ label lists found to look "
+                                 "up an index)", v)
+            if not 0 <= v < len(names):
+                raise InputError(path, key, f"an index 0..{len(names) - 1} into the {what} list", v)
+            return names[v]
+        if isinstance(v, str) and v.strip():
+            return _strip_dataset(v.strip()) if v.startswith("dataset-") else v.strip()
+        raise InputError(path, key, f"a {what} name or index", v)
+
+    motion = pick(("content", "motion"), lists.contents if lists else None, "content/motion")
+    style = pick(("style", "character"), lists.styles if lists else None, "style/character")
+    ref = obj.get("bvh", obj.get("file"))
+    if ref is None:
+        bvh = path.with_suffix(".bvh")
+    else:
+        if not isinstance(ref, str) or not ref.strip():
+            raise InputError(path, "bvh", "a relative path to the clip's .bvh file", ref)
+        bvh = path.parent / ref
+        if Path(ref).is_absolute() or not _inside(root, bvh):
+            raise InputError(path, "bvh", f"a path inside the dataset folder {root}", ref)
+    return ClipLabels(motion, style, str(path)), bvh
+
+
+def load_clip(path, fps: float | None = 30, azimuth: float = 0.0, elevation: float = 0.0,
+              facing: str = "normalise", center: bool = True, up: str = "auto",
+              family: str | SkeletonFamily | None = None, window: float = 1.0,
+              scale: float = 1.0) -> BVHClip:
+    """Read one BVH file and project its 17 key points (see :func:`read_folder`)."""
+    path = Path(path)
+    bvh = read_bvh(path)
+    if family is None:
+        fam = detect_family(bvh.names, path)
+    elif isinstance(family, SkeletonFamily):
+        fam = family
+    else:
+        if family not in FAMILIES:
+            raise InputError(path, "family", f"one of {', '.join(FAMILIES)}", family)
+        fam = FAMILIES[family]
+    P, G = forward_kinematics(bvh, end_sites=True, return_rotations=True)
+    K = keypoints_3d(bvh, P, G, fam)
+    if up == "auto":
+        up = detect_up_axis(K, JOINT_INDEX["head_top"], (JOINT_INDEX["l_ankle"], JOINT_INDEX["r_ankle"]))
+    out_fps = bvh.fps if fps is None else float(fps)
+    K = resample(K, bvh.fps, out_fps) * float(scale)
+    win = max(int(round(window * out_fps)), 1)
+    proj = project(K, azimuth=azimuth, elevation=elevation, up=up, facing=facing,
+                   across=FACING_PAIRS, root=JOINT_INDEX["pelvis"], center=center, window=win)
+    return BVHClip(name=path.stem, path=path, points=proj.xy, depth=proj.depth,
+                   points3d=K @ up_rotation(up).T, fps=out_fps, source_fps=bvh.fps,
+                   family=fam.name, up=up, yaw=proj.yaw)
+
+
+def _data_folder(folder: Path) -> Path:
+    if any(folder.glob("*.bvh")) or any(folder.glob("*.json")):
+        return folder
+    if (folder / "data").is_dir():
+        return folder / "data"
+    return folder
+
+
+def read_folder(path, fps: float | None = 30, azimuth: float = 0.0, elevation: float = 0.0,
+                facing: str = "normalise", center: bool = True, up: str = "auto",
+                family: str | SkeletonFamily | None = None, window: float = 1.0,
+                scale: float = 1.0, depth: bool = False) -> tuple[pd.DataFrame, list[str]]:
+    """Read every labelled BVH clip of a folder into a contract table.
+
+    Parameters
+    ----------
+    path : the folder with ``*.bvh`` (and optional ``*.json`` labels), or a
+        dataset folder whose ``data/`` holds them (Bandai-Namco's layout).
+    fps : output frame rate (linear resampling of 3D positions,
+        :func:`nnsf.datasets.bvh.resample`); None keeps each file's rate.
+    azimuth, elevation : camera angles in degrees; ``0, 0`` is the front view.
+    facing : ``"normalise"`` turns each frame about the vertical so the body
+        faces the camera (heading smoothed over ``window`` seconds) or
+        ``"none"`` keeps the world heading.
+    center : remove the root's horizontal travel (smoothed over ``window``
+        seconds, so sway within a stride stays), like the embedded dataset's
+        treadmill motion; False keeps travel across the image.
+    up : the world up axis (``"y"``, ``"z"``, …) or ``"auto"`` (per file, from
+        head and feet).
+    family : a built-in skeleton family name or a
+        :class:`~nnsf.datasets.bvh_skeletons.SkeletonFamily`; None detects it
+        per file.
+    scale : factor applied to all coordinates (1.0 keeps the BVH's units).
+    depth : also add columns ``z1..z17`` (camera depth; not part of the
+        contract, ``validate`` drops them).
+
+    Returns
+    -------
+    table : contract table (``clip, frame, character, motion, x1..y17``),
+        sorted by clip and frame; ``character`` is the style.
+    report : human-readable lines, one per skipped file or warning.
+
+    Raises
+    ------
+    InputError
+        If the folder is missing or no clip at all could be read.
+    """
+    folder = Path(path)
+    if not folder.is_dir():
+        raise InputError(folder, "folder", "an existing folder of .bvh clips")
+    data = _data_folder(folder)
+    lists = label_lists(data)
+    report: list[str] = []
+
+    # 1) label files and the clips they name
+    labelled: dict[Path, ClipLabels] = {}
+    for js in sorted(data.glob("*.json")):
+        try:
+            labels, bvh_path = labels_from_json(js, folder, lists)
+        except InputError as exc:
+            report.append(f"skipped label: {exc}")
+            continue
+        if not bvh_path.is_file():
+            report.append(f"skipped label: {js}: bvh: expected an existing motion file for "
+                          f"{labels.motion}/{labels.style}, got {bvh_path.name!r} (missing)")
+            continue
+        labelled[bvh_path.resolve()] = labels
+
+    # 2) every clip: labels from its JSON, else from its name
+    clips = {p.resolve(): p for p in sorted(data.glob("*.bvh"))}
+    for p in labelled:
+        clips.setdefault(p, p)
+    rows_xy, rows_depth, meta = [], [], []
+    for key in sorted(clips, key=lambda p: p.stem):
+        p = clips[key]
+        try:
+            labels = labelled.get(key)
+            by_name = None
+            try:
+                by_name = labels_from_name(p)
+            except InputError:
+                if labels is None:
+                    raise
+            if labels is None:
+                labels = by_name
+            elif by_name is not None and (by_name.motion, by_name.style) != (labels.motion, labels.style):
+                report.append(f"warning: {p}: labels: file name says {by_name.motion}/{by_name.style}, "
+                              f"label file says {labels.motion}/{labels.style}; using the label file")
+            clip = load_clip(p, fps=fps, azimuth=azimuth, elevation=elevation, facing=facing,
+                             center=center, up=up, family=family, window=window, scale=scale)
+        except InputError as exc:
+            report.append(f"skipped: {exc}")
+            continue
+        rows_xy.append(clip.points.reshape(len(clip.points), -1))
+        rows_depth.append(clip.depth)
+        meta.append((clip.name, len(clip.points), labels.style, labels.motion))
+    if not meta:
+        raise InputError(folder, "clips", "at least one readable, labelled .bvh clip",
+                         f"none of {len(clips)} ({len(report)} problem(s): "
+                         f"{report[0] if report else 'no .bvh files'})")
+
+    # 3) a style seen in one motion only cannot be told apart from that motion
+    styles: dict[str, set[str]] = {}
+    for _, _, s, m in meta:
+        styles.setdefault(s, set()).add(m)
+    for s, ms in sorted(styles.items()):
+        if len(ms) == 1:
+            report.append(f"warning: style {s!r} appears in one motion only ({next(iter(ms))}); "
+                          "its style cannot be separated from that content")
+
+    n = np.array([m[1] for m in meta])
+    table = pd.DataFrame({
+        "clip": np.repeat([m[0] for m in meta], n),
+        "frame": np.concatenate([np.arange(k) for k in n]),
+        "character": np.repeat([m[2] for m in meta], n),
+        "motion": np.repeat([m[3] for m in meta], n),
+    })
+    table = pd.concat([table, pd.DataFrame(np.concatenate(rows_xy), columns=list(FEATURE_COLUMNS))], axis=1)
+    checked = validate(table, folder)
+    if depth:
+        d = pd.DataFrame(np.concatenate(rows_depth), columns=list(DEPTH_COLUMNS))
+        # validate() sorts by (clip, frame) and drops extra columns: sort the
+        # depth block the same way and put it back beside the contract columns.
+        full = pd.concat([table[["clip", "frame"]], d], axis=1)
+        full = full.sort_values(["clip", "frame"], kind="stable").reset_index(drop=True)
+        checked = pd.concat([checked, full[list(DEPTH_COLUMNS)]], axis=1)
+    return checked, report

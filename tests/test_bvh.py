@@ -1,0 +1,503 @@
+"""BVH source: reader, forward kinematics, projection, resampling, skeleton
+families and the folder reader (with the real Bandai-Namco and AnimatedDrawings
+clips in ../shared/data when present)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from nnsf.datasets.bvh import (
+    detect_up_axis, forward_kinematics, parse_bvh, project, read_bvh, resample, resample_times,
+)
+from nnsf.datasets.bvh_skeletons import (
+    FAMILIES, detect_family, family_from_mapping, keypoints_3d, parse_rule,
+)
+from nnsf.datasets.bvh_source import (
+    DEPTH_COLUMNS, labels_from_json, labels_from_name, load_clip, read_folder,
+)
+from nnsf.datasets.contract import features, validate
+from nnsf.errors import InputError
+from nnsf.skeleton import JOINT_INDEX, Unifier, to_points
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+BANDAI = DATA / "bandai-namco-1"
+DRAWINGS_BVH = DATA / "animated-drawings" / "bvh"
+
+needs_bandai = pytest.mark.skipif(not (BANDAI / "data").is_dir(),
+                                  reason=f"Bandai-Namco data not found at {BANDAI}")
+needs_drawings = pytest.mark.skipif(not DRAWINGS_BVH.is_dir(),
+                                    reason=f"AnimatedDrawings BVH clips not found at {DRAWINGS_BVH}")
+
+AXES = {"X": "Xrotation", "Y": "Yrotation", "Z": "Zrotation"}
+
+
+def chain_bvh(order: str, frames: np.ndarray, root_pos: np.ndarray, pos_first: bool = True,
+              frame_time: float = 1 / 30) -> str:
+    """A 3-joint chain (root, mid, tip + End Site) with rotation order ``order``.
+
+    frames : ``(F, 3, 3)`` angles (joint, channel in ``order``), degrees.
+    """
+    rot = " ".join(AXES[a] for a in order)
+    root_ch = f"Xposition Yposition Zposition {rot}" if pos_first else f"{rot} Xposition Yposition Zposition"
+    lines = [
+        "HIERARCHY", "ROOT root", "{", "  OFFSET 0 0 0", f"  CHANNELS 6 {root_ch}",
+        "  JOINT mid", "  {", "    OFFSET 0 2 0", f"    CHANNELS 3 {rot}",
+        "    JOINT tip", "    {", "      OFFSET 1 0 0", f"      CHANNELS 3 {rot}",
+        "      End Site", "      {", "        OFFSET 0 0 3", "      }", "    }", "  }", "}",
+        "MOTION", f"Frames: {len(frames)}", f"Frame Time: {frame_time}",
+    ]
+    for f in range(len(frames)):
+        vals = list(root_pos[f]) + list(frames[f, 0]) if pos_first else list(frames[f, 0]) + list(root_pos[f])
+        vals += list(frames[f, 1]) + list(frames[f, 2])
+        lines.append(" ".join(f"{v:.10g}" for v in vals))
+    return "\n".join(lines) + "\n"
+
+
+# --------------------------------------------------------------------------- forward kinematics
+
+@pytest.mark.parametrize("order", ["ZYX", "XZY", "ZXY", "YXZ", "XYZ"])
+@pytest.mark.parametrize("pos_first", [True, False])
+def test_fk_matches_scipy_for_any_rotation_order(order, pos_first):
+    rng = np.random.default_rng(7)
+    F = 9
+    ang = rng.uniform(-170, 170, size=(F, 3, 3))
+    pos = rng.normal(size=(F, 3)) * 10
+    bvh = parse_bvh(chain_bvh(order, ang, pos, pos_first), source="chain.bvh")
+    assert bvh.names == ("root", "mid", "tip", "tip_end")
+    P = forward_kinematics(bvh)
+    assert P.shape == (F, 4, 3)
+    offs = [np.array([0.0, 2, 0]), np.array([1.0, 0, 0]), np.array([0.0, 0, 3])]
+    for f in range(F):
+        # Oracle: intrinsic rotations in channel order (uppercase in scipy).
+        R = [Rotation.from_euler(order, ang[f, j], degrees=True).as_matrix() for j in range(3)]
+        G0, G1, G2 = R[0], R[0] @ R[1], R[0] @ R[1] @ R[2]
+        p_mid = pos[f] + G0 @ offs[0]
+        p_tip = p_mid + G1 @ offs[1]
+        p_end = p_tip + G2 @ offs[2]
+        np.testing.assert_allclose(P[f], [pos[f], p_mid, p_tip, p_end], atol=1e-9)
+    # End Sites are optional extra points.
+    assert forward_kinematics(bvh, end_sites=False).shape == (F, 3, 3)
+
+
+def test_fk_known_rotations():
+    # Root turned 90 degrees about z: the mid joint's (0, 2, 0) offset points along -x.
+    ang = np.zeros((1, 3, 3))
+    ang[0, 0] = [90, 0, 0]        # ZYX order: Z=90
+    ang[0, 1] = [0, 0, -90]       # mid: X=-90 (leaves the tip's (1, 0, 0) offset alone)
+    bvh = parse_bvh(chain_bvh("ZYX", ang, np.array([[1.0, 2.0, 3.0]])))
+    P = forward_kinematics(bvh)[0]
+    np.testing.assert_allclose(P[0], [1, 2, 3], atol=1e-12)
+    np.testing.assert_allclose(P[1], [1 - 2, 2, 3], atol=1e-12)        # root + Rz90 (0,2,0)
+    np.testing.assert_allclose(P[2], [-1, 2 + 1, 3], atol=1e-12)       # + Rz90 Rx-90 (1,0,0) = (0,1,0)
+    # End Site (0,0,3) through Rz90 Rx-90: Rx(-90)(0,0,3) = (0,3,0); Rz90 -> (-3,0,0)
+    np.testing.assert_allclose(P[3], [-4, 3, 3], atol=1e-12)
+
+
+def test_position_channels_on_non_root_joint_replace_or_add():
+    text = """HIERARCHY
+ROOT a
+{
+  OFFSET 0 0 0
+  CHANNELS 3 Xposition Yposition Zposition
+  JOINT b
+  {
+    OFFSET 0 10 0
+    CHANNELS 4 Yposition Zrotation Xposition Zposition
+    End Site
+    {
+      OFFSET 1 0 0
+    }
+  }
+}
+MOTION
+Frames: 1
+Frame Time: 0.5
+0 0 0   5 90 2 0
+"""
+    bvh = parse_bvh(text)
+    assert bvh.fps == 2.0
+    P = forward_kinematics(bvh)[0]
+    np.testing.assert_allclose(P[1], [2, 5, 0], atol=1e-12)          # channels replace OFFSET
+    np.testing.assert_allclose(P[2], [2, 6, 0], atol=1e-12)          # Rz90 (1,0,0) = (0,1,0)
+    P = forward_kinematics(bvh, position_channels="add")[0]
+    np.testing.assert_allclose(P[1], [2, 15, 0], atol=1e-12)
+
+
+# --------------------------------------------------------------------------- projection
+
+def _axes_points():
+    # origin, +x, +y, +z
+    return np.array([[[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]]])
+
+
+def test_front_and_side_projection_geometry():
+    front = project(_axes_points())
+    np.testing.assert_allclose(front.xy[0], [[0, 0], [1, 0], [0, -1], [0, 0]], atol=1e-12)
+    np.testing.assert_allclose(front.depth[0], [0, 0, 0, -1], atol=1e-12)   # +z is nearer
+    side = project(_axes_points(), azimuth=90)
+    np.testing.assert_allclose(side.xy[0], [[0, 0], [0, 0], [0, -1], [-1, 0]], atol=1e-12)
+    np.testing.assert_allclose(side.depth[0], [0, -1, 0, 0], atol=1e-12)    # camera on +x
+    top = project(_axes_points(), elevation=90)
+    np.testing.assert_allclose(top.depth[0], [0, 0, -1, 0], atol=1e-12)
+    np.testing.assert_allclose(top.xy[0, 1], [1, 0], atol=1e-12)
+    # A Z-up world gives the same picture once told its up axis.
+    zup = _axes_points()[:, :, [0, 2, 1]] * np.array([1, -1, 1])   # (x, y, z) -> (x, -z, y)
+    np.testing.assert_allclose(project(zup, up="z").xy, front.xy, atol=1e-12)
+
+
+def _figure(yaw_deg: np.ndarray, travel: np.ndarray) -> np.ndarray:
+    """A stick body (pelvis, l/r hip, l/r shoulder, head, nose) facing +z,
+    turned by yaw about y and moved by travel (F, 2) on the ground."""
+    body = np.array([[0, 1, 0], [0.2, 1, 0], [-0.2, 1, 0], [0.25, 1.5, 0], [-0.25, 1.5, 0],
+                     [0, 1.8, 0], [0, 1.7, 0.1]], dtype=float)
+    th = np.deg2rad(yaw_deg)
+    R = np.stack([np.stack([np.cos(th), 0 * th, np.sin(th)], -1), np.tile([0.0, 1, 0], (len(th), 1)),
+                  np.stack([-np.sin(th), 0 * th, np.cos(th)], -1)], axis=1)
+    P = np.einsum("fab,kb->fka", R, body)
+    P[..., 0] += travel[:, None, 0]
+    P[..., 2] += travel[:, None, 1]
+    return P
+
+
+def test_facing_normalisation_and_centering_undo_a_walk_in_circles():
+    F = 60
+    a = np.linspace(0, 2 * np.pi, F)
+    yaw = np.rad2deg(a) + 90           # heading along the circle's tangent
+    travel = np.stack([3 * np.cos(a), -3 * np.sin(a)], -1)
+    P = _figure(yaw, travel)
+    ref = project(_figure(np.zeros(1), np.zeros((1, 2))))
+    pr = project(P, facing="normalise", across=(1, 2, 3, 4), root=0, center=True, window=1)
+    np.testing.assert_allclose(pr.xy, np.broadcast_to(ref.xy, pr.xy.shape), atol=1e-9)
+    np.testing.assert_allclose(pr.travel, travel, atol=1e-9)
+    # Without normalisation the figure's width changes as it turns.
+    raw = project(P, root=0, center=True, window=1)
+    assert np.ptp(raw.xy[:, 1, 0] - raw.xy[:, 2, 0]) > 0.3
+    # Smoothed heading: a straight walk with a swinging pelvis keeps its swing.
+    swing = 10 * np.sin(np.linspace(0, 6 * np.pi, 90))
+    walk = _figure(30 + swing, np.stack([np.linspace(0, 5, 90), np.zeros(90)], -1))
+    pw = project(walk, facing="normalise", across=(1, 2, 3, 4), root=0, center=True, window=31)
+    np.testing.assert_allclose(pw.travel[:, 0], np.linspace(0, 5, 90), atol=1e-9)
+    assert np.ptp(pw.yaw) < 5                                # heading is smoothed ...
+    assert np.ptp(pw.depth[:, 1] - pw.depth[:, 2]) > 0.05    # ... and the hip swing is kept
+
+
+def test_detect_up_axis():
+    P = _figure(np.zeros(3), np.zeros((3, 2)))
+    assert detect_up_axis(P, 5, (1, 2)) == "y"
+    assert detect_up_axis(P[..., [0, 2, 1]], 5, (1, 2)) == "z"
+
+
+# --------------------------------------------------------------------------- resampling
+
+def test_resample_30_to_15_halves_frames_and_keeps_endpoints():
+    x = np.random.default_rng(0).normal(size=(129, 4, 3))
+    y = resample(x, 30, 15)
+    assert y.shape == (65, 4, 3)
+    np.testing.assert_allclose(y, x[::2])                # exact decimation when it lines up
+    x = np.random.default_rng(1).normal(size=(128, 2))
+    y = resample(x, 30, 15)
+    assert len(y) == 65 - 0 and abs(len(y) - 128 / 2) <= 1
+    np.testing.assert_allclose(y[[0, -1]], x[[0, -1]])   # both endpoints kept
+    # Linear motion is reproduced exactly at the new sample times.
+    t = np.arange(128) / 30.0
+    lin = np.stack([2 * t + 1, -t], -1)
+    ts = resample_times(128, 30, 15) / 30.0
+    np.testing.assert_allclose(resample(lin, 30, 15), np.stack([2 * ts + 1, -ts], -1), atol=1e-12)
+    assert np.allclose(np.diff(ts), np.diff(ts)[0]) and abs(1 / np.diff(ts)[0] - 15) < 15 / 60
+    # Upsampling and identity.
+    assert len(resample(x, 30, 60)) == 255
+    np.testing.assert_array_equal(resample(x, 30, 30), x)
+
+
+# --------------------------------------------------------------------------- errors
+
+GOOD_HEADER = """HIERARCHY
+ROOT Hips
+{
+  OFFSET 0 0 0
+  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
+  End Site
+  {
+    OFFSET 0 1 0
+  }
+}
+MOTION
+"""
+
+
+def _write(tmp_path, name, text):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+@pytest.mark.parametrize("body, line, words", [
+    ("Frames: 3\nFrame Time: 0.1\n0 0 0 0 0 0\n0 0 0 0 0 0\n", 16, "3 motion lines"),
+    ("Frames: 2\nFrame Time: 0.1\n0 0 0 0 0 0\n0 0 0 0 0\n", 15, "6 values per motion line"),
+    ("Frames: 2\nFrame Time: 0.1\n0 0 0 0 0 0\n0 0 x1 0 0 0\n", 15, "numeric"),
+    ("Frames: 1\nFrame Time: 0.1\n0 0 0 nan 0 0\n", 14, "finite"),
+    ("Frames: 0\nFrame Time: 0.1\n", 12, "at least 1"),
+    ("Frames: 1\nFrame Time: 0.1\n0 0 0 0 0 0\n0 0 0 0 0 0\n", 15, "exactly 1 motion lines"),
+])
+def test_bad_motion_sections_name_file_and_line(tmp_path, body, line, words):
+    p = _write(tmp_path, "bad.bvh", GOOD_HEADER + body)
+    with pytest.raises(InputError) as err:
+        read_bvh(p)
+    msg = str(err.value)
+    assert "\n" not in msg and "bad.bvh" in msg and f"line {line}:" in msg and words in msg, msg
+
+
+def test_unknown_channel_names_file_and_line(tmp_path):
+    p = _write(tmp_path, "chan.bvh", GOOD_HEADER.replace("Yrotation", "Wrotation") +
+               "Frames: 1\nFrame Time: 0.1\n0 0 0 0 0 0\n")
+    with pytest.raises(InputError, match=r"chan\.bvh: line 5: .*channel name.*Wrotation"):
+        read_bvh(p)
+
+
+def test_good_minimal_file_reads(tmp_path):
+    p = _write(tmp_path, "ok.bvh", GOOD_HEADER + "Frames: 2\nFrame Time: 0.1\n\n1 2 3 0 0 0\n4 5 6 90 0 0\n")
+    b = read_bvh(p)
+    assert b.motion.shape == (2, 6) and b.motion.dtype == np.float64 and b.n_frames == 2
+    np.testing.assert_allclose(forward_kinematics(b)[1, 1], [4 - 1, 5, 6], atol=1e-12)
+    # Windows line ends, braces on the name's line, tabs after the colon.
+    crlf = ("HIERARCHY\r\nROOT Hips {\r\n OFFSET 0 0 0\r\n CHANNELS 3 Xposition Yposition Zposition"
+            "\r\n End Site { OFFSET 0 1 0 }\r\n}\r\nMOTION\r\nFrames:\t2\r\nFrame Time: 0.5\r\n"
+            "1 2 3\r\n4 5 6\r\n")
+    b = parse_bvh(crlf, "crlf.bvh")
+    assert b.names == ("Hips", "Hips_end") and b.fps == 2.0
+    np.testing.assert_allclose(forward_kinematics(b)[1], [[4, 5, 6], [4, 6, 6]])
+    with pytest.raises(InputError, match=r"crlf\.bvh: line 11: expected numeric motion values, got 'six'"):
+        parse_bvh(crlf.replace("4 5 6", "4 5 six"), "crlf.bvh")
+
+
+# --------------------------------------------------------------------------- skeleton families
+
+def _tiny_human(names: dict[str, str] | None = None) -> str:
+    """A small Y-up human in the Bandai naming (optionally renamed)."""
+    j = [("Hips", None, (0, 90, 0)), ("Spine", "Hips", (0, 15, 0)), ("Chest", "Spine", (0, 10, 0)),
+         ("Neck", "Chest", (0, 15, 0)), ("Head", "Neck", (0, 6, 0)),
+         ("UpperArm_L", "Chest", (18, 12, 0)), ("LowerArm_L", "UpperArm_L", (25, 0, 0)),
+         ("Hand_L", "LowerArm_L", (22, 0, 0)),
+         ("UpperArm_R", "Chest", (-18, 12, 0)), ("LowerArm_R", "UpperArm_R", (-25, 0, 0)),
+         ("Hand_R", "LowerArm_R", (-22, 0, 0)),
+         ("UpperLeg_L", "Hips", (9, -5, 0)), ("LowerLeg_L", "UpperLeg_L", (0, -40, 0)),
+         ("Foot_L", "LowerLeg_L", (0, -40, 0)),
+         ("UpperLeg_R", "Hips", (-9, -5, 0)), ("LowerLeg_R", "UpperLeg_R", (0, -40, 0)),
+         ("Foot_R", "LowerLeg_R", (0, -40, 0))]
+    names = names or {}
+    children = {}
+    for n, p, _ in j:
+        children.setdefault(p, []).append(n)
+    off = {n: o for n, _, o in j}
+    out = ["HIERARCHY"]
+
+    def emit(n, depth):
+        pad = "  " * depth
+        out.append(f"{pad}{'ROOT' if depth == 0 else 'JOINT'} {names.get(n, n)}")
+        out.append(pad + "{")
+        out.append(f"{pad}  OFFSET {' '.join(map(str, off[n]))}")
+        out.append(f"{pad}  CHANNELS {6 if depth == 0 else 3} " +
+                   ("Xposition Yposition Zposition " if depth == 0 else "") + "Zrotation Xrotation Yrotation")
+        for c in children.get(n, []):
+            emit(c, depth + 1)
+        if n not in children:
+            out.extend([pad + "  End Site", pad + "  {", pad + "    OFFSET 0 -3 0", pad + "  }"])
+        out.append(pad + "}")
+
+    emit("Hips", 0)
+    n_ch = 6 + 3 * (len(j) - 1)
+    rows = []
+    for f in range(4):
+        v = np.zeros(n_ch)
+        v[1] = 90.0                # position channels replace the root's OFFSET
+        v[2] = 10.0 * f            # walk towards +z
+        v[4] = 5.0 * f             # lean
+        rows.append(" ".join(f"{x:g}" for x in v))
+    out += ["MOTION", "Frames: 4", "Frame Time: 0.0333333", *rows]
+    return "\n".join(out) + "\n"
+
+
+def test_tiny_human_maps_to_17_points_with_bandai_rules():
+    bvh = parse_bvh(_tiny_human(), "tiny.bvh")
+    fam = detect_family(bvh.names, "tiny.bvh")
+    assert fam.name == "bandai-namco"
+    P, G = forward_kinematics(bvh, return_rotations=True)
+    K = keypoints_3d(bvh, P, G, fam)
+    assert K.shape == (4, 17, 3)
+    np.testing.assert_allclose(K[0, JOINT_INDEX["pelvis"]], [0, 85, 0])
+    np.testing.assert_allclose(K[0, JOINT_INDEX["l_hip"]], [9, 85, 0])
+    np.testing.assert_allclose(K[0, JOINT_INDEX["spine"]], [0, 110, 0])
+    # head_top: 3 x the head's own 6-unit OFFSET up the head's axis.
+    np.testing.assert_allclose(K[0, JOINT_INDEX["head_top"]], [0, 136 + 18, 0])
+    np.testing.assert_allclose(K[0, JOINT_INDEX["r_wrist"]], [-65, 127, 0])
+
+
+def test_unknown_skeleton_lists_missing_joints(tmp_path):
+    text = _tiny_human({"UpperLeg_L": "LThigh", "LowerLeg_L": "LShin", "Foot_L": "LFoot"})
+    p = _write(tmp_path, "alien.bvh", text)
+    bvh = read_bvh(p)
+    with pytest.raises(InputError) as err:
+        detect_family(bvh.names, p)
+    msg = str(err.value)
+    assert "alien.bvh" in msg and "\n" not in msg
+    for name in ("UpperLeg_L", "LowerLeg_L", "Foot_L", "pelvis", "l_hip", "l_knee", "l_ankle"):
+        assert name in msg, msg
+    # A user mapping fixes it.
+    rules = dict(FAMILIES["bandai-namco"].table())
+    rules.update(pelvis="mid(LThigh, UpperLeg_R)", l_hip="LThigh", l_knee="LShin", l_ankle="LFoot")
+    fam = family_from_mapping(rules)
+    clip = load_clip(p, family=fam, fps=None)
+    assert clip.points.shape == (4, 17, 2)
+    assert str(parse_rule("beyond(Neck, Head, 1.4)")) == "beyond(Neck, Head, 1.4)"
+    with pytest.raises(ValueError):
+        parse_rule("middle(A)")
+
+
+@pytest.mark.parametrize("rel, family, up", [
+    ("bandai-namco-1/data/dataset-1_walk_normal_001.bvh", "bandai-namco", "y"),
+    ("animated-drawings/bvh/cmu1/jumping_jacks.bvh", "cmu", "y"),
+    ("animated-drawings/bvh/fair1/dab.bvh", "mixamo", "z"),
+    ("animated-drawings/bvh/fair1/zombie.bvh", "mixamo", "z"),
+    ("animated-drawings/bvh/rokoko/jesse_dance.bvh", "rokoko", "y"),
+])
+def test_family_detection_on_real_files(rel, family, up):
+    if not (DATA / rel).is_file():
+        pytest.skip(f"{DATA / rel} not found (../shared/data absent)")
+    clip = load_clip(DATA / rel)
+    assert clip.family == family and clip.up == up
+    pts = clip.points
+    # Upright in image axes: head top above the pelvis above the ankles (y down).
+    head, pelvis = pts[:, JOINT_INDEX["head_top"], 1], pts[:, JOINT_INDEX["pelvis"], 1]
+    ankles = pts[:, [JOINT_INDEX["l_ankle"], JOINT_INDEX["r_ankle"]], 1].max(axis=1)
+    assert np.mean(head < pelvis) > 0.95 and np.mean(pelvis < ankles) > 0.95
+    # Front view after facing normalisation: the body's left is on the image's right.
+    lr = pts[:, JOINT_INDEX["l_hip"], 0] - pts[:, JOINT_INDEX["r_hip"], 0]
+    assert np.mean(lr > 0) > 0.9
+
+
+# --------------------------------------------------------------------------- the folder reader
+
+def _label_folder(tmp_path) -> Path:
+    d = tmp_path / "clips"
+    d.mkdir()
+    good = _tiny_human()
+    for motion in ("walk", "run"):
+        for style in ("happy", "sad"):
+            (d / f"ds_{motion}_{style}_001.bvh").write_text(good)
+    return d
+
+
+def test_folder_reports_bad_files_and_keeps_the_rest(tmp_path):
+    d = _label_folder(tmp_path)
+    good = _tiny_human()
+    (d / "ds_walk_old_001.bvh").write_text(good.replace("Frames: 4", "Frames: 9"))   # truncated
+    (d / "just-a-name.bvh").write_text(good)                                      # no labels
+    (d / "ds_jump_giant_001.bvh").write_text(good)                                 # lone style
+    (d / "ds_dance_happy_001.json").write_text(json.dumps({"content": "dance", "style": "happy"}))
+    (d / "ds_kick_sad_002.json").write_text(json.dumps({"motion": "kick", "character": "sad",
+                                                        "bvh": "../outside.bvh"}))
+    (tmp_path / "outside.bvh").write_text(good)
+    table, report = read_folder(d, fps=15)
+    text = "\n".join(report)
+    assert sorted(table["clip"].unique()) == sorted(
+        [f"ds_{m}_{s}_001" for m in ("walk", "run") for s in ("happy", "sad")] + ["ds_jump_giant_001"])
+    assert len(report) == 5, text
+    assert "ds_walk_old_001.bvh: line" in text and "9 motion lines" in text
+    assert "just-a-name.bvh: file name" in text
+    assert "'giant' appears in one motion only (jump)" in text
+    assert "ds_dance_happy_001.json" in text and "missing" in text
+    assert "ds_kick_sad_002.json: bvh: expected a path inside the dataset folder" in text
+    assert all("\n" not in line for line in report)
+    # 4 frames at 30 fps -> 3 frames at 15 fps; labels from the names.
+    assert (table.groupby("clip").size() == 3).all()
+    row = table[table["clip"] == "ds_run_sad_001"].iloc[0]
+    assert (row["motion"], row["character"]) == ("run", "sad")
+    validate(table, d)
+
+
+def test_labels_from_json_indices_and_name_pattern(tmp_path):
+    d = tmp_path / "ds"
+    (d / "cfg").mkdir(parents=True)
+    (d / "cfg" / "content_label.txt").write_text("dataset-1_walk\ndataset-1_bow\n")
+    (d / "cfg" / "style_label.txt").write_text("dataset-1_normal\ndataset-1_old\n")
+    (d / "x.json").write_text(json.dumps({"content": 1, "style": 1}))
+    (d / "x.bvh").write_text(_tiny_human())
+    table, report = read_folder(d, fps=None)
+    assert report == ["warning: style 'old' appears in one motion only (bow); its style cannot be "
+                      "separated from that content"]
+    assert set(zip(table["motion"], table["character"])) == {("bow", "old")}
+    (d / "y.json").write_text(json.dumps({"content": 5, "style": 0}))
+    from nnsf.datasets.bvh_source import label_lists
+    with pytest.raises(InputError, match=r"y\.json: content: expected an index 0\.\.1"):
+        labels_from_json(d / "y.json", d, label_lists(d))
+    with pytest.raises(InputError, match=r"x\.bvh: file name: expected \{dataset\}_\{motion\}"):
+        labels_from_name(d / "x.bvh")
+    assert labels_from_name("dataset-1_walk-back_not-confident_001.bvh").motion == "walk-back"
+
+
+def test_folder_without_any_readable_clip_raises(tmp_path):
+    (tmp_path / "a.bvh").write_text("HIERARCHY\nROOT x\n{\n")
+    with pytest.raises(InputError, match="at least one readable"):
+        read_folder(tmp_path)
+
+
+# --------------------------------------------------------------------------- the real data set
+
+@pytest.fixture(scope="module")
+def bandai():
+    if not (BANDAI / "data").is_dir():
+        pytest.skip(f"Bandai-Namco data not found at {BANDAI}")
+    return read_folder(BANDAI, depth=True)
+
+
+@needs_bandai
+def test_bandai_bone_lengths_are_constant():
+    files = sorted((BANDAI / "data").glob("*.bvh"))
+    assert len(files) == 174
+    worst = 0.0
+    for f in files[::6]:
+        bvh = read_bvh(f)
+        P = forward_kinematics(bvh)
+        # Bones below Hips (Hips itself carries the root motion on its position channels).
+        nodes = [j for j in range(2, len(bvh.names)) if np.linalg.norm(bvh.offsets[j]) > 0]
+        L = np.linalg.norm(P[:, nodes] - P[:, bvh.parents[nodes]], axis=-1)
+        worst = max(worst, float(((L.max(0) - L.min(0)) / L.mean(0)).max()))
+    assert worst < 1e-6
+
+
+@needs_bandai
+def test_bandai_folder(bandai):
+    table, report = bandai
+    # 174 clips: the snapshot's 175 labels include dance-long, whose BVH is missing.
+    assert table["clip"].nunique() == 174
+    assert len(report) == 1 and "dance-long" in report[0] and "missing" in report[0]
+    assert len(list((BANDAI / "data").glob("*.json"))) == 175
+    main = ["walk", "run", "dash", "walk-back", "walk-left", "walk-right", "bow", "bye", "guide", "byebye"]
+    per_motion = table.groupby("motion")["character"].nunique()
+    assert all(per_motion[m] == 15 for m in main)
+    assert table["character"].nunique() == 15
+    assert len(table) == 31914          # 30 fps in, 30 fps out
+    assert list(table.columns[-17:]) == list(DEPTH_COLUMNS)
+    validate(table, BANDAI)
+    P = to_points(features(table))
+    head = P[:, JOINT_INDEX["head_top"], 1]
+    ankles = P[:, [JOINT_INDEX["l_ankle"], JOINT_INDEX["r_ankle"]], 1].min(axis=1)
+    in_main = table["motion"].isin(main).to_numpy()
+    assert (head[in_main] < ankles[in_main]).all()          # feet below the head (y down)
+    assert np.mean(head < ankles) > 0.999                    # (dance-short kicks high once)
+    chars = table["character"].to_numpy()
+    X = Unifier().fit(P, chars).transform(P, chars)
+    assert X.shape == (len(table), 34) and X.min() >= 0
+
+
+@needs_bandai
+def test_bandai_resampled_to_15_fps():
+    files = sorted((BANDAI / "data").glob("dataset-1_walk_old_*.bvh"))[:1]
+    c30 = load_clip(files[0], fps=30)
+    c15 = load_clip(files[0], fps=15)
+    assert abs(len(c15.points) - len(c30.points) / 2) <= 1
+    np.testing.assert_allclose(c15.points3d[[0, -1]], c30.points3d[[0, -1]], atol=1e-9)
