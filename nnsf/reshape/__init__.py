@@ -1,0 +1,40 @@
+"""Reshaping drawn characters (SPEC §4, the paper's §5).
+
+A drawn character (:class:`Character`: texture, mask, 17 key points) is
+triangulated (:func:`build_mesh`), given a quadratic Bézier curve per limb
+(:mod:`~nnsf.reshape.limbs`, Eq. 9-10) and subkey points along those curves
+(:mod:`~nnsf.reshape.subkeys`, Eq. 11-14), and deformed frame by frame with
+the two-step ARAP of Igarashi et al. 2005 (:class:`TwoStepARAP`), factorised
+once per character and handle set.  :class:`Rig` assembles all of it;
+:mod:`~nnsf.reshape.metrics` scores the result (SPEC §6.5).
+
+For a renderer: ``rig.animate(keypoints)`` gives vertices ``(T, n, 2)``;
+``rig.mesh.triangles`` ``(t, 3)``, ``rig.mesh.parts`` ``(t,)`` (ids into
+:data:`PARTS`) and the texture coordinates ``rig.mesh.vertices`` (rest
+positions in texture pixels) complete the picture.  All coordinates are
+pixels, x right, y down.
+"""
+from nnsf.reshape import metrics
+from nnsf.reshape.arap import Handles, TwoStepARAP, barycentric
+from nnsf.reshape.character import (
+    Character, MaskComponentsWarning, load_animated_drawings, load_character, read_character,
+    stick_figure, write_character,
+)
+from nnsf.reshape.limbs import (
+    LIMB_NAMES, LIMB_PAIRS, STRAIGHT, bezier, control_from_omega, control_points, fit_omega,
+    interpolate_omega, limb_curves, omega_from_control,
+)
+from nnsf.reshape.mesh import PARTS, Mesh, build_mesh, label_parts, triangulate_mask
+from nnsf.reshape.rig import HANDLE_SETS, Rig
+from nnsf.reshape.subkeys import SubkeyTracker, Subkeys, closest_on_bezier, init_subkeys, propagate
+
+__all__ = [
+    "Character", "MaskComponentsWarning", "load_animated_drawings", "load_character", "read_character",
+    "stick_figure", "write_character",
+    "PARTS", "Mesh", "build_mesh", "label_parts", "triangulate_mask",
+    "LIMB_NAMES", "LIMB_PAIRS", "STRAIGHT", "bezier", "control_from_omega", "control_points", "fit_omega",
+    "interpolate_omega", "limb_curves", "omega_from_control",
+    "SubkeyTracker", "Subkeys", "closest_on_bezier", "init_subkeys", "propagate",
+    "Handles", "TwoStepARAP", "barycentric",
+    "HANDLE_SETS", "Rig", "metrics",
+]
