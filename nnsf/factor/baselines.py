@@ -20,6 +20,8 @@ from sklearn.base import BaseEstimator, ClassifierMixin, TransformerMixin
 from sklearn.decomposition import NMF
 from sklearn.utils.validation import check_array, check_is_fitted, check_non_negative
 
+from nnsf.factor.nnsf import class_map_from_grams
+
 __all__ = ["class_map", "one_hot", "NMFClassifier", "make_nnsc", "BilinearModel"]
 
 
@@ -61,11 +63,7 @@ def class_map(V, Y, eps: float = 1e-10) -> np.ndarray:
         # Plain least squares: lstsq on V itself is better conditioned than the
         # normal equations and gives the minimum-norm W when V is rank deficient.
         return np.linalg.lstsq(V, Y, rcond=None)[0]
-    k = V.shape[1]
-    gram = V.T @ V
-    ridge = eps * max(float(np.trace(gram)) / max(k, 1), np.finfo(float).tiny)
-    gram[np.diag_indices(k)] += ridge
-    return np.linalg.solve(gram, V.T @ Y)
+    return class_map_from_grams(V.T @ V, V.T @ Y, eps)
 
 
 def one_hot(y) -> tuple[np.ndarray, np.ndarray]:

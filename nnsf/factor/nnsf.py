@@ -48,7 +48,7 @@ class NNSF(TransformerMixin, BaseEstimator):
         paper's Algorithm 1 as printed: W is computed once, after convergence,
         so β has no effect on U and V.
     max_iter : int, default=200
-        Maximum number of iterations of ``fit`` (and of ``transform``).
+        Maximum number of iterations of ``fit``.
     tol : float >= 0, default=1e-4
         Stop when the relative change of the objective, |ΔC| / C, falls below.
     init : {"random", "nndsvd", "nndsvda", "nndsvdar"}, default="nndsvda"
@@ -59,6 +59,10 @@ class NNSF(TransformerMixin, BaseEstimator):
         "ssl" is the multiplicative update of Sha, Saul & Lee (2007) for
         non-negative quadratic programs, which never raises C; "auto" starts
         with "split" and switches to "ssl" for good the first time C rises.
+    transform_max_iter : int or None, default=None
+        Maximum number of weight steps of ``transform`` (and of the encoding
+        of the training rows the class map is fitted on); None uses
+        ``max_iter``.
     eps : float > 0, default=1e-10
         Ridge added to VᵀV when solving for the class map, relative to its mean
         diagonal.
@@ -107,6 +111,7 @@ class NNSF(TransformerMixin, BaseEstimator):
         "tol": [Interval(numbers.Real, 0, None, closed="left")],
         "init": [StrOptions({"random", "nndsvd", "nndsvda", "nndsvdar"})],
         "v_update": [StrOptions({"auto", "split", "ssl"})],
+        "transform_max_iter": [Interval(numbers.Integral, 1, None, closed="left"), None],
         "eps": [Interval(numbers.Real, 0, None, closed="neither")],
         "random_state": ["random_state"],
     }
@@ -122,6 +127,7 @@ class NNSF(TransformerMixin, BaseEstimator):
         tol=1e-4,
         init="nndsvda",
         v_update="auto",
+        transform_max_iter=None,
         eps=1e-10,
         random_state=None,
     ):
@@ -133,6 +139,7 @@ class NNSF(TransformerMixin, BaseEstimator):
         self.tol = tol
         self.init = init
         self.v_update = v_update
+        self.transform_max_iter = transform_max_iter
         self.eps = eps
         self.random_state = random_state
 
@@ -217,7 +224,8 @@ class NNSF(TransformerMixin, BaseEstimator):
         # label-informed V and mis-scores transform()ed rows at high rank.
         self.class_map_ = None
         if labels is not None:
-            encoded = weights_for_basis(X, U, alpha=float(self.alpha), max_iter=self.max_iter, tol=float(self.tol))
+            encoded = weights_for_basis(X, U, alpha=float(self.alpha), max_iter=self._transform_iters(),
+                                        tol=float(self.tol))
             self.class_map_ = _class_map(encoded, labels, len(self.classes_), self.eps)
         self.reconstruction_err_ = float(np.linalg.norm(X - V @ U))
         return V
@@ -228,13 +236,18 @@ class NNSF(TransformerMixin, BaseEstimator):
 
         No labels are used (β = 0).  V starts at sqrt(mean(X) / k) everywhere,
         runs at most ``max_iter`` steps and stops early when the relative
-        decrease of ½‖X − VU‖² + αΣV over ten steps falls below ``tol``.
+        decrease of ½‖X − VU‖² + αΣV over ten steps falls below ``tol``;
+        at most ``transform_max_iter`` steps (default ``max_iter``).
         """
         check_is_fitted(self)
         X = validate_data(self, X, dtype=[np.float64, np.float32], reset=False)
         check_non_negative(X, f"{type(self).__name__} (input X)")
         U = self.components_.astype(X.dtype, copy=False)
-        return weights_for_basis(X, U, alpha=float(self.alpha), max_iter=self.max_iter, tol=float(self.tol))
+        return weights_for_basis(X, U, alpha=float(self.alpha), max_iter=self._transform_iters(),
+                                 tol=float(self.tol))
+
+    def _transform_iters(self):
+        return self.max_iter if self.transform_max_iter is None else self.transform_max_iter
 
     def inverse_transform(self, X):
         """Features reconstructed from weights: ``V @ U``, ``(n, d)``."""
@@ -267,7 +280,7 @@ class NNSF(TransformerMixin, BaseEstimator):
 
 # ---------------------------------------------------------------- the solver
 def _one_hot(labels, r, dtype):
-    """Y as a sparse ``(n, r)`` matrix, built once per fit."""
+    """Y as a sparse one-hot ``(n, r)`` matrix."""
     n = len(labels)
     return sp.csr_matrix((np.ones(n, dtype=dtype), (np.arange(n), labels)), shape=(n, r))
 
@@ -275,10 +288,15 @@ def _one_hot(labels, r, dtype):
 def _class_map(V, labels, r, eps):
     """W* = (VᵀV + εI)⁻¹ VᵀY for integer labels, ``(k, r)``."""
     Y = _one_hot(labels, r, V.dtype)
-    return _class_map_from_grams(V.T @ V, np.asarray((Y.T @ V).T), eps)
+    return class_map_from_grams(V.T @ V, np.asarray((Y.T @ V).T), eps)
 
 
-def _class_map_from_grams(VtV, VtY, eps):
+def class_map_from_grams(VtV, VtY, eps):
+    """W = (VᵀV + λI)⁻¹ VᵀY from the Gram matrices, λ = eps · trace(VᵀV) / k.
+
+    The ridge is relative to the mean diagonal so the result does not depend
+    on the units of V; it keeps the solve posed when an atom is unused.
+    """
     k = VtV.shape[0]
     ridge = eps * max(float(np.trace(VtV)) / k, np.finfo(VtV.dtype).tiny)
     return np.linalg.solve(VtV + ridge * np.eye(k, dtype=VtV.dtype), VtY)
@@ -325,12 +343,20 @@ def _basis_step(U, VtV, VtX, step):
 
 
 def _solve(X, V, U, labels, *, alpha, beta, max_iter, tol, v_update, eps):
-    """Run NNSF iterations from (V, U); return V, U, W, objective history, update mode."""
+    """Run NNSF iterations from (V, U); return V, U, W, objective history, update mode.
+
+    With the class term, the rows are first sorted by class (a copy of X and
+    V, undone on return): the terms Y(·) and VᵀY then act on contiguous blocks
+    of rows instead of gathering a row per label.
+    """
     n, d = X.shape
-    k = U.shape[0]
     use_class = beta > 0
-    # Yᵀ as a sparse (r, n) matrix: VᵀY = (Yᵀ V)ᵀ, the class sums of V.
-    Yt = _one_hot(labels, int(labels.max()) + 1, X.dtype).T.tocsr() if use_class else None
+    blocks = order = None
+    if use_class:
+        order = np.argsort(labels, kind="stable")
+        X, V = X[order], V[order]
+        bounds = np.concatenate([[0], np.cumsum(np.bincount(labels, minlength=int(labels.max()) + 1))])
+        blocks = [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
     XX = float(np.vdot(X, X))
     mode = "split" if v_update == "auto" else v_update
     # Two n × k work buffers reused by every weight step: the update
@@ -341,17 +367,17 @@ def _solve(X, V, U, labels, *, alpha, beta, max_iter, tol, v_update, eps):
     VtX = V.T @ X
     W = VtY = None
     if use_class:
-        VtY = np.asarray((Yt @ V).T)
-        W = _class_map_from_grams(VtV, VtY, eps)
+        VtY = _block_sums(V, blocks)
+        W = class_map_from_grams(VtV, VtY, eps)
     history = [_objective(XX, VtV, VtX, U, float(V.sum()), alpha, beta, W, VtY, n)]
     step = 1.0 / max(float(np.linalg.eigvalsh(VtV)[-1]), np.finfo(float).tiny)
 
     for _ in range(max_iter):
         U, step = _basis_step(U, VtV, VtX, step)
         if use_class:
-            W = _class_map_from_grams(VtV, VtY, eps)
-            _class_weight_step(X, V, U, labels, alpha, beta, W, mode, work)
-            VtY = np.asarray((Yt @ V).T)
+            W = class_map_from_grams(VtV, VtY, eps)
+            _class_weight_step(X, V, U, blocks, alpha, beta, W, mode, work)
+            VtY = _block_sums(V, blocks)
         else:
             weight_step(X, V, U, alpha, work)
         VtV = V.T @ V
@@ -362,7 +388,22 @@ def _solve(X, V, U, labels, *, alpha, beta, max_iter, tol, v_update, eps):
             mode = "ssl"
         if abs(prev - cur) <= tol * max(abs(cur), np.finfo(float).tiny):
             break
+    if order is not None:
+        unsorted = np.empty_like(V)
+        unsorted[order] = V
+        V = unsorted
     return V, U, W, history, mode
+
+
+def _block_sums(V, blocks):
+    """VᵀY for rows sorted by class: the sum of each block of rows, ``(k, r)``."""
+    return np.add.reduceat(V, [b.start for b in blocks], axis=0).T
+
+
+def _add_by_block(out, rows_by_class, blocks):
+    """``out += Y @ rows_by_class`` for rows sorted by class: one row added per block."""
+    for c, rows in enumerate(blocks):
+        out[rows] += rows_by_class[c]
 
 
 def weight_step(X, V, U, alpha, work=None, XUt=None):
@@ -388,7 +429,7 @@ def weight_step(X, V, U, alpha, work=None, XUt=None):
     V *= num
 
 
-def _class_weight_step(X, V, U, labels, alpha, beta, W, mode, work):
+def _class_weight_step(X, V, U, blocks, alpha, beta, W, mode, work):
     """Multiplicative update of V in place with the class term (β > 0).
 
     "split" (SPEC §2):
@@ -396,7 +437,8 @@ def _class_weight_step(X, V, U, labels, alpha, beta, W, mode, work):
     "ssl" (Sha, Saul & Lee 2007), per row the quadratic ½vAvᵀ + bvᵀ with
     A = UUᵀ + βWWᵀ and b = α − XUᵀ − βYWᵀ:
         v ← v ⊙ (−b + sqrt(b² + 4(vA⁺)⊙(vA⁻))) ⊘ (2vA⁺).
-    Y(·)ᵀ terms are row gathers by integer label.  ``work`` is a pair of
+    Rows are sorted by class and ``blocks`` holds each class's rows, so the
+    Y(·)ᵀ terms are one row added per block.  ``work`` is a pair of
     contiguous ``(n, k)`` buffers.
     """
     num, den = work
@@ -410,7 +452,7 @@ def _class_weight_step(X, V, U, labels, alpha, beta, W, mode, work):
         N = beta * np.maximum(-WWt, 0)
     np.matmul(X, U.T, out=num)
     if mode == "ssl":
-        num += (beta * W.T)[labels]
+        _add_by_block(num, beta * W.T, blocks)
         np.subtract(alpha, num, out=num)        # b
         np.matmul(V, N, out=den)
         pos = V @ P
@@ -426,9 +468,9 @@ def _class_weight_step(X, V, U, labels, alpha, beta, W, mode, work):
     else:
         np.matmul(V, N, out=den)
         num += den
-        num += (beta * np.maximum(W, 0).T)[labels]
+        _add_by_block(num, beta * np.maximum(W, 0).T, blocks)
         np.matmul(V, P, out=den)
-        den += (beta * np.maximum(-W, 0).T)[labels]
+        _add_by_block(den, beta * np.maximum(-W, 0).T, blocks)
         if alpha > 0:
             den += alpha
         np.maximum(den, EPSILON, out=den)

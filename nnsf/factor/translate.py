@@ -1,0 +1,747 @@
+"""Style translation by non-negative style factorization (SPEC §3, D5; the paper's §4, end).
+
+The paper synthesises "jump in Wukong Sun's style" by recombining a basis and
+weights that come from different characters.  That only works if atom ``i``
+means the same thing in both, so (SPEC D5):
+
+* fit NNSF once on all characters pooled, giving U₀ and V;
+* give every character (style) ``s`` its own basis U_s by basis steps only,
+  with that character's weights V_s fixed, starting from U₀
+  (:func:`refit_basis`) -- atom ``i`` of every U_s starts as atom ``i`` of U₀;
+* when bases come from separate fits instead, match their atoms to U₀ by
+  cosine similarity with the Hungarian algorithm (:func:`match_atoms`).
+
+Translation of a clip of content ``c`` performed in style ``a`` into style
+``b`` (row form, X is ``(n, 34)``):
+
+* ``reading="style_basis"`` (SPEC §3): X̂ = V_clip U_b.  The weights of the
+  clip, V_clip = argmin_V≥0 ½‖X_clip − V U_a‖² + αΣV, carry the content and
+  its timing; the target's basis carries the style.
+* ``reading="content_basis"`` (the paper's own example, where the basis
+  U_nz of Nezha's jump is recombined with the weights V_ws of Wukong Sun's
+  other motions): X̂ = V_style U_clip, with U_clip the basis refitted on the
+  content clip alone (from U₀, its weights fixed) and V_style the weights of
+  a clip of the target style, so frames and timing come from that clip.
+
+How the per-style bases are learned (``basis``):
+
+* ``"refit"`` -- SPEC D5 as written: the pooled fit's weights fixed, basis
+  steps per style from U₀.
+* ``"separate"`` -- an independent NNSF per style, atoms matched to U₀ by
+  :func:`match_atoms` (the fallback of D5).
+* ``"aligned"`` -- our addition (a departure from the paper, measured in
+  :mod:`nnsf.evaluate.translation`): the clips of one content are first
+  aligned in time by DTW to a reference clip of that content, and aligned
+  frames of different styles *share one weight row*.  The model is then
+  x_{s,t} ≈ v_{g(t)} U_s, with g(t) the reference frame frame t is aligned to,
+  fitted by alternating a multiplicative update of the shared weights and
+  basis steps per style (starting from U₀, with an optional ridge pulling
+  U_s towards U₀).  In the pooled fit every frame has its own weights, so the
+  weights absorb most of the style and the refitted bases stay close to U₀;
+  sharing the weights across styles forces the style into the bases.
+
+Units: features are unified template coordinates (template units, torso =
+1.0); :func:`to_character_points` maps translated features back to a
+character's pixels with :meth:`nnsf.skeleton.Unifier.inverse_transform`.
+"""
+from __future__ import annotations
+
+import numbers
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.optimize import linear_sum_assignment
+from sklearn.base import BaseEstimator
+from sklearn.utils.validation import check_array, check_is_fitted, check_non_negative
+
+from nnsf.factor.nnsf import EPSILON, NNSF, _basis_step, weights_for_basis
+from nnsf.skeleton.layout import BONES, N_FEATURES, N_JOINTS, to_points
+
+__all__ = [
+    "READINGS", "BASES", "StyleTranslator", "refit_basis", "match_atoms", "atom_cosines",
+    "joint_distance_matrix", "dtw_accumulate", "dtw_path", "dtw_align", "align_to_reference",
+    "to_character_points", "write_stick_gif",
+]
+
+#: Which factor carries the style: the basis (SPEC §3) or the weights (the paper's example).
+READINGS: tuple[str, ...] = ("style_basis", "content_basis")
+#: How per-style bases with corresponding atoms are obtained.
+BASES: tuple[str, ...] = ("aligned", "refit", "separate")
+
+
+# --------------------------------------------------------------------------- #
+# Atom correspondence
+# --------------------------------------------------------------------------- #
+def refit_basis(X, V, U0, *, max_iter: int = 100, tol: float = 1e-6, ridge: float = 0.0) -> np.ndarray:
+    """Basis steps only: U ≥ 0, unit rows, minimising ½‖X − VU‖² (+ ridge), V fixed.
+
+    Starts from ``U0`` and takes the projected-gradient steps of NNSF's basis
+    update (:func:`nnsf.factor.nnsf._basis_step`, with its backtracking), so
+    atom ``i`` of the result is atom ``i`` of ``U0`` moved towards the data.
+
+    Parameters
+    ----------
+    X : array (n, d), non-negative features (template units).
+    V : array (n, k), non-negative weights, fixed.
+    U0 : array (k, d), the starting basis (rows of unit norm).
+    max_iter : int, number of basis steps at most.
+    tol : float, stop when the relative decrease of the objective is below.
+    ridge : float >= 0
+        Adds ``λ‖U − U0‖²_F`` with ``λ = ridge · trace(VᵀV) / k`` (relative,
+        so it does not depend on the scale of V).  Atoms the data use little
+        then stay near ``U0`` instead of drifting; 0 is SPEC D5 as written.
+
+    Returns
+    -------
+    U : ndarray (k, d), unit-norm rows.
+    """
+    X = np.asarray(X, dtype=float)
+    V = np.asarray(V, dtype=float)
+    U = np.array(U0, dtype=float, copy=True)
+    if X.shape[0] != V.shape[0] or V.shape[1] != U.shape[0] or X.shape[1] != U.shape[1]:
+        raise ValueError(f"refit_basis: shapes X {X.shape}, V {V.shape}, U0 {U.shape} do not agree "
+                         "(need X (n, d), V (n, k), U0 (k, d))")
+    VtV = V.T @ V
+    VtX = V.T @ X
+    return _refit_from_grams(VtV, VtX, U, max_iter=max_iter, tol=tol, ridge=ridge)
+
+
+def _refit_from_grams(VtV, VtX, U0, *, max_iter, tol, ridge):
+    k = VtV.shape[0]
+    U = np.array(U0, dtype=float, copy=True)
+    if ridge > 0:
+        # ½‖X − VU‖² + (λ/2)‖U − U0‖² has the Grams VᵀV + λI and VᵀX + λU0.
+        lam = ridge * max(float(np.trace(VtV)) / k, np.finfo(float).tiny)
+        VtV = VtV + lam * np.eye(k)
+        VtX = VtX + lam * U0
+    top = float(np.linalg.eigvalsh(VtV)[-1])
+    if top <= 0:           # no weight at all: nothing moves the basis
+        return U
+    step = 1.0 / top
+
+    def fit(B):
+        return float(np.vdot(B @ B.T, VtV) - 2.0 * np.vdot(VtX, B))
+
+    prev = fit(U)
+    for _ in range(int(max_iter)):
+        U, step = _basis_step(U, VtV, VtX, step)
+        cur = fit(U)
+        if prev - cur <= tol * max(abs(prev), 1e-300):
+            break
+        prev = cur
+    return U
+
+
+def atom_cosines(U_ref, U) -> np.ndarray:
+    """Cosine similarity of every atom pair, ``(k_ref, k)``; rows of zero norm give 0."""
+    A = np.asarray(U_ref, dtype=float)
+    B = np.asarray(U, dtype=float)
+    na = np.linalg.norm(A, axis=1, keepdims=True)
+    nb = np.linalg.norm(B, axis=1, keepdims=True)
+    return (A / np.where(na > 0, na, 1.0)) @ (B / np.where(nb > 0, nb, 1.0)).T
+
+
+def match_atoms(U_ref, U) -> tuple[np.ndarray, np.ndarray]:
+    """Order the atoms of ``U`` like those of ``U_ref`` (Hungarian, cosine similarity).
+
+    Parameters
+    ----------
+    U_ref, U : arrays (k, d), the same number of atoms.
+
+    Returns
+    -------
+    perm : int array (k,)
+        ``U[perm]`` has its atom ``i`` matched to atom ``i`` of ``U_ref``;
+        the matching maximises the summed cosine similarity
+        (:func:`scipy.optimize.linear_sum_assignment`).
+    cosine : array (k,)
+        Cosine similarity of each matched pair.
+    """
+    C = atom_cosines(U_ref, U)
+    if C.shape[0] != C.shape[1]:
+        raise ValueError(f"match_atoms: both bases need the same number of atoms, got {C.shape}")
+    rows, cols = linear_sum_assignment(-C)
+    perm = np.empty(C.shape[0], dtype=int)
+    perm[rows] = cols
+    return perm, C[np.arange(C.shape[0]), perm]
+
+
+# --------------------------------------------------------------------------- #
+# Dynamic time warping
+# --------------------------------------------------------------------------- #
+def joint_distance_matrix(A, B) -> np.ndarray:
+    """Mean per-joint Euclidean distance between every frame pair.
+
+    Parameters
+    ----------
+    A : array (..., n, 34); B : array (..., m, 34)
+        Feature rows ``x1, y1, … x17, y17`` in any one unit (leading batch
+        dimensions broadcast).
+
+    Returns
+    -------
+    array (..., n, m), in the features' unit.
+    """
+    A = np.asarray(A, dtype=float)
+    B = np.asarray(B, dtype=float)
+    if A.shape[-1] != N_FEATURES or B.shape[-1] != N_FEATURES:
+        raise ValueError(f"expected {N_FEATURES} feature columns, got {A.shape} and {B.shape}")
+    out = None
+    # One joint at a time keeps the work array at n × m instead of n × m × 34.
+    for j in range(N_JOINTS):
+        dx = A[..., :, None, 2 * j] - B[..., None, :, 2 * j]
+        dy = A[..., :, None, 2 * j + 1] - B[..., None, :, 2 * j + 1]
+        dist = np.sqrt(dx * dx + dy * dy)
+        out = dist if out is None else out + dist
+    return out / N_JOINTS
+
+
+def dtw_accumulate(cost) -> np.ndarray:
+    """Accumulated DTW cost ``D`` of a cost matrix (symmetric steps, unit weights).
+
+    ``D[i, j] = C[i, j] + min(D[i−1, j−1], D[i−1, j], D[i, j−1])``.  Each row
+    is computed at once: the in-row recursion D[i, j] = min(t[j], D[i, j−1] +
+    C[i, j]) is a min-plus scan, D[i, j] = S[j] + min_{l ≤ j}(t[l] − S[l]) with S
+    the running sum of the row's costs, i.e. ``np.minimum.accumulate``.
+
+    Parameters
+    ----------
+    cost : array (..., n, m), non-negative; leading dimensions are a batch.
+
+    Returns
+    -------
+    D : array (..., n, m); ``D[..., -1, -1]`` is the DTW distance (sum of the
+    costs along the best path).
+    """
+    C = np.asarray(cost, dtype=float)
+    if C.ndim < 2 or C.shape[-1] == 0 or C.shape[-2] == 0:
+        raise ValueError(f"dtw: need a cost matrix (..., n, m) with n, m >= 1, got {C.shape}")
+    D = np.empty_like(C)
+    D[..., 0, :] = np.cumsum(C[..., 0, :], axis=-1)
+    best = np.empty(C.shape[:-2] + C.shape[-1:])
+    for i in range(1, C.shape[-2]):
+        prev = D[..., i - 1, :]
+        best[..., 0] = prev[..., 0]
+        np.minimum(prev[..., 1:], prev[..., :-1], out=best[..., 1:])
+        row = C[..., i, :]
+        S = np.cumsum(row, axis=-1)
+        t = best + row - S
+        D[..., i, :] = np.minimum.accumulate(t, axis=-1) + S
+    return D
+
+
+def dtw_path(D) -> np.ndarray:
+    """Backtrack the best path through an accumulated cost ``D`` (n, m).
+
+    Returns
+    -------
+    path : int array (L, 2) of (i, j) pairs from (0, 0) to (n−1, m−1),
+    monotone in both, each step (1, 1), (1, 0) or (0, 1).  Ties prefer the
+    diagonal step.
+    """
+    D = np.asarray(D)
+    i, j = D.shape[0] - 1, D.shape[1] - 1
+    out = [(i, j)]
+    while i > 0 or j > 0:
+        if i == 0:
+            j -= 1
+        elif j == 0:
+            i -= 1
+        else:
+            a, b, c = D[i - 1, j - 1], D[i - 1, j], D[i, j - 1]
+            if a <= b and a <= c:
+                i, j = i - 1, j - 1
+            elif b <= c:
+                i -= 1
+            else:
+                j -= 1
+        out.append((i, j))
+    return np.array(out[::-1], dtype=int)
+
+
+def dtw_align(A, B):
+    """DTW of two clips of features by mean per-joint distance.
+
+    Parameters
+    ----------
+    A : array (n, 34); B : array (m, 34) (or a batch ``(b, n, 34)`` of clips of
+        equal length against one ``B``).
+
+    Returns
+    -------
+    error : float (or array (b,))
+        Mean per-joint Euclidean distance over the pairs of the best path
+        (the accumulated cost divided by the path length), in the features'
+        unit -- zero iff ``A`` is a time warp of ``B``.
+    path : int array (L, 2), or a list of them for a batch.
+    """
+    A = np.asarray(A, dtype=float)
+    C = joint_distance_matrix(A, np.asarray(B, dtype=float))
+    D = dtw_accumulate(C)
+    if C.ndim == 2:
+        p = dtw_path(D)
+        return float(D[-1, -1] / len(p)), p
+    paths = [dtw_path(d) for d in D]
+    return np.array([d[-1, -1] / len(p) for d, p in zip(D, paths)]), paths
+
+
+def align_to_reference(X, X_ref) -> np.ndarray:
+    """Reference frame of every frame of ``X`` (n, 34) under DTW to ``X_ref`` (m, 34).
+
+    Where DTW maps a frame to several reference frames, their rounded mean is
+    used.  Returns an int array (n,) of indices into ``X_ref``.
+    """
+    _, path = dtw_align(X, X_ref)
+    n = np.asarray(X).shape[0]
+    sums = np.bincount(path[:, 0], weights=path[:, 1], minlength=n)
+    counts = np.bincount(path[:, 0], minlength=n)
+    return np.rint(sums / counts).astype(int)
+
+
+# --------------------------------------------------------------------------- #
+# The translator
+# --------------------------------------------------------------------------- #
+def _labels(name, values, n):
+    values = np.asarray(values)
+    if values.shape != (n,):
+        raise ValueError(f"{name} must give one label per row of X ({n}), got shape {values.shape}")
+    return values.astype(str)
+
+
+def _runs(*columns) -> np.ndarray:
+    """Clip ids from runs of consecutive rows with equal labels, ``(n,)`` str."""
+    n = len(columns[0])
+    change = np.zeros(n, dtype=bool)
+    change[0] = True
+    for col in columns:
+        change[1:] |= col[1:] != col[:-1]
+    return np.char.add("run", np.cumsum(change).astype(str))
+
+
+class StyleTranslator(BaseEstimator):
+    """Translate motion between styles by recombining NNSF weights and bases.
+
+    Parameters
+    ----------
+    n_components : int, default=16
+        Rank k of the pooled NNSF.
+    alpha : float >= 0, default=0.01
+        Sparseness weight on V (NNSF's α), also used when encoding clips.
+    beta : float >= 0, default=10.0
+        Class-separability weight of the pooled fit; 0 gives Hoyer's NNSC.
+    label : {"content", "style"}, default="content"
+        The labels of the pooled fit's class term.
+    class_in_loop : bool, default=True
+        NNSF's SPEC D3 flag.
+    reading : {"style_basis", "content_basis"}, default="style_basis"
+        Which factor carries the style (see the module docstring).
+    basis : {"aligned", "refit", "separate"}, default="aligned"
+        How per-style bases with corresponding atoms are learned.
+    ridge : float >= 0, default=0.05
+        Pull of per-style bases towards U₀ (:func:`refit_basis`).
+    refit_iter : int, default=100
+        Basis steps of a per-style (or per-clip) refit.
+    align_iter : int, default=60
+        Alternations of the ``"aligned"`` fit (one weight update and
+        ``basis_steps`` basis steps per style each).
+    basis_steps : int, default=3
+        Basis steps per style in one alternation of the ``"aligned"`` fit.
+    keep_residual : bool, default=True
+        Add back the part of the weighted clip that its own basis does not
+        reproduce: X̂ = V U_target + (X − V U_source).  The factorisation then
+        changes only what it models (the style) and the clip keeps its
+        details; False gives the plain recombination X̂ = V U_target.
+    max_iter : int, default=150
+        Iterations of the pooled NNSF fit and of encoding a clip.
+    tol : float, default=1e-5
+        Relative tolerance of the pooled fit and of encoding.
+    init : str, default="nndsvda"
+        Initialisation of the pooled fit.
+    random_state : int or None, default=0
+
+    Attributes
+    ----------
+    nnsf_ : NNSF
+        The pooled fit; ``nnsf_.components_`` is U₀.
+    components_ : ndarray (k, d)
+        U₀.
+    style_bases_ : dict style -> ndarray (k, d)
+        U_s, atoms in U₀'s order.
+    styles_, contents_ : ndarray of str
+        Labels seen in ``fit``.
+    atom_cosine_ : dict style -> ndarray (k,)
+        Cosine between atom i of U_s and of U₀ (how far the style moved it).
+    content_means_ : dict content -> ndarray (d,)
+        Mean feature row of each content over all styles (used to choose the
+        style clip of the ``"content_basis"`` reading).
+    """
+
+    def __init__(self, n_components=16, *, alpha=0.01, beta=10.0, label="content", class_in_loop=True,
+                 reading="style_basis", basis="aligned", ridge=0.05, refit_iter=100, align_iter=60,
+                 basis_steps=3, keep_residual=True, max_iter=150, tol=1e-5, init="nndsvda",
+                 random_state=0):
+        self.n_components = n_components
+        self.alpha = alpha
+        self.beta = beta
+        self.label = label
+        self.class_in_loop = class_in_loop
+        self.reading = reading
+        self.basis = basis
+        self.ridge = ridge
+        self.refit_iter = refit_iter
+        self.align_iter = align_iter
+        self.basis_steps = basis_steps
+        self.keep_residual = keep_residual
+        self.max_iter = max_iter
+        self.tol = tol
+        self.init = init
+        self.random_state = random_state
+
+    # ------------------------------------------------------------------ checks
+    def _check_params(self):
+        if self.reading not in READINGS:
+            raise ValueError(f"reading must be one of {READINGS}, got {self.reading!r}")
+        if self.basis not in BASES:
+            raise ValueError(f"basis must be one of {BASES}, got {self.basis!r}")
+        if self.label not in ("content", "style"):
+            raise ValueError(f"label must be 'content' or 'style', got {self.label!r}")
+        for name in ("ridge", "alpha", "beta", "tol"):
+            v = getattr(self, name)
+            if not (isinstance(v, numbers.Real) and not isinstance(v, bool) and v >= 0):
+                raise ValueError(f"{name} must be a number >= 0, got {v!r}")
+        for name in ("refit_iter", "align_iter", "basis_steps", "max_iter"):
+            v = getattr(self, name)
+            if not (isinstance(v, numbers.Integral) and not isinstance(v, bool) and v >= 1):
+                raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
+
+    def _check_X(self, X, who):
+        X = check_array(X, dtype=np.float64, ensure_min_samples=1)
+        check_non_negative(X, who)
+        if hasattr(self, "n_features_in_") and X.shape[1] != self.n_features_in_:
+            raise ValueError(f"{who}: X has {X.shape[1]} features, the translator was fitted on "
+                             f"{self.n_features_in_}")
+        return X
+
+    def _check_style(self, s, role):
+        check_is_fitted(self, "style_bases_")
+        if str(s) not in self.style_bases_:
+            raise ValueError(f"unknown {role} style {s!r}; fitted styles: {sorted(self.style_bases_)}")
+        return str(s)
+
+    # --------------------------------------------------------------------- fit
+    def fit(self, X, content, style, clip=None):
+        """Learn U₀, the per-style bases and what the chosen reading needs.
+
+        Parameters
+        ----------
+        X : array (n, d), non-negative unified features (template units),
+            frames of a clip in time order.
+        content : array (n,), motion class of every row.
+        style : array (n,), style (character) of every row.
+        clip : array (n,), optional
+            Clip of every row; by default every run of consecutive rows with
+            the same style and content is one clip.  Only the ``"aligned"``
+            basis and the ``"content_basis"`` reading use clips.
+
+        Returns
+        -------
+        self
+        """
+        self._check_params()
+        X = check_array(X, dtype=np.float64, ensure_min_samples=2)
+        check_non_negative(X, "StyleTranslator.fit")
+        n, d = X.shape
+        content = _labels("content", content, n)
+        style = _labels("style", style, n)
+        clip = _runs(style, content) if clip is None else _labels("clip", clip, n)
+        if len(np.unique(style)) < 2:
+            raise ValueError("StyleTranslator.fit needs frames of at least two styles")
+
+        labels = content if self.label == "content" else style
+        use_labels = self.beta > 0 and len(np.unique(labels)) > 1
+        self.nnsf_ = NNSF(self.n_components, alpha=self.alpha, beta=self.beta,
+                          class_in_loop=self.class_in_loop, max_iter=self.max_iter, tol=self.tol,
+                          init=self.init, random_state=self.random_state)
+        V = self.nnsf_.fit_weights(X, labels if use_labels else None)
+        U0 = self.nnsf_.components_
+        self.components_ = U0
+        self.n_features_in_ = d
+        self.styles_ = np.unique(style)
+        self.contents_ = np.unique(content)
+
+        if self.basis == "refit":
+            bases = {s: refit_basis(X[style == s], V[style == s], U0, max_iter=self.refit_iter,
+                                    ridge=self.ridge) for s in self.styles_}
+        elif self.basis == "separate":
+            bases = {}
+            for s in self.styles_:
+                rows = style == s
+                sub = NNSF(U0.shape[0], alpha=self.alpha, beta=0.0, max_iter=self.max_iter,
+                           tol=self.tol, init=self.init if rows.sum() >= U0.shape[0] else "random",
+                           random_state=self.random_state).fit(X[rows])
+                perm, _ = match_atoms(U0, sub.components_)
+                bases[s] = sub.components_[perm]
+        else:
+            bases, self.reference_clips_ = self._fit_aligned(X, V, U0, style, content, clip)
+        self.style_bases_ = bases
+        self.atom_cosine_ = {s: np.einsum("kd,kd->k", U, U0) for s, U in bases.items()}
+        self.content_means_ = {c: X[content == c].mean(axis=0) for c in self.contents_}
+        # The content_basis reading takes weights from a clip of the target
+        # style: keep every clip's frames by (style, content).
+        self.clips_ = {}
+        for q in np.unique(clip):
+            rows = np.flatnonzero(clip == q)
+            key = (style[rows[0]], content[rows[0]])
+            self.clips_.setdefault(key, []).append(X[rows])
+        return self
+
+    def _fit_aligned(self, X, V, U0, style, content, clip):
+        """Per-style bases with weights shared by DTW-aligned frames of one content.
+
+        Returns the bases and, per content, the reference clip's name.
+        """
+        n = X.shape[0]
+        k = U0.shape[0]
+        styles = self.styles_
+        s_idx = np.searchsorted(styles, style)
+        g = np.empty(n, dtype=int)                 # shared weight row of every frame
+        refs, offset = {}, 0
+        clip_names, first = np.unique(clip, return_index=True)
+        for c in self.contents_:
+            names = [q for q, f in zip(clip_names, first) if content[f] == c]
+            lengths = np.array([np.sum(clip == q) for q in names])
+            # Reference: the clip of median length (deterministic, and not an
+            # outlier in tempo), ties to the first name.
+            order = np.argsort(lengths, kind="stable")
+            ref = names[order[(len(order) - 1) // 2]]
+            refs[c] = ref
+            X_ref = X[clip == ref]
+            for q in names:
+                rows = np.flatnonzero(clip == q)
+                r = np.arange(len(rows)) if q == ref else align_to_reference(X[rows], X_ref)
+                g[rows] = offset + r
+            offset += len(X_ref)
+        R = offset
+        M = sp.csr_matrix((np.ones(n), (g, np.arange(n))), shape=(R, n))      # frames -> rows
+        counts = np.asarray(M.sum(axis=1)).ravel()
+        cnt = np.zeros((R, len(styles)))
+        np.add.at(cnt, (g, s_idx), 1.0)
+
+        # Shared weights start as the mean pooled weights of the frames of a row.
+        W = np.asarray(M @ V) / np.maximum(counts, 1)[:, None]
+        W = np.maximum(W, EPSILON)
+        bases = np.stack([U0.copy() for _ in styles])                          # (S, k, d)
+        steps = np.zeros(len(styles))
+        rows_of = [np.flatnonzero(s_idx == i) for i in range(len(styles))]
+        alpha = float(self.alpha)
+        for _ in range(self.align_iter):
+            # Weight step: Hoyer's update of every shared row over all frames mapped to it.
+            XU = np.empty((n, k))
+            for i, rows in enumerate(rows_of):
+                XU[rows] = X[rows] @ bases[i].T
+            num = np.asarray(M @ XU)
+            den = np.zeros_like(W)
+            for i in range(len(styles)):
+                # Σ_s cnt[r, s] · w_r U_s U_sᵀ, one (R × k)(k × k) product per style.
+                den += cnt[:, i, None] * (W @ (bases[i] @ bases[i].T))
+            if alpha > 0:
+                den += alpha * counts[:, None]
+            W *= num / np.maximum(den, EPSILON)
+            # Basis steps per style, weights fixed.
+            for i, rows in enumerate(rows_of):
+                Vs = W[g[rows]]
+                VtV, VtX = Vs.T @ Vs, Vs.T @ X[rows]
+                if self.ridge > 0:
+                    lam = self.ridge * max(float(np.trace(VtV)) / k, np.finfo(float).tiny)
+                    VtV = VtV + lam * np.eye(k)
+                    VtX = VtX + lam * U0
+                if steps[i] == 0:
+                    steps[i] = 1.0 / max(float(np.linalg.eigvalsh(VtV)[-1]), np.finfo(float).tiny)
+                U = bases[i]
+                for _ in range(self.basis_steps):
+                    U, steps[i] = _basis_step(U, VtV, VtX, steps[i])
+                bases[i] = U
+        self.shared_weights_ = W
+        self.frame_rows_ = g
+        return {s: bases[i] for i, s in enumerate(styles)}, refs
+
+    # --------------------------------------------------------------- translate
+    def encode(self, X_clip, style_name=None) -> np.ndarray:
+        """Weights ``(n, k)`` of a clip under style ``style_name``'s basis (U₀ if None)."""
+        check_is_fitted(self, "style_bases_")
+        X_clip = self._check_X(X_clip, "StyleTranslator.encode")
+        U = self.components_ if style_name is None else self.style_bases_[self._check_style(style_name, "source")]
+        return weights_for_basis(X_clip, U, alpha=float(self.alpha), max_iter=self.max_iter, tol=float(self.tol))
+
+    def nearest_content(self, X_clip) -> str:
+        """The fitted content whose mean feature row is nearest the clip's mean."""
+        check_is_fitted(self, "content_means_")
+        m = np.asarray(X_clip, dtype=float).mean(axis=0)
+        names = list(self.content_means_)
+        d = [np.linalg.norm(m - self.content_means_[c]) for c in names]
+        return names[int(np.argmin(d))]
+
+    def style_clip(self, target_style, content) -> np.ndarray:
+        """A fitted clip of ``target_style``, of ``content`` if there is one, else of the
+        content whose mean pose is nearest; shape ``(n, d)``."""
+        target_style = self._check_style(target_style, "target")
+        have = [c for (s, c) in self.clips_ if s == target_style]
+        if content in have:
+            c = content
+        else:
+            ref = self.content_means_.get(content)
+            if ref is None:
+                raise ValueError(f"unknown content {content!r}; fitted contents: {list(self.contents_)}")
+            c = min(have, key=lambda h: float(np.linalg.norm(self.content_means_[h] - ref)))
+        return self.clips_[(target_style, c)][0]
+
+    def translate(self, X_clip, source_style, target_style, *, content=None, style_clip=None) -> np.ndarray:
+        """Features of the clip's motion in the target style, template units.
+
+        Parameters
+        ----------
+        X_clip : array (n, d), non-negative unified features of one clip.
+        source_style : style the clip is performed in.
+        target_style : style to translate to.
+        content : the clip's content; only the ``"content_basis"`` reading
+            uses it (to pick a clip of the target style), inferred from the
+            nearest content mean when None.
+        style_clip : array (m, d), optional
+            ``"content_basis"`` reading only: the target-style clip whose
+            weights are used; by default :meth:`style_clip`.
+
+        Returns
+        -------
+        X_hat : ndarray (n, d) for ``"style_basis"`` (the clip's frames and
+        timing), ``(m, d)`` for ``"content_basis"`` (the style clip's).
+
+        Raises
+        ------
+        ValueError
+            For an unknown style or content, or features of the wrong width.
+        """
+        check_is_fitted(self, "style_bases_")
+        X_clip = self._check_X(X_clip, "StyleTranslator.translate")
+        source_style = self._check_style(source_style, "source")
+        target_style = self._check_style(target_style, "target")
+        if content is not None and str(content) not in self.content_means_:
+            raise ValueError(f"unknown content {content!r}; fitted contents: {list(self.contents_)}")
+        if self.reading == "style_basis":
+            U_src = self.style_bases_[source_style]
+            V = self.encode(X_clip, source_style)
+            X_hat = V @ self.style_bases_[target_style]
+            if self.keep_residual:
+                X_hat += X_clip - V @ U_src
+            return X_hat
+        # content_basis: the clip's own basis (refitted from U0 with its
+        # weights fixed) recombined with the weights of a target-style clip.
+        U0 = self.components_
+        V_clip = self.encode(X_clip, None)
+        U_clip = refit_basis(X_clip, V_clip, U0, max_iter=self.refit_iter, ridge=self.ridge)
+        if style_clip is None:
+            c = str(content) if content is not None else self.nearest_content(X_clip)
+            style_clip = self.style_clip(target_style, c)
+        style_clip = self._check_X(style_clip, "StyleTranslator.translate (style_clip)")
+        V_style = self.encode(style_clip, None)
+        X_hat = V_style @ U_clip
+        if self.keep_residual:
+            X_hat += style_clip - V_style @ U0
+        return X_hat
+
+    def reconstruct(self, X_clip, style_name) -> np.ndarray:
+        """``encode(X_clip, style) @ U_style``: the clip as the style's basis reproduces it, (n, d)."""
+        style_name = self._check_style(style_name, "source")
+        return self.encode(X_clip, style_name) @ self.style_bases_[style_name]
+
+
+# --------------------------------------------------------------------------- #
+# Back to pixels, and a quick look
+# --------------------------------------------------------------------------- #
+def to_character_points(features, character: str, unifier) -> np.ndarray:
+    """Translated features ``(n, 34)`` -> pixel key points ``(n, 17, 2)`` of ``character``.
+
+    Uses the target character's inverse unification, P = W_char⁻¹ (X − o)
+    (:meth:`nnsf.skeleton.Unifier.inverse_transform`), so the motion takes the
+    character's own bone proportions and place on the canvas.
+    """
+    return unifier.inverse_transform(np.asarray(features, dtype=float), character)
+
+
+def _limits(sequences, pad=0.08):
+    allp = np.concatenate([np.asarray(s).reshape(-1, 2) for s in sequences])
+    lo, hi = allp.min(axis=0), allp.max(axis=0)
+    span = float(max(hi - lo)) or 1.0
+    mid = (lo + hi) / 2
+    half = span * (0.5 + pad)
+    return (mid[0] - half, mid[0] + half), (mid[1] - half, mid[1] + half)
+
+
+def write_stick_gif(path, sequences, *, titles=None, fps: float = 15.0, size: float = 2.6,
+                    colors=None) -> Path:
+    """Write stick figures of one or more clips side by side as an animated GIF.
+
+    Parameters
+    ----------
+    path : output file (``.gif``), written atomically.
+    sequences : array (n, 17, 2) or (n, 34), or a list of them
+        Key points (pixels or template units, y down).  Clips of different
+        lengths loop over the longest; shorter ones hold their last frame.
+    titles : list of str, optional, one per clip.
+    fps : frames per second of the animation.
+    size : inches per panel (the GIF is 100 dpi).
+    colors : list of matplotlib colours, optional.
+
+    Returns
+    -------
+    Path of the written file.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    from PIL import Image
+
+    from nnsf.io import atomic_path
+
+    if isinstance(sequences, np.ndarray) and sequences.ndim in (2, 3) and (
+            sequences.ndim == 2 or sequences.shape[-2:] == (N_JOINTS, 2)):
+        sequences = [sequences]
+    seqs = [to_points(s) if np.asarray(s).shape[-1] == N_FEATURES else np.asarray(s, dtype=float)
+            for s in sequences]
+    if not seqs or any(s.ndim != 3 or s.shape[1:] != (N_JOINTS, 2) or len(s) == 0 for s in seqs):
+        raise ValueError("write_stick_gif: every sequence must be (n >= 1, 17, 2) points or (n, 34) features")
+    if not fps > 0:
+        raise ValueError(f"fps must be > 0, got {fps!r}")
+    titles = list(titles) if titles is not None else [""] * len(seqs)
+    colors = list(colors) if colors is not None else [f"C{i}" for i in range(len(seqs))]
+    xlim, ylim = _limits(seqs)
+    n_frames = max(len(s) for s in seqs)
+
+    fig = Figure(figsize=(size * len(seqs), size + 0.3), dpi=100, layout="constrained")
+    canvas = FigureCanvasAgg(fig)
+    axes = [fig.add_subplot(1, len(seqs), i + 1) for i in range(len(seqs))]
+    lines = []
+    for ax, title, col in zip(axes, titles, colors):
+        ax.set_xlim(*xlim)
+        ax.set_ylim(ylim[1], ylim[0])          # image axes: y down
+        ax.set_aspect("equal")
+        ax.set_xticks([])
+        ax.set_yticks([])
+        ax.set_title(title, fontsize=10)
+        bones = [ax.plot([], [], color=col, linewidth=2.5, solid_capstyle="round")[0] for _ in BONES]
+        dots = ax.plot([], [], linestyle="none", marker="o", markersize=3, color="0.2")[0]
+        lines.append((bones, dots))
+    images = []
+    for t in range(n_frames):
+        for seq, (bones, dots) in zip(seqs, lines):
+            p = seq[min(t, len(seq) - 1)]
+            for line, (a, b) in zip(bones, BONES):
+                line.set_data([p[a, 0], p[b, 0]], [p[a, 1], p[b, 1]])
+            dots.set_data(p[:, 0], p[:, 1])
+        canvas.draw()
+        rgba = np.asarray(canvas.buffer_rgba())
+        images.append(Image.fromarray(rgba[..., :3].copy()))
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:],
+                       duration=int(round(1000.0 / fps)), loop=0, optimize=False)
+    return path
