@@ -162,7 +162,8 @@ def factorize(params: dict, features_csv=FEATURES_CSV, model=MODEL_PATH, reports
         V = est.fit_weights(X, y)
     seconds = time.perf_counter() - started
     U, W = est.components_, est.class_map_
-    train_pred = est.classes_[np.argmax(V @ W, axis=1)]
+    with threadpool_limits(limits=1, user_api="blas"):
+        train_pred = est.predict(X)  # training frames encoded as new ones are
     metrics = {
         "n_iter": est.n_iter_,
         "objective": float(est.objective_[-1]),
