@@ -163,7 +163,8 @@ def factorize(params: dict, features_csv=FEATURES_CSV, model=MODEL_PATH, reports
     seconds = time.perf_counter() - started
     U, W = est.components_, est.class_map_
     with threadpool_limits(limits=1, user_api="blas"):
-        train_pred = est.predict(X)  # training frames encoded as new ones are
+        encoded = est.transform(X)  # the training frames encoded as new ones are
+    train_pred = est.classes_[np.argmax(encoded @ W, axis=1)]
     metrics = {
         "n_iter": est.n_iter_,
         "objective": float(est.objective_[-1]),
@@ -172,7 +173,8 @@ def factorize(params: dict, features_csv=FEATURES_CSV, model=MODEL_PATH, reports
         "v_sparsity": float(np.mean(V < 1e-6 * V.max())),
     }
     write_npz(
-        model, U=U, V=V, W=W, classes=est.classes_.astype(str), objective=est.objective_,
+        model, U=U, V=V, V_encoded=encoded, W=W, classes=est.classes_.astype(str),
+        objective=est.objective_,
         clip=table["clip"].to_numpy(str), character=table["character"].to_numpy(str),
         motion=table["motion"].to_numpy(str), label=np.array(label),
     )
@@ -282,8 +284,13 @@ def _evaluate_metrics(summary: pd.DataFrame, nnsf_rank: int, label: str, folds: 
 def isomap(params: dict, model=MODEL_PATH, features_csv=FEATURES_CSV, reports=REPORTS) -> StageResult:
     """ISOMAP of V (the paper's Fig. 6): residual variance and intrinsic dimension.
 
-    Rows of V are sampled evenly over characters (``isomap.samples``; ISOMAP
-    needs O(n²) memory).  Writes ``reports/isomap.json``, the curve
+    The weights embedded are the training frames *encoded* with U fixed
+    (``V_encoded``), the representation every new frame gets; the
+    label-informed V of the fit collapses into class clusters when β is large.
+    Rows are sampled evenly over characters (``isomap.samples``; ISOMAP
+    needs O(n²) memory).  A disconnected neighbour graph is bridged by its
+    closest pairs of points rather than by raising the neighbour count, which
+    keeps the geodesics local.  Writes ``reports/isomap.json``, the curve
     ``reports/plots/isomap_residual.csv`` and ``reports/figures/isomap.png``
     (3D embedding coloured by character, residual-variance curve).
     """
@@ -295,14 +302,15 @@ def isomap(params: dict, model=MODEL_PATH, features_csv=FEATURES_CSV, reports=RE
     max_dim = int(require(params, "isomap.max_dim"))
     seed = int(require(params, "seed"))
     fitted = read_npz(model)
-    for key in ("V", "character"):
+    for key in ("V_encoded", "character"):
         if key not in fitted:
             raise InputError(model, key, "an array written by the factorize stage")
-    V, characters = fitted["V"], fitted["character"]
+    V, characters = fitted["V_encoded"], fitted["character"]
     rows = stratified_sample(characters, samples, seed)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", UserWarning)
-        dims, rv, embedding = residual_variance(V[rows], n_neighbors=neighbors, max_dim=max_dim)
+        dims, rv, embedding = residual_variance(V[rows], n_neighbors=neighbors, max_dim=max_dim,
+                                                disconnected="bridge")
     notes = [str(w.message) for w in caught if issubclass(w.category, UserWarning)]
     dim = intrinsic_dimension(dims, rv)
     reports = Path(reports)
@@ -310,7 +318,8 @@ def isomap(params: dict, model=MODEL_PATH, features_csv=FEATURES_CSV, reports=RE
               pd.DataFrame({"dim": dims, "residual_variance": rv}))
     fig = isomap_figure(embedding[:, :3], characters[rows], dims, rv, dim,
                         reports / "figures" / "isomap.png",
-                        title=f"ISOMAP of the NNSF weights V ({len(rows)} frames, rank {V.shape[1]})")
+                        title=f"ISOMAP of the NNSF weights V, frames encoded with U fixed "
+                              f"({len(rows)} frames, rank {V.shape[1]})")
     result = {
         "intrinsic_dimension": int(dim),
         "residual_variance_at_intrinsic": float(rv[dim - 1]),

@@ -181,10 +181,15 @@ def isomap_figure(embedding3d, labels, dims, rv, intrinsic_dim: int, path,
     ax3 = fig.add_subplot(grid[0, 0], projection="3d")
     names = list(dict.fromkeys(sorted(labels.tolist())))
     cmap = _categorical_colors(len(names))
+    index = {name: i for i, name in enumerate(names)}
+    colors = np.array([cmap[index[v]] for v in labels.tolist()])
+    # One scatter in a fixed shuffled order: drawn label by label, the last
+    # label would hide the others wherever points overlap.
+    order = np.random.default_rng(0).permutation(len(labels))
+    ax3.scatter(E[order, 0], E[order, 1], E[order, 2], s=7, c=colors[order], alpha=0.75,
+                depthshade=False)
     for i, name in enumerate(names):
-        sel = labels == name
-        ax3.scatter(E[sel, 0], E[sel, 1], E[sel, 2], s=7, color=cmap[i], alpha=0.75,
-                    depthshade=False, label=str(name))
+        ax3.scatter([], [], [], s=7, color=cmap[i], label=str(name))
     ax3.set_xlabel("ISOMAP 1", fontsize=10)
     ax3.set_ylabel("ISOMAP 2", fontsize=10)
     ax3.set_zlabel("ISOMAP 3", fontsize=10)
