@@ -14,7 +14,8 @@ import yaml
 
 from nnsf.errors import InputError
 
-DATASETS = ("synthetic",)  # the frame-set and BVH sources extend this list
+DATASETS = ("synthetic", "bvh", "frames")
+FACINGS = ("normalise", "none")
 INITS = ("random", "nndsvd", "nndsvda", "nndsvdar")
 METHODS = ("nnsf", "nnsc", "nmf", "bilinear")
 LABELS = ("motion", "character")
@@ -62,10 +63,16 @@ def _list(item):
 SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "seed": _int(0),
     "dataset.name": _choice(DATASETS),
+    "dataset.path": _str(),
     "dataset.synthetic.characters": _int(2, 12),
     "dataset.synthetic.clips_per_cell": _int(1),
     "dataset.synthetic.frames": _int(4),
     "dataset.synthetic.noise_px": _num(0),
+    "dataset.bvh.fps": _num(0, strict=True),
+    "dataset.bvh.azimuth": _num(),
+    "dataset.bvh.elevation": _num(),
+    "dataset.bvh.facing": _choice(FACINGS),
+    "dataset.bvh.center": _bool(),
     "unify.margin": _num(0, strict=True),
     "nnsf.label": _choice(LABELS),
     "nnsf.rank": _rank(),

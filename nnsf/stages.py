@@ -47,6 +47,9 @@ class StageResult:
     params: dict = field(default_factory=dict)
     metrics: dict = field(default_factory=dict)
     artifacts: list[Path] = field(default_factory=list)
+    #: Sub-results to log as one nested MLflow run each (e.g. one per method
+    #: of an evaluation), by run name.
+    runs: dict[str, "StageResult"] = field(default_factory=dict)
 
 
 # ---------------------------------------------------------------- helpers
@@ -80,13 +83,24 @@ def data(params: dict, out_dir=RAW_DIR) -> StageResult:
     """Produce the raw key-point table for ``dataset.name`` into ``out_dir``.
 
     Writes ``keypoints.csv`` (the contract, pixel coordinates) and
-    ``characters.json`` (the generator's ground truth).
+    ``characters.json`` (what the source knows about its characters: the
+    generator's ground truth, or the BVH files read and skipped).
+
+    Sources (``dataset.name``):
+
+    - ``synthetic``: the embedded generator (``dataset.synthetic``);
+    - ``bvh``: every labelled BVH clip of the folder ``dataset.path``,
+      projected to 2D (``dataset.bvh``); style = character, content = motion;
+    - ``frames``: the key points the tracking stage derived from rendered
+      or drawn frames, ``<dataset.path>/keypoints.csv``.
     """
+    name = require(params, "dataset.name")
+    if name == "bvh":
+        return _data_bvh(params, out_dir)
+    if name == "frames":
+        return _data_frames(params, out_dir)
     from nnsf.datasets import synthetic
 
-    name = require(params, "dataset.name")
-    if name != "synthetic":
-        raise InputError(source_of(params), "dataset.name", "synthetic", name)
     seed = int(require(params, "seed"))
     kw = {
         "characters": int(require(params, "dataset.synthetic.characters")),
@@ -101,9 +115,74 @@ def data(params: dict, out_dir=RAW_DIR) -> StageResult:
         write_json(tmp / "characters.json", synthetic.describe(**kw))
     return StageResult(
         params={"dataset": name, **{f"synthetic_{k}": v for k, v in kw.items()}},
-        metrics={"frames": len(table), "clips": table["clip"].nunique(),
-                 "characters": table["character"].nunique(), "motions": table["motion"].nunique()},
+        metrics=_table_counts(table),
     )
+
+
+def _table_counts(table: pd.DataFrame) -> dict:
+    return {"frames": len(table), "clips": table["clip"].nunique(),
+            "characters": table["character"].nunique(), "motions": table["motion"].nunique()}
+
+
+def _dataset_folder(params: dict) -> Path:
+    path = Path(require(params, "dataset.path"))
+    if not path.is_dir():
+        raise InputError(source_of(params), "dataset.path",
+                         f"an existing folder for dataset {require(params, 'dataset.name')!r}",
+                         str(path))
+    return path
+
+
+def _data_bvh(params: dict, out_dir) -> StageResult:
+    from nnsf.datasets import bvh_source
+
+    folder = _dataset_folder(params)
+    kw = {
+        "fps": float(require(params, "dataset.bvh.fps")),
+        "azimuth": float(require(params, "dataset.bvh.azimuth")),
+        "elevation": float(require(params, "dataset.bvh.elevation")),
+        "facing": require(params, "dataset.bvh.facing"),
+        "center": bool(require(params, "dataset.bvh.center")),
+    }
+    table, report = bvh_source.read_folder(folder, **kw)
+    clips = table.groupby("clip", sort=True).agg(character=("character", "first"),
+                                                  motion=("motion", "first"), frames=("frame", "size"))
+    described = {
+        "source": "bvh",
+        "path": str(require(params, "dataset.path")),
+        "options": kw,
+        "clips": {c: {"character": r.character, "motion": r.motion, "frames": int(r.frames)}
+                  for c, r in clips.iterrows()},
+        "report": report,
+    }
+    with atomic_dir(out_dir) as tmp:
+        contract.write_table(tmp / "keypoints.csv", table)
+        write_json(tmp / "characters.json", described)
+    return StageResult(
+        params={"dataset": "bvh", "dataset_path": str(folder), **{f"bvh_{k}": v for k, v in kw.items()}},
+        metrics={**_table_counts(table), "skipped_or_warned": len(report)},
+    )
+
+
+def _data_frames(params: dict, out_dir) -> StageResult:
+    folder = _dataset_folder(params)
+    src = folder / "keypoints.csv"
+    if not src.is_file():
+        raise InputError(src, "file", "the tracking stage's key points (run the track stage first)")
+    table = contract.read_table(src)
+    clips = table.groupby("clip", sort=True).agg(character=("character", "first"),
+                                                  motion=("motion", "first"), frames=("frame", "size"))
+    described = {
+        "source": "frames",
+        "path": str(require(params, "dataset.path")),
+        "clips": {c: {"character": r.character, "motion": r.motion, "frames": int(r.frames)}
+                  for c, r in clips.iterrows()},
+    }
+    with atomic_dir(out_dir) as tmp:
+        contract.write_table(tmp / "keypoints.csv", table)
+        write_json(tmp / "characters.json", described)
+    return StageResult(params={"dataset": "frames", "dataset_path": str(folder)},
+                       metrics=_table_counts(table))
 
 
 def features(params: dict, raw_dir=RAW_DIR, out_dir=FEATURES_DIR) -> StageResult:
@@ -196,13 +275,15 @@ def _macro_precision(y_true, y_pred) -> float:
     return float(precision_score(y_true, y_pred, average="macro", zero_division=0))
 
 
-def evaluate(params: dict, features_csv=FEATURES_CSV, reports=REPORTS) -> StageResult:
+def evaluate(params: dict, features_csv=FEATURES_CSV, reports=REPORTS, mapper=None) -> StageResult:
     """Grouped 10-fold CV: precision and reconstruction vs rank for every method.
 
     Writes ``reports/metrics.json`` (DVC metrics), the fold table
     ``reports/cv_folds.csv``, the summary ``reports/precision_vs_rank.csv``
     (mean ± sd), plot data ``reports/plots/{precision,recon_error}_vs_rank.csv``
     and the figures ``reports/figures/{precision,reconstruction}_vs_rank.png``.
+    ``mapper(fn, jobs)`` fans the (method, rank, fold) fits out (see
+    :func:`nnsf.evaluate.crossval.precision_vs_rank`).
     """
     from nnsf.evaluate.crossval import precision_vs_rank, summarise, wide
     from nnsf.evaluate.figures import precision_vs_rank_figure, reconstruction_figure
@@ -225,7 +306,7 @@ def evaluate(params: dict, features_csv=FEATURES_CSV, reports=REPORTS) -> StageR
     try:
         folds_table = precision_vs_rank(
             X, y, groups, styles=styles, methods=methods, ranks=ranks, n_splits=n_splits,
-            seed=seed, max_iter=max_iter, nnsf_params=kw, n_jobs=2,
+            seed=seed, max_iter=max_iter, nnsf_params=kw, n_jobs=2, mapper=mapper,
         )
     except ValueError as exc:
         if "fold" in str(exc) or "clips" in str(exc):

@@ -161,10 +161,15 @@ def _score_fold(method, rank, max_iter, seed, nnsf_params, X, y, styles, train, 
     }
 
 
+def score_fold(job: tuple) -> dict:
+    """:func:`_score_fold` on one packed argument tuple (for a task runner's map)."""
+    return _score_fold(*job)
+
+
 def precision_vs_rank(X, y, groups, styles=None, methods=METHODS, ranks=(2, 4, 8, 16, 34),
                       n_splits: int = 10, seed: int = 0, max_iter: int = 200,
                       nnsf_params: dict | None = None, n_jobs: int = 1,
-                      blas_threads: int | None = 1) -> pd.DataFrame:
+                      blas_threads: int | None = 1, mapper=None) -> pd.DataFrame:
     """Cross-validated precision and reconstruction error for every method and rank.
 
     Parameters
@@ -202,6 +207,11 @@ def precision_vs_rank(X, y, groups, styles=None, methods=METHODS, ranks=(2, 4, 8
     n_jobs : int
         Worker processes (joblib) over the (method, rank, fold) fits; 1 runs
         them in this process.  The table is the same for any ``n_jobs``.
+        Ignored when ``mapper`` is given.
+    mapper : callable, optional
+        ``mapper(fn, jobs) -> list`` running :func:`score_fold` over the
+        packed fit jobs in order, e.g. on a Prefect task runner (the pipeline
+        passes one, so folds fan out on the configured runner).
     blas_threads : int or None
         BLAS threads per fit (``threadpoolctl``).  The matrices are thin
         (d = 34), so one thread is fastest: with several threads the
@@ -263,9 +273,13 @@ def precision_vs_rank(X, y, groups, styles=None, methods=METHODS, ranks=(2, 4, 8
             note = "" if used == rank else f"clipped from {rank} to {used} (max for {method})"
             plan.append((method, int(rank), used, note))
     keys = list(dict.fromkeys((m, used, f) for m, _, used, _ in plan for f in range(len(splits))))
-    tasks = (delayed(_score_fold)(m, used, max_iter, seed, nnsf_params, X, y, styles,
-                                  splits[f][0], splits[f][1], blas_threads) for m, used, f in keys)
-    results = dict(zip(keys, Parallel(n_jobs=n_jobs)(tasks)))
+    jobs = [(m, used, max_iter, seed, nnsf_params, X, y, styles, splits[f][0], splits[f][1],
+             blas_threads) for m, used, f in keys]
+    if mapper is not None:
+        scored = list(mapper(score_fold, jobs))
+    else:
+        scored = Parallel(n_jobs=n_jobs)(delayed(_score_fold)(*job) for job in jobs)
+    results = dict(zip(keys, scored))
 
     rows = []
     for method, rank, used, note in plan:
