@@ -73,6 +73,7 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "dataset.bvh.elevation": _num(),
     "dataset.bvh.facing": _choice(FACINGS),
     "dataset.bvh.center": _bool(),
+    "dataset.bvh.complete_grid": _bool(),
     "unify.margin": _num(0, strict=True),
     "nnsf.label": _choice(LABELS),
     "nnsf.rank": _rank(),

@@ -145,6 +145,12 @@ def _data_bvh(params: dict, out_dir) -> StageResult:
         "center": bool(require(params, "dataset.bvh.center")),
     }
     table, report = bvh_source.read_folder(folder, **kw)
+    if require(params, "dataset.bvh.complete_grid"):
+        table, dropped = _complete_grid(table)
+        report = report + [f"dropped motion {m!r}: present in {n} of "
+                           f"{table['character'].nunique()} styles (dataset.bvh.complete_grid)"
+                           for m, n in dropped]
+        kw["complete_grid"] = True
     clips = table.groupby("clip", sort=True).agg(character=("character", "first"),
                                                   motion=("motion", "first"), frames=("frame", "size"))
     described = {
@@ -162,6 +168,22 @@ def _data_bvh(params: dict, out_dir) -> StageResult:
         params={"dataset": "bvh", "dataset_path": str(folder), **{f"bvh_{k}": v for k, v in kw.items()}},
         metrics={**_table_counts(table), "skipped_or_warned": len(report)},
     )
+
+
+def _complete_grid(table: pd.DataFrame) -> tuple[pd.DataFrame, list[tuple[str, int]]]:
+    """Keep the motions that every style performs; return the table and what was dropped.
+
+    A motion recorded in a few styles only cannot be told apart from those
+    styles, and classes with a clip or two break grouped cross-validation.
+    """
+    styles_per_motion = table.groupby("motion")["character"].nunique()
+    n_styles = table["character"].nunique()
+    keep = styles_per_motion.index[styles_per_motion == n_styles]
+    dropped = [(m, int(n)) for m, n in styles_per_motion.items() if n < n_styles]
+    if len(keep) == 0:
+        raise InputError("dataset", "dataset.bvh.complete_grid",
+                         "at least one motion present in every style (or set it to false)")
+    return table[table["motion"].isin(keep)].reset_index(drop=True), dropped
 
 
 def _data_frames(params: dict, out_dir) -> StageResult:

@@ -29,7 +29,8 @@ BASE = {
         "name": "synthetic",
         "path": "nnsf/datasets",
         "synthetic": {"characters": 2, "clips_per_cell": 1, "frames": 6, "noise_px": 0.0},
-        "bvh": {"fps": 15, "azimuth": 0.0, "elevation": 0.0, "facing": "normalise", "center": True},
+        "bvh": {"fps": 15, "azimuth": 0.0, "elevation": 0.0, "facing": "normalise", "center": True,
+                "complete_grid": True},
     },
     "unify": {"margin": 0.5},
 }
@@ -47,7 +48,8 @@ def test_bvh_source_reads_labelled_clips_and_feeds_the_features_stage(tmp_path):
     folder = tmp_path / "bvh"
     folder.mkdir()
     chosen = [f"dataset-1_{m}_{s}_001" for m in ("walk", "run") for s in ("normal", "happy")]
-    for stem in chosen:
+    partial = "dataset-1_bow_normal_001"   # bow only in one of the two styles: dropped
+    for stem in chosen + [partial]:
         for ext in (".bvh", ".json"):
             shutil.copy(BANDAI / "data" / (stem + ext), folder / (stem + ext))
     (folder / "notes.json").write_text("{}")  # a label file without motion: reported, skipped
@@ -60,6 +62,7 @@ def test_bvh_source_reads_labelled_clips_and_feeds_the_features_stage(tmp_path):
     assert result.metrics["clips"] == 4 and result.metrics["skipped_or_warned"] >= 1
     described = json.loads((tmp_path / "raw" / "characters.json").read_text())
     assert described["source"] == "bvh" and any("notes.json" in line for line in described["report"])
+    assert any("dropped motion 'bow'" in line for line in described["report"])
     # 15 fps from 30 fps halves the frame count of every clip (± 1 for the end).
     per_clip = table.groupby("clip").size()
     assert (per_clip > 10).all()
