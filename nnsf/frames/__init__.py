@@ -1,0 +1,1 @@
+"""Frame sets: rendered cartoon clips, keyframe annotations, CVAT import and key points from curves."""

@@ -1,0 +1,104 @@
+"""Reading a clip's frame images, with clear errors for bad folders and files."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from nnsf.errors import InputError
+from nnsf.frames.annotation import Annotation, check_relative, read_annotation
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+#: The 12 bytes every complete PNG ends with: IEND chunk (length 0, type, CRC).
+PNG_IEND = b"\x00\x00\x00\x00IEND\xaeB`\x82"
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".webp")
+
+
+def _decode(path: Path, source, field_name: str) -> np.ndarray:
+    """Decode one frame file to RGB uint8 ``(H, W, 3)``; InputError on a bad file."""
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise InputError(path, field_name, "a readable image file", str(exc)) from None
+    if data.startswith(PNG_SIGNATURE) and not data.rstrip(b"\x00").endswith(PNG_IEND):
+        # libpng may decode a cut-off file into a partly grey picture without
+        # complaint; a PNG is complete only when it ends with its IEND chunk.
+        raise InputError(path, field_name, "a complete PNG file (ending in an IEND chunk)",
+                         f"a truncated PNG of {len(data)} bytes")
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) if data else None
+    if img is None:
+        raise InputError(path, field_name, "an image OpenCV can decode (PNG, JPEG, ...)",
+                         f"an unreadable file of {len(data)} bytes")
+    if img.dtype == np.uint16:
+        img = (img >> 8).astype(np.uint8)
+    if img.ndim == 2:
+        return cv2.cvtColor(img, cv2.COLOR_GRAY2RGB)
+    if img.shape[2] == 4:
+        # Transparent pixels composite over white, as a viewer shows them.
+        rgb = img[..., :3].astype(np.float32)
+        a = img[..., 3:4].astype(np.float32) / 255.0
+        img = np.rint(rgb * a + 255.0 * (1 - a)).astype(np.uint8)
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def frame_paths(folder, annotation: Annotation | None = None) -> list[Path]:
+    """The frame files of a clip, in order, checked to exist inside ``folder``.
+
+    With an annotation, its ``frames`` list (relative paths); without one,
+    every image file in ``folder`` sorted by name.  Raises InputError for a
+    missing or empty folder, a path leaving the folder and a missing frame.
+    """
+    folder = Path(folder)
+    source = annotation.source if annotation is not None else folder
+    if not folder.is_dir():
+        raise InputError(folder, "folder", "an existing clip folder of frame images")
+    images = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    if not images:
+        raise InputError(folder, "frames", "a clip folder holding frame images (.png, .jpg, ...)",
+                         "an empty folder" if not any(folder.iterdir()) else "no image files")
+    if annotation is None:
+        return images
+    root = folder.resolve()
+    paths = []
+    for i, rel in enumerate(annotation.frames):
+        check_relative(rel, source, f"frames[{i}]")
+        p = (folder / rel)
+        if not p.resolve().is_relative_to(root):
+            raise InputError(source, f"frames[{i}]", "a path that stays inside the clip's folder "
+                             "(symbolic links included)", rel)
+        if not p.is_file():
+            raise InputError(source, f"frames[{i}]", f"an existing frame file in {folder}",
+                             f"{rel!r} does not exist")
+        paths.append(p)
+    return paths
+
+
+def read_clip(folder, annotation: Annotation | str | Path | None = None) -> np.ndarray:
+    """Read a clip's frames: ``(T, H, W, 3)`` uint8 RGB.
+
+    ``annotation``: an :class:`Annotation`, the path of its JSON file, or None
+    (every image in ``folder`` by name).  Frames must all have one size, and
+    the annotation's ``image_size`` when given.  Every failure is an
+    :class:`InputError` naming the file: missing or empty folder, frame
+    listed but absent, path leaving the folder, unreadable or truncated
+    image, frames of different sizes.
+    """
+    if isinstance(annotation, (str, Path)):
+        annotation = read_annotation(annotation)
+    paths = frame_paths(folder, annotation)
+    frames = []
+    want = tuple(annotation.image_size) if annotation is not None else None   # (w, h)
+    for i, p in enumerate(paths):
+        img = _decode(p, annotation.source if annotation else folder, f"frames[{i}]")
+        got = (img.shape[1], img.shape[0])
+        if want is None:
+            want = got
+        elif got != want:
+            what = ("the annotation's image_size" if annotation is not None
+                    else f"the size of {paths[0].name}")
+            raise InputError(p, "image size", f"{want[0]}x{want[1]} px (width x height), {what}; "
+                             "every frame of a clip must have the same size",
+                             f"{got[0]}x{got[1]}")
+        frames.append(img)
+    return np.stack(frames)
