@@ -29,7 +29,7 @@ from flows.console import error_line, one_line
 # nnsf is imported only by the commands that run stages: importing it pulls in
 # scikit-learn (about 2 s), which a no-op `python -m flows repro` does not need.
 
-STAGES = ("data", "features", "factorize", "evaluate", "isomap", "sweep")
+STAGES = ("frames", "data", "features", "factorize", "evaluate", "isomap", "sweep")
 USAGE = __doc__.split("Commands::", 1)[1].split("Exit codes", 1)[0].rstrip()
 
 
@@ -101,10 +101,15 @@ def run_stage_command(stage: str, args: list[str]) -> int:
         quiet_prefect_console()
         state = sweep.with_options(task_runner=runner)(params, return_state=True)
     else:
-        from flows.stage_flows import FLOWS
+        from flows.stage_flows import FAN_OUT, FLOWS
 
+        stage_flow = FLOWS[stage]
+        if stage in FAN_OUT:
+            from flows import runners
+
+            stage_flow = runners.configured(stage_flow)  # validates NNSF_TASK_RUNNER first
         quiet_prefect_console()
-        state = FLOWS[stage](params, return_state=True)
+        state = stage_flow(params, return_state=True)
 
     if state.is_completed():
         _record_imports(stage, root)

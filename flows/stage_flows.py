@@ -79,8 +79,8 @@ def factorize(params: dict):
 
 @flow(name="nnsf-evaluate", **_OPTIONS)
 def evaluate(params: dict):
-    """Grouped cross-validation, precision vs rank for every method."""
-    return run_stage("evaluate", stages.evaluate, params)
+    """Grouped cross-validation, precision vs rank for every method; one task per fit."""
+    return run_stage("evaluate", lambda p: stages.evaluate(p, mapper=_mapper("cv-fit")), params)
 
 
 @flow(name="nnsf-isomap", **_OPTIONS)
@@ -89,5 +89,19 @@ def isomap(params: dict):
     return run_stage("isomap", stages.isomap, params)
 
 
+def _mapper(task_name: str):
+    from flows.runners import prefect_mapper
+
+    return prefect_mapper(task_name)
+
+
+@flow(name="nnsf-frames", **_OPTIONS)
+def frames(params: dict):
+    """Render cartoon clips with ground truth (data/frames/); one task per clip."""
+    return run_stage("frames", lambda p: stages.frames(p, mapper=_mapper("render-clip")), params)
+
+
 #: The stage flows by DVC stage name (the sweep lives in :mod:`flows.sweep`).
-FLOWS = {f.fn.__name__: f for f in (data, features, factorize, evaluate, isomap)}
+FLOWS = {f.fn.__name__: f for f in (data, features, factorize, evaluate, isomap, frames)}
+#: Stages that fan out on the configured task runner (flows.runners).
+FAN_OUT = {"evaluate", "frames"}

@@ -31,6 +31,9 @@ from nnsf.skeleton import N_FEATURES, Unifier, to_points
 RAW_DIR = Path("data/raw")               # keypoints.csv (pixels), characters.json (ground truth)
 FEATURES_DIR = Path("data/features")     # features.csv (unified, >= 0), unifier.json
 MODEL_PATH = Path("models/nnsf.npz")     # U, V, W, class names, objective history
+FRAMES_DIR = Path("data/frames")         # rendered clips: PNG frames, annotation.json, truth.npz
+TRACKS_DIR = Path("data/tracks")         # tracked control points per clip (curves.npz)
+TRACKED_DIR = Path("data/tracked")       # key points from the tracked curves (the frames source)
 REPORTS = Path("reports")
 FEATURES_CSV = FEATURES_DIR / "features.csv"
 
@@ -79,6 +82,16 @@ def _label_column(params: dict) -> str:
 
 
 # ---------------------------------------------------------------- stages
+def frames(params: dict, out_dir=FRAMES_DIR, mapper=None) -> StageResult:
+    """Render the ``frames`` section's clips as cartoon frames with ground truth.
+
+    See :func:`nnsf.frames.stage.render_frames`; ``mapper`` fans out over clips.
+    """
+    from nnsf.frames.stage import render_frames
+
+    return render_frames(params, out_dir=out_dir, mapper=mapper)
+
+
 def data(params: dict, out_dir=RAW_DIR) -> StageResult:
     """Produce the raw key-point table for ``dataset.name`` into ``out_dir``.
 

@@ -28,7 +28,7 @@ pytestmark = pytest.mark.slow
 
 FLOWS = [sys.executable, "-m", "flows"]
 DVC = [sys.executable, "-m", "dvc"]
-ALL_STAGES = {"data", "features", "factorize", "evaluate", "isomap", "sweep"}
+ALL_STAGES = {"frames", "data", "features", "factorize", "evaluate", "isomap", "sweep"}
 EXPERIMENT = "nnsf-e2e"
 
 #: Small enough for seconds per stage, big enough for 3 grouped folds.
@@ -36,11 +36,20 @@ SMALL_PARAMS = f"""\
 seed: 0
 dataset:
   name: synthetic
+  path: nnsf/datasets
   synthetic:
     characters: 3
     clips_per_cell: 2
     frames: 12
     noise_px: 0.4
+frames:
+  characters: 1
+  motions: [walk, wave]
+  clips_per_cell: 1
+  frames: 6
+  size: 128
+  keyframe_every: 0
+  control_points: 4
 unify:
   margin: 0.5
 nnsf:
@@ -153,7 +162,7 @@ def test_mlflow_has_stage_runs_and_nested_sweep_runs(pipeline):
     runs = mlflow.search_runs(experiment_names=[EXPERIMENT])
     assert (runs["status"] == "FINISHED").all()
     by_stage = runs.groupby("tags.nnsf.stage").size().to_dict()
-    assert by_stage == {"data": 1, "features": 1, "factorize": 1, "evaluate": 1, "isomap": 1,
+    assert by_stage == {"frames": 1, "data": 1, "features": 1, "factorize": 1, "evaluate": 1, "isomap": 1,
                         "sweep": 1, "sweep-point": 4}
     experiment = mlflow.get_experiment_by_name(EXPERIMENT)
     assert experiment.artifact_location == (pipeline.root / "mlartifacts").as_uri()
