@@ -10,8 +10,11 @@ from __future__ import annotations
 import logging
 import math
 import numbers
+import os
+import socket
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 from typing import Mapping
@@ -28,8 +31,10 @@ from flows import project
 # MLflow gives its logger a handler that writes to stderr ("Creating initial
 # MLflow database tables..."); move it to stdout so stderr keeps only the one
 # error line (see flows.console).
+# Only MLflow's own stderr handler: others on that logger (a test runner's
+# capture handler) keep their streams.
 for _handler in logging.getLogger("mlflow").handlers:
-    if isinstance(_handler, logging.StreamHandler):
+    if type(_handler) is logging.StreamHandler and _handler.stream in (sys.stderr, sys.__stderr__):
         _handler.setStream(sys.stdout)
 
 #: MLflow's per-request limits for ``log_batch``.
@@ -56,13 +61,16 @@ class ExperimentLog:
         self.uri = project.mlflow_uri(self.root)
         self.client = MlflowClient(tracking_uri=self.uri)
         self.experiment_id = self._ensure_experiment(experiment)
+        self.closed_stale = self.close_dead_runs()
 
     def _ensure_experiment(self, name: str) -> str:
         exp = self.client.get_experiment_by_name(name)
         if exp is None:
+            # A tracking server chooses its own artifact store (--artifacts-destination
+            # or --default-artifact-root); a local store keeps them in the project.
+            location = None if _is_remote(self.uri) else project.mlflow_artifacts(self.root)
             try:
-                return self.client.create_experiment(
-                    name, artifact_location=project.mlflow_artifacts(self.root))
+                return self.client.create_experiment(name, artifact_location=location)
             except MlflowException:
                 # Another process created it between our lookup and create.
                 exp = self.client.get_experiment_by_name(name)
@@ -78,7 +86,7 @@ class ExperimentLog:
     def start_run(self, name: str, tags: Mapping[str, str] | None = None,
                   parent_id: str | None = None) -> str:
         """Create a run (nested under ``parent_id`` if given); return its id."""
-        all_tags = {**context_tags(), **(tags or {})}
+        all_tags = {**context_tags(), **process_tags(), **(tags or {})}
         if parent_id:
             all_tags["mlflow.parentRunId"] = parent_id
         run = self.client.create_run(self.experiment_id, run_name=name, tags=all_tags)
@@ -127,6 +135,76 @@ class ExperimentLog:
         self.end_run(run_id)
         return run_id
 
+    def close_dead_runs(self) -> list[str]:
+        """Mark RUNNING runs whose process has died as KILLED; return their ids.
+
+        Every run records the host, pid and the pid's start time that created
+        it (:func:`process_tags`).  A run still RUNNING whose process is gone
+        (or whose pid now belongs to another process) was killed before it
+        could end itself: SIGKILL, out of memory, a power cut.  Runs created on
+        other hosts are left alone (their processes cannot be checked here).
+        Called whenever an :class:`ExperimentLog` is opened, so a dead run is
+        marked on the next start at the latest.
+        """
+        host = socket.gethostname()
+        closed = []
+        for run in self._search(f"attributes.status = 'RUNNING' and tags.`{TAG_HOST}` = '{host}'"):
+            tags = run.data.tags
+            if process_alive(tags.get(TAG_PID), tags.get(TAG_PID_START)):
+                continue
+            self.client.set_terminated(run.info.run_id, "KILLED")
+            self.client.set_tag(run.info.run_id, "nnsf.killed_reason",
+                                f"process {tags.get(TAG_PID)} on {host} ended without ending the run")
+            closed.append(run.info.run_id)
+        return closed
+
+    def _search(self, filter_string: str):
+        """Every run of the experiment matching ``filter_string`` (all pages)."""
+        token = None
+        while True:
+            page = self.client.search_runs([self.experiment_id], filter_string=filter_string,
+                                           max_results=1000, page_token=token)
+            yield from page
+            token = page.token
+            if not token:
+                return
+
+    def finished_by_tag(self, tag: str, values: set[str], tags: Mapping[str, str] | None = None) -> dict:
+        """FINISHED runs whose ``tag`` is one of ``values``: ``{value: newest run}``.
+
+        ``tags`` narrows the search to runs with those exact tag values.
+        """
+        clauses = ["attributes.status = 'FINISHED'"]
+        clauses += [f"tags.`{k}` = '{v}'" for k, v in (tags or {}).items()]
+        found: dict = {}
+        for run in self._search(" and ".join(clauses)):
+            value = run.data.tags.get(tag)
+            if value in values:
+                best = found.get(value)
+                if best is None or run.info.start_time > best.info.start_time:
+                    found[value] = run
+        return found
+
+    def download_artifacts(self, run_id: str, folder: str, dest: Path) -> list[Path]:
+        """Copy the files of a run's artifact ``folder`` into ``dest``; return the new paths.
+
+        Each file is moved into place whole (rename), so ``dest`` never holds
+        a half-copied file.
+        """
+        dest = Path(dest)
+        dest.mkdir(parents=True, exist_ok=True)
+        names = [Path(a.path).name for a in self.client.list_artifacts(run_id, folder)
+                 if not a.is_dir]
+        if not names:
+            return []
+        copied = []
+        with tempfile.TemporaryDirectory(dir=dest, prefix=".download.") as tmp:
+            local = Path(self.client.download_artifacts(run_id, folder, tmp))
+            for name in names:
+                os.replace(local / name, dest / name)
+                copied.append(dest / name)
+        return copied
+
     def children(self, parent_id: str) -> pd.DataFrame:
         """The nested runs of ``parent_id``, read back with ``mlflow.search_runs``."""
         mlflow.set_tracking_uri(self.uri)
@@ -145,6 +223,62 @@ def _param_value(value) -> str:
     else:
         text = str(value)
     return text[:_MAX_PARAM_CHARS]
+
+
+#: Tags that let a later process tell whether a run's creator is still alive.
+TAG_HOST, TAG_PID, TAG_PID_START = "nnsf.host", "nnsf.pid", "nnsf.pid_start"
+
+
+def _is_remote(uri: str) -> bool:
+    return uri.startswith(("http://", "https://", "databricks"))
+
+
+def _pid_start(pid: int) -> str | None:
+    """The start time of process ``pid`` (clock ticks since boot, Linux), or None."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    # The command name (field 2) may contain spaces; fields after it are plain.
+    return stat.rsplit(")", 1)[1].split()[19]
+
+
+def process_tags() -> dict[str, str]:
+    """Host, pid and pid start time of this process (see :meth:`ExperimentLog.close_dead_runs`)."""
+    pid = os.getpid()
+    tags = {TAG_HOST: socket.gethostname(), TAG_PID: str(pid)}
+    start = _pid_start(pid)
+    if start is not None:
+        tags[TAG_PID_START] = start
+    return tags
+
+
+def process_alive(pid: str | None, start: str | None) -> bool:
+    """True if process ``pid`` exists and (where known) started at ``start``.
+
+    An unparsable pid counts as alive: such a run was not created by us, and
+    marking it KILLED could be wrong.
+    """
+    try:
+        number = int(pid)
+    except (TypeError, ValueError):
+        return True
+    try:
+        os.kill(number, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        pass  # exists, owned by someone else
+    if start is not None:
+        now = _pid_start(number)
+        if now is not None and now != start:
+            return False  # the pid was reused by a newer process
+    if Path(f"/proc/{number}/stat").exists():
+        # A zombie has exited; only its parent has not collected it yet.
+        state = Path(f"/proc/{number}/stat").read_text().rsplit(")", 1)[1].split()[0]
+        if state in ("Z", "X"):
+            return False
+    return True
 
 
 def context_tags() -> dict[str, str]:

@@ -1,28 +1,44 @@
-"""The one place that chooses the task runner for fan-outs (the sweep's points).
+"""The one place that chooses the task runner and fans work out on it.
 
-``NNSF_TASK_RUNNER`` selects it:
+Every fan-out of the pipeline (sweep points, CV folds, per-clip tracking,
+per-cell evaluation) goes through two functions:
+
+- :func:`configured` gives a flow the task runner chosen by the environment;
+- :func:`prefect_mapper` makes the ``mapper(fn, items) -> list`` that the
+  ``nnsf`` stage functions accept: one Prefect task run per item, on the
+  running flow's task runner, results in the items' order.
+
+``NNSF_TASK_RUNNER`` selects the runner:
 
 - ``threads`` (default): :class:`prefect.task_runners.ThreadPoolTaskRunner`.
   The work is numpy/scipy, which releases the GIL, so threads use the cores
-  without copying the feature matrix into other processes.
+  without copying the inputs into other processes.
 - ``processes``: :class:`prefect.task_runners.ProcessPoolTaskRunner`.
-- ``dask``: ``prefect_dask.DaskTaskRunner`` (install ``prefect-dask``); set
-  ``NNSF_DASK_ADDRESS`` to use an existing cluster, otherwise a local one
-  is started.
+- ``dask``: ``prefect_dask.DaskTaskRunner``.  ``NNSF_DASK_ADDRESS``
+  (``tcp://host:8786``) submits to an existing Dask scheduler; without it a
+  local cluster of ``NNSF_WORKERS`` single-threaded worker processes lives
+  for the flow run.
 
-``NNSF_WORKERS`` sets the number of workers (default: the number of cores).
+``NNSF_WORKERS`` sets the number of local workers (default: the number of
+cores).  No pool or scheduler of our own: retries, task states and the UI's
+view of every item are Prefect's, placement is the runner's.
 """
 from __future__ import annotations
 
 import os
+from typing import Any, Callable, Iterable
 
 from nnsf.errors import InputError
 
 CHOICES = ("threads", "processes", "dask")
+#: Default number of retries of one item: a worker lost with its machine, a
+#: database that was busy.  Bad input is never retried.
+RETRIES = 2
+RETRY_DELAY_S = 1.0
 
 
 def workers() -> int:
-    """How many sweep points run at once."""
+    """How many items run at once on a local runner."""
     text = os.environ.get("NNSF_WORKERS", "")
     if text:
         if not text.isdigit() or int(text) < 1:
@@ -38,6 +54,11 @@ def kind() -> str:
     if name not in CHOICES:
         raise InputError("environment", "NNSF_TASK_RUNNER", "one of " + ", ".join(CHOICES), name)
     return name
+
+
+def dask_address() -> str | None:
+    """``NNSF_DASK_ADDRESS`` if set (only meaningful with ``NNSF_TASK_RUNNER=dask``)."""
+    return os.environ.get("NNSF_DASK_ADDRESS") or None
 
 
 def task_runner():
@@ -56,7 +77,141 @@ def task_runner():
     except ImportError:
         raise InputError("environment", "NNSF_TASK_RUNNER",
                          "'dask' only with the prefect-dask package installed") from None
-    address = os.environ.get("NNSF_DASK_ADDRESS")
+    address = dask_address()
     if address:
         return DaskTaskRunner(address=address)
-    return DaskTaskRunner(cluster_kwargs={"n_workers": n, "threads_per_worker": 1})
+    # One thread per worker process: the items are BLAS-bound and a second
+    # thread per worker would oversubscribe the cores.
+    return DaskTaskRunner(cluster_kwargs={"n_workers": n, "threads_per_worker": 1,
+                                          "processes": True, "dashboard_address": None})
+
+
+def configured(flow_obj):
+    """``flow_obj`` with the configured task runner (a copy; the original is unchanged).
+
+    Call it when the flow is about to run (not at import), so the environment
+    of that run decides: ``configured(sweep)(params)``.
+    """
+    return flow_obj.with_options(task_runner=task_runner())
+
+
+class FanOutError(RuntimeError):
+    """Some items of a fan-out failed (after their retries); the others finished.
+
+    Attributes
+    ----------
+    failed : dict[str, BaseException]
+        The final error of every failed item, by item name.
+    results : list
+        One entry per item in order: the result, or ``None`` where it failed.
+    """
+
+    def __init__(self, task_name: str, failed: dict[str, BaseException], results: list):
+        self.task_name, self.failed, self.results = task_name, failed, results
+        shown = "; ".join(f"{name}: {_one_line(err)}" for name, err in failed.items())
+        super().__init__(f"{task_name}: {len(failed)} of {len(results)} items failed: {shown}")
+
+
+class FanOutInputError(FanOutError, InputError):
+    """Every failed item failed on bad input: reported like any :class:`InputError`."""
+
+    def __init__(self, task_name: str, failed: dict[str, BaseException], results: list):
+        FanOutError.__init__(self, task_name, failed, results)
+        first = next(iter(failed.values()))
+        self.source = getattr(first, "source", task_name)
+        self.field = ", ".join(failed)
+        self.expected = str(first)
+        self.got = None
+
+
+def _one_line(err: BaseException) -> str:
+    text = str(err).strip().splitlines()
+    return text[0] if text else type(err).__name__
+
+
+def _retry_unless_bad_input(task, task_run, state) -> bool:
+    """Prefect's retry condition: retry anything but an :class:`InputError`."""
+    try:
+        state.result()
+    except InputError:
+        return False
+    except BaseException:
+        return True
+    return True
+
+
+def _escape(label: str) -> str:
+    # Prefect formats task-run names with the call's parameters (str.format).
+    return label.replace("{", "{{").replace("}", "}}")
+
+
+def prefect_mapper(task_name: str, retries: int = RETRIES,
+                   retry_delay_seconds: float = RETRY_DELAY_S,
+                   name: Callable[[Any], str] | None = None,
+                   on_result: Callable[[Any, Any], None] | None = None):
+    """A ``mapper(fn, items) -> list`` that runs one Prefect task per item.
+
+    Use it inside a running flow (give the flow a runner with
+    :func:`configured`).  ``fn`` must be a module-level function of one
+    picklable argument (the process and Dask runners send it by reference);
+    every item is submitted at once and the runner decides how many run
+    together.
+
+    Parameters
+    ----------
+    task_name : str
+        Name of the task in Prefect's UI, e.g. ``"sweep-point"``, ``"cv-fold"``.
+    retries, retry_delay_seconds
+        Prefect retries per item for unexpected errors; an
+        :class:`~nnsf.errors.InputError` is final at once.
+    name : callable, optional
+        ``name(item) -> str`` for error reports; default ``"[<index>]"``.  Task
+        runs are named ``"<task_name> <name>"``.
+    on_result : callable, optional
+        ``on_result(item, result)``, called on the flow's thread as each item
+        finishes (in completion order), e.g. to log it before the others end.
+
+    Returns the results in the items' order.  If items failed, every other
+    item still runs to the end, then :class:`FanOutInputError` (all failures
+    are bad input) or :class:`FanOutError` is raised, naming the failed items
+    and carrying the finished results.
+    """
+    def mapper(fn: Callable[[Any], Any], items: Iterable[Any]) -> list:
+        from prefect import task
+        from prefect.cache_policies import NO_CACHE
+        from prefect.futures import as_completed
+
+        items = list(items)
+        labels = [name(item) if name else f"[{i}]" for i, item in enumerate(items)]
+        base = task(fn, name=task_name, retries=retries, retry_delay_seconds=retry_delay_seconds,
+                    retry_condition_fn=_retry_unless_bad_input, cache_policy=NO_CACHE,
+                    persist_result=False)
+        futures = [base.with_options(task_run_name=_escape(f"{task_name} {label}")).submit(item)
+                   for label, item in zip(labels, items)]
+        position = {f.task_run_id: i for i, f in enumerate(futures)}
+        results: list = [None] * len(items)
+        failed: dict[int, BaseException] = {}
+        for future in as_completed(futures):
+            i = position[future.task_run_id]
+            try:
+                results[i] = future.result()
+            except BaseException as err:  # noqa: BLE001  (reported by name below)
+                if isinstance(err, (KeyboardInterrupt, SystemExit)):
+                    raise
+                failed[i] = err
+                continue
+            if on_result is not None:
+                on_result(items[i], results[i])
+        if failed:
+            by_name = {labels[i]: failed[i] for i in sorted(failed)}
+            cls = (FanOutInputError if all(isinstance(e, InputError) for e in by_name.values())
+                   else FanOutError)
+            raise cls(task_name, by_name, results)
+        return results
+
+    return mapper
+
+
+def local_mapper(fn: Callable[[Any], Any], items: Iterable[Any]) -> list:
+    """The mapper without Prefect: ``list(map(fn, items))`` (the stages' default)."""
+    return [fn(item) for item in items]

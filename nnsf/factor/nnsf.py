@@ -68,6 +68,11 @@ class NNSF(TransformerMixin, BaseEstimator):
         diagonal.
     random_state : int, RandomState or None, default=None
         Seed of the "random" and "nndsvdar" initialisations.
+    dtype : {None, "float32", "float64"}, default=None
+        Floating-point type of the computation and of the fitted arrays.
+        None keeps the input's type (float32 stays float32, anything else
+        becomes float64); "float32" halves the memory of X's copy (if any),
+        V and U on large inputs, at about 1e-6 relative precision.
 
     Attributes
     ----------
@@ -114,6 +119,7 @@ class NNSF(TransformerMixin, BaseEstimator):
         "transform_max_iter": [Interval(numbers.Integral, 1, None, closed="left"), None],
         "eps": [Interval(numbers.Real, 0, None, closed="neither")],
         "random_state": ["random_state"],
+        "dtype": [StrOptions({"float32", "float64"}), None],
     }
 
     def __init__(
@@ -130,6 +136,7 @@ class NNSF(TransformerMixin, BaseEstimator):
         transform_max_iter=None,
         eps=1e-10,
         random_state=None,
+        dtype=None,
     ):
         self.n_components = n_components
         self.alpha = alpha
@@ -142,6 +149,11 @@ class NNSF(TransformerMixin, BaseEstimator):
         self.transform_max_iter = transform_max_iter
         self.eps = eps
         self.random_state = random_state
+        self.dtype = dtype
+
+    def _dtypes(self):
+        """What ``validate_data`` may return: the chosen type, or either float type."""
+        return [np.float64, np.float32] if self.dtype is None else np.dtype(self.dtype).type
 
     # ------------------------------------------------------------------ fit
     def fit(self, X, y=None):
@@ -176,7 +188,7 @@ class NNSF(TransformerMixin, BaseEstimator):
 
     @_fit_context(prefer_skip_nested_validation=True)
     def _fit(self, X, y):
-        X = validate_data(self, X, dtype=[np.float64, np.float32], ensure_min_samples=2)
+        X = validate_data(self, X, dtype=self._dtypes(), ensure_min_samples=2)
         check_non_negative(X, f"{type(self).__name__} (input X)")
         n, d = X.shape
         k = d if self.n_components is None else self.n_components
@@ -200,7 +212,10 @@ class NNSF(TransformerMixin, BaseEstimator):
             self.classes_ = None
         beta = float(self.beta) if (labels is not None and self.class_in_loop) else 0.0
 
-        V, U = _initialize_nmf(X, k, init=self.init, random_state=self.random_state)
+        if n >= LARGE_INIT_ROWS and self.init in ("nndsvd", "nndsvda"):
+            V, U = _initialize_nndsvd_lean(X, k, fill=self.init == "nndsvda")
+        else:
+            V, U = _initialize_nmf(X, k, init=self.init, random_state=self.random_state)
         V, U = V.astype(X.dtype, copy=False), U.astype(X.dtype, copy=False)
         norms = np.linalg.norm(U, axis=1)
         dead = norms <= 0
@@ -227,7 +242,7 @@ class NNSF(TransformerMixin, BaseEstimator):
             encoded = weights_for_basis(X, U, alpha=float(self.alpha), max_iter=self._transform_iters(),
                                         tol=float(self.tol))
             self.class_map_ = _class_map(encoded, labels, len(self.classes_), self.eps)
-        self.reconstruction_err_ = float(np.linalg.norm(X - V @ U))
+        self.reconstruction_err_ = _residual_norm(X, V, U)
         return V
 
     # ------------------------------------------------------------ transform
@@ -240,7 +255,7 @@ class NNSF(TransformerMixin, BaseEstimator):
         at most ``transform_max_iter`` steps (default ``max_iter``).
         """
         check_is_fitted(self)
-        X = validate_data(self, X, dtype=[np.float64, np.float32], reset=False)
+        X = validate_data(self, X, dtype=self._dtypes(), reset=False)
         check_non_negative(X, f"{type(self).__name__} (input X)")
         U = self.components_.astype(X.dtype, copy=False)
         return weights_for_basis(X, U, alpha=float(self.alpha), max_iter=self._transform_iters(),
@@ -276,6 +291,69 @@ class NNSF(TransformerMixin, BaseEstimator):
         tags.input_tags.positive_only = True
         tags.transformer_tags.preserves_dtype = ["float64", "float32"]
         return tags
+
+
+# ------------------------------------------------------------ initialisation
+#: From this many rows on, NNDSVD(a) takes the SVD from the d × d Gram matrix
+#: (:func:`_initialize_nndsvd_lean`) instead of scikit-learn's randomized SVD,
+#: whose power iterations hold several n × (k + 10) arrays at once (3.5 × the
+#: input at k = 20, d = 34).  Below it, results are scikit-learn's exactly.
+LARGE_INIT_ROWS = 100_000
+
+
+def _initialize_nndsvd_lean(X, k, fill):
+    """NNDSVD (Boutsidis & Gallopoulos 2008) with memory of V's size only.
+
+    The same construction as scikit-learn's ``_initialize_nmf(init="nndsvd"
+    / "nndsvda")``, from the exact top-k SVD of the tall matrix X: the right
+    singular vectors and values from the eigen-decomposition of XᵀX (d × d,
+    accumulated by row blocks in float64), each left singular vector
+    X v_j / s_j computed one column at a time.  Nothing of size n × d is
+    allocated, and of size n × k only V itself.
+
+    Returns V ``(n, k)`` and U ``(k, d)`` in X's dtype.
+    """
+    n, d = X.shape
+    gram = np.zeros((d, d))
+    for start in range(0, n, CHUNK_ROWS):
+        block = np.asarray(X[start:start + CHUNK_ROWS], dtype=np.float64)
+        gram += block.T @ block
+    evals, evecs = np.linalg.eigh(gram)
+    order = np.argsort(evals)[::-1][:k]
+    sing = np.sqrt(np.maximum(evals[order], 0.0))
+    right = evecs[:, order].T                         # (k, d)
+    V = np.zeros((n, k), dtype=X.dtype)
+    U = np.zeros((k, d), dtype=X.dtype)
+    tiny = np.finfo(np.float64).tiny
+    for j in range(k):
+        y = right[j]
+        x = X @ y.astype(X.dtype, copy=False)
+        x = x.astype(np.float64, copy=False) / max(sing[j], tiny)
+        if j == 0:
+            # The leading singular pair of a non-negative matrix has one sign.
+            V[:, 0] = np.sqrt(sing[0]) * np.abs(x)
+            U[0] = np.sqrt(sing[0]) * np.abs(y)
+            continue
+        xp, yp = np.maximum(x, 0), np.maximum(y, 0)
+        xn, yn = np.maximum(-x, 0), np.maximum(-y, 0)
+        xp_nrm, yp_nrm = np.linalg.norm(xp), np.linalg.norm(yp)
+        xn_nrm, yn_nrm = np.linalg.norm(xn), np.linalg.norm(yn)
+        m_p, m_n = xp_nrm * yp_nrm, xn_nrm * yn_nrm
+        if m_p > m_n:
+            u, v, sigma = xp / max(xp_nrm, tiny), yp / max(yp_nrm, tiny), m_p
+        else:
+            u, v, sigma = xn / max(xn_nrm, tiny), yn / max(yn_nrm, tiny), m_n
+        lbd = np.sqrt(sing[j] * sigma)
+        V[:, j] = lbd * u
+        U[j] = lbd * v
+    eps = 1e-6  # scikit-learn's threshold for "zero" in NNDSVD
+    V[V < eps] = 0
+    U[U < eps] = 0
+    if fill:
+        avg = X.mean()
+        V[V == 0] = avg
+        U[U == 0] = avg
+    return V, U
 
 
 # ---------------------------------------------------------------- the solver
@@ -359,9 +437,10 @@ def _solve(X, V, U, labels, *, alpha, beta, max_iter, tol, v_update, eps):
         blocks = [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
     XX = float(np.vdot(X, X))
     mode = "split" if v_update == "auto" else v_update
-    # Two n × k work buffers reused by every weight step: the update
-    # allocates nothing of size n.
-    work = (np.empty_like(V), np.empty_like(V))
+    # With the class term, two n × k work buffers reused by every weight
+    # step; without it the step runs by row blocks (:func:`_weight_pass`)
+    # and needs nothing of size n besides V.
+    work = (np.empty_like(V), np.empty_like(V)) if use_class else None
 
     VtV = V.T @ V
     VtX = V.T @ X
@@ -378,11 +457,12 @@ def _solve(X, V, U, labels, *, alpha, beta, max_iter, tol, v_update, eps):
             W = class_map_from_grams(VtV, VtY, eps)
             _class_weight_step(X, V, U, blocks, alpha, beta, W, mode, work)
             VtY = _block_sums(V, blocks)
+            VtV = V.T @ V
+            VtX = V.T @ X
+            v_sum = float(V.sum())
         else:
-            weight_step(X, V, U, alpha, work)
-        VtV = V.T @ V
-        VtX = V.T @ X
-        history.append(_objective(XX, VtV, VtX, U, float(V.sum()), alpha, beta, W, VtY, n))
+            VtV, VtX, v_sum = _weight_pass(X, V, U, alpha)
+        history.append(_objective(XX, VtV, VtX, U, v_sum, alpha, beta, W, VtY, n))
         prev, cur = history[-2], history[-1]
         if use_class and v_update == "auto" and mode == "split" and cur > prev * (1 + 1e-9):
             mode = "ssl"
@@ -393,6 +473,63 @@ def _solve(X, V, U, labels, *, alpha, beta, max_iter, tol, v_update, eps):
         unsorted[order] = V
         V = unsorted
     return V, U, W, history, mode
+
+
+#: Rows per block of the blocked weight pass: a block of X, V and the two
+#: work buffers (about 1.2 MB at d = 34, k = 20 in float64) stays in cache
+#: between the matrix products and the element-wise update.  Measured at
+#: 200,000 × 34, k = 20, one BLAS thread: the pass took 1.30 × the floor
+#: (X Uᵀ + VᵀX) with 2048 rows, 1.35 × with 1024, 1.49 × with 4096 and
+#: 1.80 × unblocked.
+CHUNK_ROWS = 2048
+
+
+def _weight_pass(X, V, U, alpha, chunk=CHUNK_ROWS):
+    """Hoyer's update of V in place (β = 0), fused with the Grams of the new V.
+
+    Per block of rows: V_b ← V_b ⊙ (X_b Uᵀ) ⊘ max(V_b UUᵀ + α, ε), then
+    VᵀV += V_bᵀV_b and VᵀX += V_bᵀX_b while the block is in cache.  The
+    update is :func:`weight_step`'s, row for row.  Work memory is two
+    ``(chunk, k)`` buffers; nothing of size n is allocated.
+
+    Returns VᵀV ``(k, k)``, VᵀX ``(k, d)`` and ΣV of the updated V.
+    """
+    n, d = X.shape
+    k = U.shape[0]
+    dt = V.dtype
+    Ut = np.ascontiguousarray(U.T)
+    UUt = U @ U.T
+    VtV = np.zeros((k, k), dtype=dt)
+    VtX = np.zeros((k, d), dtype=dt)
+    v_sum = 0.0
+    m = min(chunk, n)
+    num_buf, den_buf = np.empty((m, k), dtype=dt), np.empty((m, k), dtype=dt)
+    # When α ≥ ε the denominator V UUᵀ + α (all terms ≥ 0) never falls below ε.
+    clamp = not alpha >= EPSILON
+    for start in range(0, n, chunk):
+        Xb, Vb = X[start:start + chunk], V[start:start + chunk]
+        num, den = num_buf[: len(Xb)], den_buf[: len(Xb)]
+        np.matmul(Xb, Ut, out=num)
+        np.matmul(Vb, UUt, out=den)
+        if alpha > 0:
+            den += alpha
+        if clamp:
+            np.maximum(den, EPSILON, out=den)
+        num /= den
+        Vb *= num
+        VtV += Vb.T @ Vb
+        VtX += Vb.T @ Xb
+        v_sum += float(Vb.sum())
+    return VtV, VtX, v_sum
+
+
+def _residual_norm(X, V, U, chunk=CHUNK_ROWS):
+    """‖X − VU‖_F by blocks of rows (no n × d temporary)."""
+    total = 0.0
+    for start in range(0, X.shape[0], chunk):
+        R = X[start:start + chunk] - V[start:start + chunk] @ U
+        total += float(np.vdot(R, R))
+    return float(np.sqrt(total))
 
 
 def _block_sums(V, blocks):
@@ -493,14 +630,18 @@ def weights_for_basis(X, U, *, alpha=0.0, max_iter=200, tol=1e-4):
     XUt = X @ U.T
     UUt = U @ U.T
     XX = float(np.vdot(X, X))
-    work = (np.empty_like(V), np.empty_like(V))
+    m = min(CHUNK_ROWS, n)
+    work = (np.empty((m, k), dtype=X.dtype), np.empty((m, k), dtype=X.dtype))
 
     def objective():
         return 0.5 * (XX - 2.0 * np.vdot(XUt, V) + np.vdot(V.T @ V, UUt)) + alpha * float(V.sum())
 
     first = previous = objective() if tol > 0 else 0.0
     for it in range(1, max_iter + 1):
-        weight_step(X, V, U, alpha, work, XUt=XUt)
+        for start in range(0, n, CHUNK_ROWS):
+            stop = min(n, start + CHUNK_ROWS)
+            weight_step(X[start:stop], V[start:stop], U, alpha,
+                        (work[0][: stop - start], work[1][: stop - start]), XUt=XUt[start:stop])
         if tol > 0 and it % 10 == 0:
             current = objective()
             if (previous - current) / max(first, np.finfo(float).tiny) < tol:
