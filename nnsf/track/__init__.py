@@ -1,0 +1,13 @@
+"""Keyframe-based contour tracking (rotoscoping, SPEC §1) and its evaluation (SPEC §6.4).
+
+* :mod:`nnsf.track.curves`  — the Catmull-Rom curve model as constant linear maps;
+* :mod:`nnsf.track.energy`  — the space-time energy, its Jacobian and the LM solver;
+* :mod:`nnsf.track.solve`   — :func:`track_clip` ("ours", "agarwala", "lk");
+* :mod:`nnsf.track.metrics` — point-to-curve error, PCK, simulated-user edit ratio;
+* :mod:`nnsf.track.figures` — the overlay figure (paper Fig. 5);
+* :mod:`nnsf.track.real`    — real frames (Kenney walk cycles) scored against silhouettes;
+* :mod:`nnsf.track.stage`   — the pipeline stages ``track_clips`` and ``evaluate_tracking``.
+"""
+from nnsf.track.solve import METHODS, TrackOptions, track_clip
+
+__all__ = ["METHODS", "TrackOptions", "track_clip"]

@@ -1,0 +1,158 @@
+"""Tracking metrics against ground truth (SPEC §6.4).
+
+* point-to-curve error: distance (px) of every tracked spline sample to the
+  true side curve (a dense polyline), over the in-between frames;
+* key-point PCK at 0.05 × torso length (key points derived from the tracked
+  curves by :mod:`nnsf.frames.keypoints`);
+* the simulated user's edit ratio (the paper's Fig. 4a): the user snaps the
+  worst control point of a curve to the truth, which becomes a hard
+  constraint, and the tracker re-solves; edits are counted until every
+  control point of the in-between frames is within ``tol`` px of the truth.
+  ratio = edits / (control points × in-between frames).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from nnsf.track import curves
+from nnsf.track.solve import ClipTracker, TrackOptions, assemble, plan
+
+
+def project_to_polyline(points: np.ndarray, polyline: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest points on polylines.
+
+    points (..., N, 2), polyline (..., M, 2) with the same leading shape.
+    Returns ``dist (..., N)`` and ``nearest (..., N, 2)`` (px); brute force
+    over all M-1 segments, exact.  :func:`nearest_vertex` gives the index.
+    """
+    dist, nearest, _ = _project(points, polyline)
+    return dist, nearest
+
+
+def nearest_vertex(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
+    """Index (..., N) of the polyline vertex closest to each point's projection."""
+    return _project(points, polyline)[2]
+
+
+def _project(points, polyline):
+    q = np.asarray(points, np.float64)[..., :, None, :]            # (..., N, 1, 2)
+    c = np.asarray(polyline, np.float64)
+    a = c[..., None, :-1, :]                                        # (..., 1, M-1, 2)
+    ab = c[..., None, 1:, :] - a
+    u = ((q - a) * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-300)
+    u = np.clip(u, 0.0, 1.0)
+    near = a + u[..., None] * ab                                    # (..., N, M-1, 2)
+    d = np.linalg.norm(q - near, axis=-1)
+    k = np.argmin(d, axis=-1)
+    dist = np.take_along_axis(d, k[..., None], -1)[..., 0]
+    nearest = np.take_along_axis(near, k[..., None, None], -2)[..., 0, :]
+    uk = np.take_along_axis(u, k[..., None], -1)[..., 0]
+    return dist, nearest, k + (uk > 0.5)
+
+
+def curve_errors(control: np.ndarray, truth: np.ndarray, n_samples: int = 32,
+                 visible: np.ndarray | None = None):
+    """Point-to-curve error of tracked curves.
+
+    control : (T, N, P, 2) tracked control points (NaN-padded rows allowed:
+              a curve with fewer points uses its non-NaN prefix).
+    truth   : (T, N, S, 2) dense true side curves, same curve order.
+    visible : optional (T, N, S) bool visibility of the truth samples.
+    Returns (T, N, n_samples) distances in px (NaN where the curve has no
+    estimate); with ``visible`` also a (T, N, n_samples) bool: whether the
+    nearest true point is visible (not covered by another part).
+    """
+    control = np.asarray(control, np.float64)
+    T, N, P, _ = control.shape
+    valid = np.isfinite(control).all(-1)                            # (T, N, P)
+    counts = valid.sum(-1)
+    out = np.full((T, N, n_samples), np.nan)
+    vis = np.zeros((T, N, n_samples), bool)
+    for cnt in np.unique(counts[counts >= 2]):
+        sel = counts == cnt
+        S = curves.sample(control[sel][:, :cnt], n_samples)
+        d, _, k = _project(S, truth[sel])
+        out[sel] = d
+        if visible is not None:
+            vis[sel] = np.take_along_axis(np.asarray(visible)[sel], k, -1)
+    return out if visible is None else (out, vis)
+
+
+def error_summary(err: np.ndarray) -> dict[str, float]:
+    """Mean and 95th percentile (px) of the finite entries of an error array."""
+    e = np.asarray(err)[np.isfinite(err)]
+    if e.size == 0:
+        return {"mean_px": float("nan"), "p95_px": float("nan")}
+    return {"mean_px": float(e.mean()), "p95_px": float(np.percentile(e, 95))}
+
+
+def pck(pred: np.ndarray, truth: np.ndarray, torso: np.ndarray, alpha: float = 0.05) -> float:
+    """Share of key points within ``alpha`` × torso length of the truth.
+
+    pred, truth : (T, J, 2) px (NaN predictions count as wrong);
+    torso : (T,) torso length per frame (px).
+    """
+    d = np.linalg.norm(np.asarray(pred, float) - np.asarray(truth, float), axis=-1)
+    ok = np.where(np.isfinite(d), d <= alpha * np.asarray(torso, float)[:, None], False)
+    return float(ok.mean()) if ok.size else float("nan")
+
+
+def edit_ratio(frames: np.ndarray, annotation, truth: np.ndarray, names_truth: list[str],
+               method: str, tol: float = 2.0, max_edits: int = 20, **options) -> dict:
+    """The simulated user's edit ratio for one clip and tracker.
+
+    frames : (T, H, W, 3) uint8; truth : (T, N_truth, S, 2) dense true side
+    curves named ``names_truth``; method : "ours" | "agarwala" | "lk".
+    Every (interval, curve) is tracked, then in rounds: each curve whose worst
+    in-between control point is more than ``tol`` px from its true curve gets
+    one edit (that point snapped to the nearest true point and made a hard
+    constraint), and all edited curves are re-solved together (warm start,
+    full resolution).  A curve is given at most ``max_edits`` edits; control
+    points still off after that are counted as one more edit each (the user
+    would have to fix each of them by hand), so the figure stays comparable
+    between trackers.
+    Returns ``{"edit_ratio", "edits", "control_points", "capped_curves",
+    "names", "tracked", "control"}``: ``tracked`` is the tracker's result
+    before any edit and ``control`` the edited one, both (T, N, P, 2) in
+    ``names`` order (as :func:`nnsf.track.solve.track_clip` returns).
+    """
+    opts = TrackOptions.from_kwargs(**options)
+    tracker = ClipTracker(frames, method, opts)
+    names, kfs, batches = plan(annotation)
+    solved, first = [], []
+    edits_total = 0
+    slots = 0
+    capped = 0
+    for b in batches:
+        G, Tn, C, _ = b.P.shape
+        t_idx = b.frame0[:, None] + np.arange(Tn)[None, :]             # (G, Tn)
+        cidx = np.array([names_truth.index(n) for _, _, n in b.jobs])
+        tru = truth[t_idx, cidx[:, None]]                               # (G, Tn, S, 2)
+        P = tracker.solve(b.P, b.fixed, b.frame0)
+        first.append(P.copy())
+        fixed = b.fixed.copy()
+        edits = np.zeros(G, np.intp)
+        slots += G * C * (Tn - 2)
+        for _ in range(max_edits + 1):
+            dist, near = project_to_polyline(P, tru)                    # (G, Tn, C)
+            dist = np.where(fixed, 0.0, dist)
+            worst = dist.reshape(G, -1).max(1)
+            need = (worst > tol) & (edits < max_edits)
+            if not need.any():
+                break
+            arg = dist.reshape(G, -1).argmax(1)
+            g = np.flatnonzero(need)
+            t, c = np.unravel_index(arg[g], (Tn, C))
+            P[g, t, c] = near[g, t, c]
+            fixed[g, t, c] = True
+            edits[g] += 1
+            P[g] = tracker.solve(P[g], fixed[g], b.frame0[g], warm=True)
+        dist, _ = project_to_polyline(P, tru)
+        left = (np.where(fixed, 0.0, dist) > tol).reshape(G, -1).sum(1)
+        capped += int((left > 0).sum())
+        edits_total += int(edits.sum() + left.sum())
+        solved.append(P)
+    return {"edit_ratio": edits_total / slots if slots else float("nan"), "edits": edits_total,
+            "control_points": slots, "capped_curves": capped, "names": names,
+            "tracked": assemble(len(frames), names, kfs, batches, first),
+            "control": assemble(len(frames), names, kfs, batches, solved)}

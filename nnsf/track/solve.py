@@ -1,0 +1,379 @@
+"""Keyframe-based contour tracking of a clip: the space-time solver and the LK baseline.
+
+:func:`track_clip` tracks every annotated side curve of a clip between each
+pair of consecutive keyframes.  Three methods:
+
+* ``"ours"``      — the space-time energy with sketch term and colour penalty
+                    (SPEC §1), coarse to fine;
+* ``"agarwala"``  — the same solver without sketch term and colour penalty;
+* ``"lk"``        — per-frame pyramidal Lucas-Kanade (``cv2.calcOpticalFlowPyrLK``)
+                    on the control points, started from the first keyframe of
+                    each interval.  With ``lk_end="blend"`` (default) the drift
+                    found on arrival at the next keyframe is spread linearly
+                    back over the interval, so the track meets that keyframe
+                    as any rotoscoper would force it to; ``lk_end="none"`` is
+                    the naive forward-only tracker.  A point LK loses (mid-edge
+                    points: the aperture problem) moves with its curve's median
+                    displacement.
+
+All (interval, curve) problems of equal interval length and control-point
+count are solved together as one block-diagonal problem (they are
+independent; batching only removes Python overhead), coarse to fine on a
+``cv2.pyrDown`` pyramid, from linear interpolation between the keyframes or
+(``init="lk"``) from the blended LK track.  Measured on rendered walk clips
+with keyframes every 8 frames, ``init="linear"`` was the better start
+(mean error 1.3 px against 1.7 px).
+"""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, fields
+
+import cv2
+import numpy as np
+from scipy.optimize import least_squares
+
+from nnsf.track.energy import (
+    LevelImages, SpaceTimeProblem, Weights, build_pyramid, levenberg_marquardt,
+)
+
+METHODS = ("ours", "agarwala", "lk")
+INITS = ("linear", "lk")
+LK_ENDS = ("blend", "none")
+SOLVERS = ("lm", "scipy")
+
+
+@dataclass
+class TrackOptions:
+    """Every tunable of the trackers (the lead maps them to params.yaml ``track:``).
+
+    Weights multiply squared residuals (see :mod:`nnsf.track.energy`); ``K``
+    is the ribbon half-width in samples of 1 px (of each pyramid level);
+    ``levels`` the pyramid depth (1 = full resolution only).
+    """
+
+    velocity: float = 3.0
+    length: float = 1.0
+    curvature: float = 1.0
+    edge: float = 1.0
+    sketch: float = 100.0
+    colour: float = 100.0
+    K: int = 3
+    n_samples: int = 12
+    levels: int = 2
+    init: str = "linear"
+    max_nfev: int = 20
+    ftol: float = 1e-4
+    max_step: float = 4.0
+    solver: str = "lm"
+    colour_sigma: float = 1.0
+    edge_sigma: float = 0.7
+    edge_close: int = 2
+    edge_cap: float = 8.0
+    lk_window: int = 21
+    lk_levels: int = 3
+    lk_end: str = "blend"
+
+    def __post_init__(self):
+        for name in ("velocity", "length", "curvature", "edge", "sketch", "colour",
+                     "colour_sigma", "edge_sigma", "edge_cap", "max_step"):
+            v = getattr(self, name)
+            if not np.isfinite(v) or v < 0:
+                raise ValueError(f"track option {name} must be a finite number >= 0, got {v!r}")
+        for name, lo in (("K", 0), ("edge_close", 0), ("n_samples", 3), ("levels", 1), ("max_nfev", 1),
+                         ("lk_window", 5), ("lk_levels", 0)):
+            v = getattr(self, name)
+            if int(v) != v or v < lo:
+                raise ValueError(f"track option {name} must be an integer >= {lo}, got {v!r}")
+        if self.init not in INITS:
+            raise ValueError(f"track option init must be one of {INITS}, got {self.init!r}")
+        if self.solver not in SOLVERS:
+            raise ValueError(f"track option solver must be one of {SOLVERS}, got {self.solver!r}")
+        if not 0 < self.ftol < 1:
+            raise ValueError(f"track option ftol must be in (0, 1), got {self.ftol!r}")
+        if self.lk_end not in LK_ENDS:
+            raise ValueError(f"track option lk_end must be one of {LK_ENDS}, got {self.lk_end!r}")
+
+    @property
+    def weights(self) -> Weights:
+        return Weights(self.velocity, self.length, self.curvature, self.edge, self.sketch,
+                       self.colour)
+
+    @classmethod
+    def from_kwargs(cls, **kw) -> "TrackOptions":
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(kw) - known)
+        if unknown:
+            raise TypeError(f"unknown track option(s) {unknown}; known: {sorted(known)}")
+        return cls(**kw)
+
+
+# ---------------------------------------------------------------- LK
+def lk_track(gray: np.ndarray, P: np.ndarray, fixed: np.ndarray, window: int = 21,
+             levels: int = 3, end: str = "blend") -> np.ndarray:
+    """Per-frame pyramidal LK of control points between anchors.
+
+    gray  : (T, H, W) uint8 frames.
+    P     : (G, T, C, 2) control points (px); entries under ``fixed`` are anchors.
+    fixed : (G, T, C) bool; every point must be fixed at t = 0.
+    Each point is tracked forward frame to frame and reset to its anchor
+    wherever it has one.  ``end="blend"`` adds, between consecutive anchors
+    a < b, the arrival error (anchor_b - tracked_b)·(t-a)/(b-a).
+    Returns (G, T, C, 2).  A point LK loses (status 0) moves with the median
+    displacement of the tracked points of its curve.
+    """
+    P = np.asarray(P, np.float64)
+    G, T, C, _ = P.shape
+    fx = np.asarray(fixed, bool).reshape(G, T, C).transpose(1, 0, 2).reshape(T, -1)   # (T, M)
+    anchors = P.transpose(1, 0, 2, 3).reshape(T, -1, 2)                               # (T, M, 2)
+    if not fx[0].all():
+        raise ValueError("every point needs an anchor in the first frame")
+    fwd = np.empty_like(anchors)
+    fwd[0] = anchors[0]
+    cur = anchors[0].astype(np.float32)
+    crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)
+    for t in range(1, T):
+        nxt, status, _ = cv2.calcOpticalFlowPyrLK(
+            gray[t - 1], gray[t], cur.reshape(-1, 1, 2), None, winSize=(window, window),
+            maxLevel=levels, criteria=crit)
+        nxt = nxt.reshape(-1, 2).astype(np.float64)
+        ok = status.reshape(-1).astype(bool) & np.isfinite(nxt).all(1)
+        # A lost point (e.g. mid-edge, the aperture problem) follows the median
+        # displacement of its curve's tracked points; if all are lost it stays.
+        disp = np.where(ok[:, None], nxt - cur, np.nan).reshape(G, C, 2)
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            med = np.nanmedian(disp, axis=1, keepdims=True)
+        med = np.nan_to_num(np.broadcast_to(med, disp.shape).reshape(-1, 2))
+        nxt = np.where(ok[:, None], nxt, cur + med)
+        fwd[t] = nxt
+        cur = np.where(fx[t][:, None], anchors[t], nxt).astype(np.float32)
+    out = np.where(fx[..., None], anchors, fwd)
+    if end == "blend":
+        t = np.arange(T)[:, None]
+        prev_a = np.maximum.accumulate(np.where(fx, t, -1), axis=0)                  # (T, M)
+        nxt_a = np.flip(np.minimum.accumulate(np.flip(np.where(fx, t, T), 0), axis=0), 0)
+        has_next = nxt_a < T
+        b = np.where(has_next, nxt_a, 0)
+        m = np.arange(fx.shape[1])[None, :]
+        drift = anchors[b, m] - fwd[b, m]                                               # (T, M, 2)
+        lam = np.where(has_next & ~fx, (t - prev_a) / np.maximum(b - prev_a, 1), 0.0)
+        out = out + lam[..., None] * drift
+    elif end != "none":
+        raise ValueError(f"end must be one of {LK_ENDS}, got {end!r}")
+    return out.reshape(T, G, C, 2).transpose(1, 0, 2, 3)
+
+
+# ---------------------------------------------------------------- space-time solve
+def _to_level(P, s):
+    return (P + 0.5) * s - 0.5
+
+
+def _from_level(P, s):
+    return (P + 0.5) / s - 0.5
+
+
+def linear_init(P: np.ndarray, fixed: np.ndarray) -> np.ndarray:
+    """Free points interpolated linearly in t between their neighbouring fixed values.
+
+    P (G, T, C, 2), fixed (G, T, C) with t = 0 and t = T-1 fixed.
+    """
+    P = np.asarray(P, np.float64).copy()
+    G, T, C, _ = P.shape
+    t = np.arange(T)[None, :, None]
+    fx = np.asarray(fixed, bool)
+    a = np.maximum.accumulate(np.where(fx, t, -1), axis=1)
+    b = np.flip(np.minimum.accumulate(np.flip(np.where(fx, t, T), 1), axis=1), 1)
+    a = np.clip(a, 0, T - 1)
+    b = np.clip(b, 0, T - 1)
+    g = np.arange(G)[:, None, None]
+    c = np.arange(C)[None, None, :]
+    Pa, Pb = P[g, a, c], P[g, b, c]
+    lam = np.where(b > a, (t - a) / np.maximum(b - a, 1), 0.0)[..., None]
+    return np.where(fx[..., None], P, (1 - lam) * Pa + lam * Pb)
+
+
+def solve_interval(pyramid: list[LevelImages], P: np.ndarray, fixed: np.ndarray,
+                   opts: TrackOptions, use_image_terms: bool = True,
+                   levels: int | None = None, frame0: np.ndarray | None = None) -> np.ndarray:
+    """Solve the space-time problem of G curves over one interval, coarse to fine.
+
+    pyramid : the interval's frames as from :func:`build_pyramid`, finest first
+              (T frames per level).
+    P       : (G, T, C, 2) full-resolution control points: the hard constraints
+              under ``fixed`` and the initial guess elsewhere.
+    fixed   : (G, T, C) bool; t = 0 and t = T-1 are always treated as fixed.
+    levels  : how many pyramid levels to use (default all of ``pyramid``).
+    frame0  : (G,) index in ``pyramid`` of each curve's first frame (default 0),
+              so curves of several intervals of equal length solve together.
+    Returns (G, T, C, 2) full-resolution control points.
+    """
+    P = np.asarray(P, np.float64).copy()
+    fixed = np.asarray(fixed, bool).copy()
+    fixed[:, 0] = fixed[:, -1] = True
+    if P.shape[1] < 3 or fixed.all():
+        return P
+    nlev = len(pyramid) if levels is None else min(levels, len(pyramid))
+    w = opts.weights
+    for lev in range(nlev - 1, -1, -1):
+        L = pyramid[lev]
+        Pl = _to_level(P, L.scale)
+        prob = SpaceTimeProblem(L, Pl, fixed, w, n_samples=opts.n_samples, K=opts.K,
+                                use_image_terms=use_image_terms, frame0=frame0)
+        if opts.solver == "lm":
+            x, _ = levenberg_marquardt(prob, prob.x0(), max_iter=opts.max_nfev, ftol=opts.ftol,
+                                      max_step=opts.max_step)
+        else:
+            x = least_squares(prob.residuals, prob.x0(), jac=prob.jacobian, method="trf",
+                              tr_solver="lsmr", max_nfev=opts.max_nfev, ftol=opts.ftol,
+                              xtol=1e-6, gtol=1e-8).x
+        P = _from_level(prob.controls(x), L.scale)
+    return P
+
+
+# ---------------------------------------------------------------- clips
+def keyframe_curves(annotation) -> tuple[list[str], dict[int, dict[str, np.ndarray]]]:
+    """Curve names (first-seen order) and ``{frame: {curve: (C, 2) array}}`` of an annotation.
+
+    Accepts the format-v1 dict (ANNOTATION.md) or any object with a
+    ``keyframes`` attribute holding such entries (``frame`` and ``curves``,
+    as mappings or attributes).
+    """
+    kfs = annotation["keyframes"] if isinstance(annotation, dict) else annotation.keyframes
+    out: dict[int, dict[str, np.ndarray]] = {}
+    names: list[str] = []
+    for kf in kfs:
+        frame = kf["frame"] if isinstance(kf, dict) else kf.frame
+        cv = kf["curves"] if isinstance(kf, dict) else kf.curves
+        out[int(frame)] = {k: np.asarray(v, np.float64) for k, v in cv.items()}
+        for k in cv:
+            if k not in names:
+                names.append(k)
+    return names, dict(sorted(out.items()))
+
+
+@dataclass
+class Batch:
+    """Curves of equal interval length and control count, solved together.
+
+    jobs   : (k0, k1, curve name) per row g.
+    P      : (G, T, C, 2) control points (keyframes at t = 0 and T-1).
+    fixed  : (G, T, C) hard constraints.
+    frame0 : (G,) first frame of each row's interval in the clip.
+    """
+
+    jobs: list[tuple[int, int, str]]
+    P: np.ndarray
+    fixed: np.ndarray
+    frame0: np.ndarray
+
+
+def plan(annotation) -> tuple[list[str], dict[int, dict[str, np.ndarray]], list[Batch]]:
+    """Curve names, keyframe curves and the batches of (interval, curve) problems of a clip."""
+    names, kfs = keyframe_curves(annotation)
+    keys = list(kfs)
+    groups: dict[tuple[int, int], list[tuple[int, int, str]]] = {}
+    for k0, k1 in zip(keys[:-1], keys[1:]):
+        if k1 - k0 < 2:
+            continue
+        for name in names:
+            a, b = kfs[k0].get(name), kfs[k1].get(name)
+            if a is None or b is None:
+                continue
+            if a.shape != b.shape:
+                raise ValueError(f"curve {name!r} has {a.shape[0]} control points in keyframe "
+                                 f"{k0} but {b.shape[0]} in keyframe {k1}")
+            groups.setdefault((k1 - k0 + 1, a.shape[0]), []).append((k0, k1, name))
+    batches = []
+    for (Tn, C), jobs in sorted(groups.items()):
+        P = np.zeros((len(jobs), Tn, C, 2))
+        P[:, 0] = np.stack([kfs[k0][n] for k0, _, n in jobs])
+        P[:, -1] = np.stack([kfs[k1][n] for _, k1, n in jobs])
+        fixed = np.zeros((len(jobs), Tn, C), bool)
+        fixed[:, [0, -1]] = True
+        batches.append(Batch(jobs, P, fixed, np.array([k0 for k0, _, _ in jobs], np.intp)))
+    return names, kfs, batches
+
+
+class ClipTracker:
+    """Pre-processed clip (pyramid and/or gray frames) that solves batches by one method.
+
+    frames : (T, H, W, 3) uint8 RGB; method : "ours" | "agarwala" | "lk".
+    """
+
+    def __init__(self, frames: np.ndarray, method: str, opts: TrackOptions):
+        if method not in METHODS:
+            raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+        frames = np.asarray(frames)
+        if frames.ndim != 4 or frames.shape[-1] != 3 or frames.dtype != np.uint8:
+            raise ValueError(f"frames must be (T, H, W, 3) uint8, got {frames.shape} {frames.dtype}")
+        self.method, self.opts = method, opts
+        self.gray = None
+        self.pyramid = None
+        if method == "lk" or opts.init == "lk":
+            self.gray = np.stack([cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in frames])
+        if method != "lk":
+            self.pyramid = build_pyramid(frames, opts.levels, opts.colour_sigma, opts.edge_sigma,
+                                         opts.edge_cap, edge_close=opts.edge_close)
+
+    def lk(self, P, fixed, frame0, end):
+        Tn = P.shape[1]
+        out = P.copy()
+        for k0 in np.unique(frame0):
+            sel = frame0 == k0
+            out[sel] = lk_track(self.gray[k0:k0 + Tn], P[sel], fixed[sel], self.opts.lk_window,
+                                self.opts.lk_levels, end)
+        return out
+
+    def solve(self, P: np.ndarray, fixed: np.ndarray, frame0: np.ndarray,
+              warm: bool = False) -> np.ndarray:
+        """Track one batch: (G, T, C, 2) with hard constraints under ``fixed``.
+
+        ``warm=False`` initialises the free points (linear or LK) and solves
+        coarse to fine; ``warm=True`` (re-solve after an edit) starts from
+        ``P`` as given and solves at full resolution only (LK re-tracks from
+        every anchor, which is its re-solve).
+        """
+        opts = self.opts
+        if self.method == "lk":
+            return self.lk(P, fixed, frame0, opts.lk_end)
+        if not warm:
+            P = self.lk(P, fixed, frame0, "blend") if opts.init == "lk" else linear_init(P, fixed)
+        return solve_interval(self.pyramid, P, fixed, opts,
+                              use_image_terms=(self.method == "ours"),
+                              levels=1 if warm else None, frame0=frame0)
+
+
+def assemble(T: int, names: list[str], kfs: dict, batches: list[Batch],
+             solved: list[np.ndarray]) -> np.ndarray:
+    """Clip array (T, N, P, 2) from keyframes and solved batches (NaN elsewhere)."""
+    Pmax = max(c.shape[0] for kf in kfs.values() for c in kf.values())
+    out = np.full((T, len(names), Pmax, 2), np.nan)
+    for f, kf in kfs.items():
+        for k, c in kf.items():
+            out[f, names.index(k), :c.shape[0]] = c
+    for b, P in zip(batches, solved):
+        C = P.shape[2]
+        for g, (k0, k1, name) in enumerate(b.jobs):
+            out[k0:k1 + 1, names.index(name), :C] = P[g]
+    return out
+
+
+def track_clip(frames: np.ndarray, annotation, method: str = "ours", **options) -> np.ndarray:
+    """Track every annotated curve of a clip between consecutive keyframes.
+
+    frames     : (T, H, W, 3) uint8 RGB.
+    annotation : format-v1 annotation (dict or reader object), see :func:`keyframe_curves`.
+    method     : "ours" | "agarwala" | "lk".
+    options    : :class:`TrackOptions` fields.
+    Returns control points ``(T, N, P, 2)`` float64 (px) for the N curves in
+    ``keyframe_curves(annotation)[0]`` order, P = the largest control-point
+    count; NaN where a curve has fewer points, before its first or after its
+    last keyframe, or in an interval where it lacks one of the keyframes.
+    Keyframe rows equal the annotation.
+    """
+    opts = TrackOptions.from_kwargs(**options)
+    tracker = ClipTracker(frames, method, opts)
+    names, kfs, batches = plan(annotation)
+    solved = [tracker.solve(b.P, b.fixed, b.frame0) for b in batches]
+    return assemble(len(frames), names, kfs, batches, solved)

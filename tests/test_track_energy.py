@@ -1,0 +1,94 @@
+"""Space-time energy: analytic Jacobian, normal equations and the solvers (nnsf.track.energy)."""
+import cv2
+import numpy as np
+import pytest
+from scipy.optimize import least_squares
+
+from nnsf.track.energy import (
+    SpaceTimeProblem, Weights, build_pyramid, levenberg_marquardt, solve_block_tridiagonal,
+)
+
+
+def _problem(image_terms=True, seed=0):
+    rng = np.random.default_rng(seed)
+    T, H, W = 5, 64, 64
+    frames = np.zeros((T, H, W, 3), np.uint8)
+    frames[:] = (230, 230, 230)
+    for t in range(T):
+        cv2.circle(frames[t], (30 + 2 * t, 32), 15, (200, 50, 40), -1)
+        cv2.circle(frames[t], (30 + 2 * t, 32), 15, (20, 20, 20), 2)
+    lev = build_pyramid(frames, 1, colour_sigma=1.5)[0]
+    # float64 images so that finite differences are accurate
+    lev.colour = lev.colour.astype(np.float64)
+    lev.edge = lev.edge.astype(np.float64)
+    P = np.array([[15, 20], [20, 30], [25, 40], [30, 46]], float)[None, None].repeat(T, 1)
+    P = P.repeat(2, 0) + rng.normal(0, 1, (2, T, 4, 2))
+    fixed = np.zeros((2, T, 4), bool)
+    fixed[0, 2, 1] = True                     # an extra hard constraint (a user's edit)
+    prob = SpaceTimeProblem(lev, P, fixed, Weights(), n_samples=9, K=2,
+                            use_image_terms=image_terms)
+    return prob, prob.x0() + rng.normal(0, 0.3, prob.n_unknowns)
+
+
+@pytest.mark.parametrize("image_terms", [True, False])
+def test_jacobian_matches_finite_differences(image_terms):
+    prob, x = _problem(image_terms)
+    J = prob.jacobian(x).toarray()
+    eps = 1e-6
+    Jn = np.empty_like(J)
+    for k in range(len(x)):
+        e = np.zeros_like(x)
+        e[k] = eps
+        Jn[:, k] = (prob.residuals(x + e) - prob.residuals(x - e)) / (2 * eps)
+    assert np.abs(J - Jn).max() < 1e-5 * max(1.0, np.abs(Jn).max())
+
+
+def test_normal_equations_equal_jtj_of_the_sparse_jacobian():
+    prob, x = _problem()
+    r = prob.residuals(x)
+    J = prob.jacobian(x).toarray()
+    cost, g, Hd, Ho = prob.normal_equations(x)
+    assert cost.sum() == pytest.approx(0.5 * r @ r, rel=1e-10)
+    G, T, k = g.shape
+    H = np.zeros((G * T * k, G * T * k))
+    for gi in range(G):
+        for t in range(T):
+            o = (gi * T + t) * k
+            H[o:o + k, o:o + k] = Hd[gi, t]
+            if t < T - 1:
+                H[o:o + k, o + k:o + 2 * k] = Ho[gi, t]
+                H[o + k:o + 2 * k, o:o + k] = Ho[gi, t].T
+    free = prob.free.reshape(-1)
+    np.testing.assert_allclose(H[np.ix_(free, free)], J.T @ J, atol=1e-9)
+    np.testing.assert_allclose(g.reshape(-1)[free], J.T @ r, atol=1e-9)
+
+
+def test_block_tridiagonal_solve_matches_dense_solve():
+    rng = np.random.default_rng(1)
+    G, T, k = 3, 7, 4
+    A = rng.normal(size=(G, T, k, k))
+    Hd = A @ np.swapaxes(A, -1, -2) + 4 * np.eye(k)
+    Ho = 0.3 * rng.normal(size=(G, T - 1, k, k))
+    b = rng.normal(size=(G, T, k))
+    x = solve_block_tridiagonal(Hd, Ho, b)
+    for g in range(G):
+        M = np.zeros((T * k, T * k))
+        for t in range(T):
+            M[t * k:(t + 1) * k, t * k:(t + 1) * k] = Hd[g, t]
+            if t < T - 1:
+                M[t * k:(t + 1) * k, (t + 1) * k:(t + 2) * k] = Ho[g, t]
+                M[(t + 1) * k:(t + 2) * k, t * k:(t + 1) * k] = Ho[g, t].T
+        np.testing.assert_allclose(x[g].ravel(), np.linalg.solve(M, b[g].ravel()), atol=1e-10)
+
+
+def test_levenberg_marquardt_reaches_the_cost_scipy_reaches():
+    prob, x = _problem()
+    x_lm, info = levenberg_marquardt(prob, x, max_iter=100, ftol=1e-10)
+    ref = least_squares(prob.residuals, x, jac=prob.jacobian, method="trf", tr_solver="lsmr",
+                        ftol=1e-12, xtol=1e-12, gtol=1e-12, max_nfev=400)
+    start = prob.cost(x).sum()
+    assert info["cost"] < start
+    # both find the same local minimum of a smooth problem (within 1 % of the decrease)
+    assert info["cost"] == pytest.approx(ref.cost, abs=0.01 * (start - ref.cost))
+    # fixed entries never move
+    np.testing.assert_array_equal(prob.controls(x_lm)[prob.fixed], prob.P0[prob.fixed])

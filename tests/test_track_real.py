@@ -1,0 +1,47 @@
+"""Tracking on real cartoon frames (Kenney toon walk cycles) scored against alpha silhouettes."""
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from nnsf.track.real import score_silhouette, silhouette_boundary, track_kenney
+
+PROJECT = Path(__file__).resolve().parents[1]
+KENNEY = PROJECT.parent / "shared" / "data" / "kenney-toon"
+ANNOTATIONS = PROJECT / "tests" / "data" / "kenney"
+
+
+def _disc(r=30.0, size=128):
+    yy, xx = np.mgrid[:size, :size]
+    d = np.hypot(xx - 64.0, yy - 64.0)
+    return (np.clip(r + 0.5 - d, 0, 1) * 255).astype(np.uint8)      # anti-aliased edge at r
+
+
+def test_silhouette_boundary_of_a_disc():
+    pts = silhouette_boundary(_disc())
+    r = np.hypot(pts[:, 0] - 64, pts[:, 1] - 64)
+    assert abs(np.median(r) - 30.0) < 0.3 and r.std() < 0.3
+
+
+def test_score_of_curves_on_and_off_the_boundary():
+    alpha = _disc()
+    ang = np.linspace(0.2, 1.4, 5)
+    on = np.stack([64 + 30 * np.cos(ang), 64 + 30 * np.sin(ang)], -1)[None]   # (1, 5, 2)
+    assert score_silhouette(on, alpha) == 1.0
+    assert score_silhouette((on - 64) * (33.0 / 30.0) + 64, alpha) == 0.0   # 3 px out
+    half = np.concatenate([on, (on - 64) * (26.0 / 30.0) + 64])                     # 4 px in
+    assert score_silhouette(half, alpha) == pytest.approx(0.5)
+
+
+def test_kenney_walk_cycles():
+    if not KENNEY.is_dir():
+        pytest.skip(f"shared Kenney frames not found at {KENNEY}")
+    if not (ANNOTATIONS / "robot.annotation.json").is_file():
+        pytest.skip(f"hand annotation {ANNOTATIONS / 'robot.annotation.json'} not present")
+    table, tracked = track_kenney(KENNEY, ANNOTATIONS, characters=("robot",))
+    s = table.set_index("tracker")["score"]
+    assert set(s.index) == {"ours", "agarwala", "lk"}
+    # the space-time tracker stays on the outline far more often than per-frame LK
+    assert s["ours"] > s["lk"] + 0.1
+    assert s["ours"] > 0.5
+    assert tracked[("robot", "ours")].shape[:2] == (8, 16)
