@@ -14,9 +14,12 @@ means the same thing in both, so (SPEC D5):
 Translation of a clip of content ``c`` performed in style ``a`` into style
 ``b`` (row form, X is ``(n, 34)``):
 
-* ``reading="style_basis"`` (SPEC §3): X̂ = V_clip U_b.  The weights of the
-  clip, V_clip = argmin_V≥0 ½‖X_clip − V U_a‖² + αΣV, carry the content and
-  its timing; the target's basis carries the style.
+* ``reading="style_basis"`` (SPEC §3, the default): X̂ = V_clip U_b + b_b.
+  The weights of the clip, V_clip = argmin_V≥0 ½‖X_clip − b_a − V U_a‖² + αΣV,
+  carry the content and its timing; the target's basis (and offset) carry
+  the style.  With ``keep_residual`` (default) the clip's own residual
+  X_clip − V_clip U_a − b_a is added back, so only what the model explains
+  is translated.
 * ``reading="content_basis"`` (the paper's own example, where the basis
   U_nz of Nezha's jump is recombined with the weights V_ws of Wukong Sun's
   other motions): X̂ = V_style U_clip, with U_clip the basis refitted on the
@@ -29,16 +32,28 @@ How the per-style bases are learned (``basis``):
   steps per style from U₀.
 * ``"separate"`` -- an independent NNSF per style, atoms matched to U₀ by
   :func:`match_atoms` (the fallback of D5).
-* ``"aligned"`` -- our addition (a departure from the paper, measured in
-  :mod:`nnsf.evaluate.translation`): the clips of one content are first
-  aligned in time by DTW to a reference clip of that content, and aligned
-  frames of different styles *share one weight row*.  The model is then
-  x_{s,t} ≈ v_{g(t)} U_s, with g(t) the reference frame frame t is aligned to,
-  fitted by alternating a multiplicative update of the shared weights and
-  basis steps per style (starting from U₀, with an optional ridge pulling
-  U_s towards U₀).  In the pooled fit every frame has its own weights, so the
-  weights absorb most of the style and the refitted bases stay close to U₀;
-  sharing the weights across styles forces the style into the bases.
+* ``"aligned"`` (default) -- our departure, measured in
+  :mod:`nnsf.evaluate.translation`: the clips of one content are aligned in
+  time by DTW to a reference clip of that content (the one of median
+  length), and aligned frames of different styles *share one weight row*.
+  The model is x_{s,t} ≈ v_{g(t)} U_s + b_s, with g(t) the shared row of frame
+  t, fitted by alternating a multiplicative update of the shared weights and
+  projected-gradient basis steps per style, starting from U₀ and V of the
+  pooled fit, with a ridge pulling U_s towards U₀.  In the pooled fit every
+  frame has its own weights, so the weights absorb most of the style and
+  refitted bases stay close to U₀ (translation then barely moves the clip);
+  sharing the weights across styles forces the style into the bases.  Two
+  more departures belong to it: a per-style offset b_s (posture) and free
+  row lengths of U_s (how strongly a style expresses an atom).
+
+Synthesising a whole held-out cell (``synthesis``): ``"source"`` translates
+one clip of another style as above; ``"consensus"`` (default, aligned basis
+only) uses the content's *shared* weights, fitted on every style that
+performs it: X̂ = V_content U_target + b_target (:meth:`StyleTranslator.synthesize`),
+optionally with the amplitude the least-squares compromise loses restored
+(``amplitude="restore"``) and resampled to the target style's tempo
+(``tempo=True``).  Which of these wins is measured by the held-out grid
+(:mod:`nnsf.evaluate.translation`); the numbers are in the project's docs.
 
 Units: features are unified template coordinates (template units, torso =
 1.0); :func:`to_character_points` maps translated features back to a
@@ -59,15 +74,20 @@ from nnsf.factor.nnsf import EPSILON, NNSF, _basis_step, weights_for_basis
 from nnsf.skeleton.layout import BONES, N_FEATURES, N_JOINTS, to_points
 
 __all__ = [
-    "READINGS", "BASES", "StyleTranslator", "refit_basis", "match_atoms", "atom_cosines",
+    "READINGS", "BASES", "SYNTHESES", "AMPLITUDES", "StyleTranslator", "resample_clip", "refit_basis", "match_atoms", "atom_cosines",
     "joint_distance_matrix", "dtw_accumulate", "dtw_path", "dtw_align", "align_to_reference",
-    "to_character_points", "write_stick_gif",
+    "to_character_points",
 ]
 
 #: Which factor carries the style: the basis (SPEC §3) or the weights (the paper's example).
 READINGS: tuple[str, ...] = ("style_basis", "content_basis")
 #: How per-style bases with corresponding atoms are obtained.
 BASES: tuple[str, ...] = ("aligned", "refit", "separate")
+#: Where the content of a synthesised cell comes from: one source clip, or the
+#: content's shared weights (all styles that perform it).
+SYNTHESES: tuple[str, ...] = ("consensus", "source")
+#: Amplitude calibration of a consensus synthesis.
+AMPLITUDES: tuple[str, ...] = ("restore", "none")
 
 
 # --------------------------------------------------------------------------- #
@@ -131,6 +151,25 @@ def _refit_from_grams(VtV, VtX, U0, *, max_iter, tol, ridge):
             break
         prev = cur
     return U
+
+
+def _free_basis_step(U, VtV, VtX, step):
+    """Projected gradient step on U ≥ 0 with backtracking, row lengths free.
+
+    Like :func:`nnsf.factor.nnsf._basis_step` without the normalisation:
+    the candidate is accepted when ⟨UUᵀ, VᵀV⟩ − 2⟨VᵀX, U⟩ does not rise.
+    """
+    def fit(B):
+        return np.vdot(B @ B.T, VtV) - 2.0 * np.vdot(VtX, B)
+
+    grad = VtV @ U - VtX
+    current = fit(U)
+    for _ in range(30):
+        cand = np.maximum(U - step * grad, 0.0)
+        if fit(cand) <= current:
+            return cand, step * 1.2
+        step *= 0.5
+    return U, step
 
 
 def atom_cosines(U_ref, U) -> np.ndarray:
@@ -299,6 +338,37 @@ def align_to_reference(X, X_ref) -> np.ndarray:
     return np.rint(sums / counts).astype(int)
 
 
+def resample_clip(X, m: int) -> np.ndarray:
+    """Clip ``X`` (n, d) resampled to ``m`` frames by linear interpolation (ends kept)."""
+    X = np.asarray(X, dtype=float)
+    n = len(X)
+    if m == n or n == 1:
+        return X.copy() if n != 1 else np.repeat(X, m, axis=0)
+    t = np.linspace(0.0, n - 1.0, int(m))
+    i0 = np.minimum(np.floor(t).astype(int), n - 2)
+    w = (t - i0)[:, None]
+    return X[i0] * (1.0 - w) + X[i0 + 1] * w
+
+
+def _style_tempo(clips: dict) -> dict:
+    """Per style, the median of (clip length / mean length of that content's clips).
+
+    Only contents performed by at least two styles count (a content of one
+    style says nothing about tempo); styles without such a clip get 1.0.
+    ``clips`` maps (style, content) -> list of arrays.
+    """
+    by_content: dict[str, list[int]] = {}
+    n_styles: dict[str, set] = {}
+    for (s, c), lst in clips.items():
+        by_content.setdefault(c, []).extend(len(x) for x in lst)
+        n_styles.setdefault(c, set()).add(s)
+    ratios: dict[str, list[float]] = {}
+    for (s, c), lst in clips.items():
+        if len(n_styles[c]) >= 2:
+            ratios.setdefault(s, []).extend(len(x) / np.mean(by_content[c]) for x in lst)
+    return {s: float(np.median(ratios[s])) if s in ratios else 1.0 for s in {s for s, _ in clips}}
+
+
 # --------------------------------------------------------------------------- #
 # The translator
 # --------------------------------------------------------------------------- #
@@ -338,20 +408,49 @@ class StyleTranslator(BaseEstimator):
         Which factor carries the style (see the module docstring).
     basis : {"aligned", "refit", "separate"}, default="aligned"
         How per-style bases with corresponding atoms are learned.
-    ridge : float >= 0, default=0.05
+    ridge : float >= 0, default=0.5
         Pull of per-style bases towards U₀ (:func:`refit_basis`).
     refit_iter : int, default=100
         Basis steps of a per-style (or per-clip) refit.
-    align_iter : int, default=60
+    align_iter : int, default=150
         Alternations of the ``"aligned"`` fit (one weight update and
         ``basis_steps`` basis steps per style each).
     basis_steps : int, default=3
         Basis steps per style in one alternation of the ``"aligned"`` fit.
+    realign : int, default=0
+        ``"aligned"`` only: rounds of re-alignment.  After the alternations,
+        every clip is aligned again by DTW, now to the model's rendering of
+        its content in the clip's own style (V_c U_s + b_s), and the
+        alternations run again from where they were.
+    style_offset : bool, default=True
+        Give every style an unconstrained offset b_s (d,), its posture, next
+        to its non-negative basis: x ≈ v U_s + b_s.  Offsets are centred
+        (their frame-weighted mean over styles is zero), so b_s is how style s
+        departs from the average posture; with ``"aligned"`` they are fitted
+        in the alternation, otherwise set afterwards to the centred mean
+        residual of each style.  False is the plain model x ≈ v U_s.
+    free_norms : bool, default=False
+        ``"aligned"`` only: let the rows of each style's basis take any
+        length.  With weights shared across styles the length of atom i in
+        U_s is identifiable -- it is how strongly style s expresses that
+        atom (a bigger swing, a deeper bow) -- whereas unit rows can only
+        turn an atom, not scale it.  The scale shared by all styles stays
+        fixed: after every alternation atom i is divided by its mean length
+        over the styles (and its shared weights multiplied by it).
     keep_residual : bool, default=True
         Add back the part of the weighted clip that its own basis does not
         reproduce: X̂ = V U_target + (X − V U_source).  The factorisation then
         changes only what it models (the style) and the clip keeps its
         details; False gives the plain recombination X̂ = V U_target.
+    synthesis : {"consensus", "source"}, default="consensus"
+        How :meth:`synthesize_cell` makes a cell: from the content's shared
+        weights (``"aligned"`` basis only) or by translating a source clip.
+    amplitude : {"restore", "none"}, default="restore"
+        Consensus only: undo the amplitude the shared weights lose (see
+        :meth:`synthesize`).
+    tempo : bool, default=True
+        Resample a synthesised cell to the target style's tempo
+        (:attr:`style_tempo_`).
     max_iter : int, default=150
         Iterations of the pooled NNSF fit and of encoding a clip.
     tol : float, default=1e-5
@@ -372,15 +471,27 @@ class StyleTranslator(BaseEstimator):
         Labels seen in ``fit``.
     atom_cosine_ : dict style -> ndarray (k,)
         Cosine between atom i of U_s and of U₀ (how far the style moved it).
+    style_offsets_ : dict style -> ndarray (d,)
+        b_s (zeros with ``style_offset=False``), template units.
     content_means_ : dict content -> ndarray (d,)
         Mean feature row of each content over all styles (used to choose the
         style clip of the ``"content_basis"`` reading).
+    clips_ : dict (style, content) -> list of ndarray (n_q, d)
+        The training clips, for the ``"content_basis"`` reading.
+    style_tempo_ : dict style -> float
+        Median over the style's clips of length / mean length of that
+        content's clips (contents of at least two styles): < 1 is faster.
+    shared_weights_, frame_rows_, content_rows_, reference_clips_
+        ``"aligned"`` only: the shared weights ``(R, k)``, the shared row of
+        every training frame ``(n,)``, each content's rows ``(start, stop)``
+        and its reference clip.
     """
 
     def __init__(self, n_components=16, *, alpha=0.01, beta=10.0, label="content", class_in_loop=True,
-                 reading="style_basis", basis="aligned", ridge=0.05, refit_iter=100, align_iter=60,
-                 basis_steps=3, keep_residual=True, max_iter=150, tol=1e-5, init="nndsvda",
-                 random_state=0):
+                 reading="style_basis", basis="aligned", ridge=0.5, refit_iter=100, align_iter=150,
+                 basis_steps=3, realign=0, style_offset=True, free_norms=False, keep_residual=True,
+                 synthesis="consensus", amplitude="restore", tempo=True,
+                 max_iter=150, tol=1e-5, init="nndsvda", random_state=0):
         self.n_components = n_components
         self.alpha = alpha
         self.beta = beta
@@ -392,7 +503,13 @@ class StyleTranslator(BaseEstimator):
         self.refit_iter = refit_iter
         self.align_iter = align_iter
         self.basis_steps = basis_steps
+        self.realign = realign
+        self.style_offset = style_offset
+        self.free_norms = free_norms
         self.keep_residual = keep_residual
+        self.synthesis = synthesis
+        self.amplitude = amplitude
+        self.tempo = tempo
         self.max_iter = max_iter
         self.tol = tol
         self.init = init
@@ -404,16 +521,21 @@ class StyleTranslator(BaseEstimator):
             raise ValueError(f"reading must be one of {READINGS}, got {self.reading!r}")
         if self.basis not in BASES:
             raise ValueError(f"basis must be one of {BASES}, got {self.basis!r}")
+        if self.synthesis not in SYNTHESES:
+            raise ValueError(f"synthesis must be one of {SYNTHESES}, got {self.synthesis!r}")
+        if self.amplitude not in AMPLITUDES:
+            raise ValueError(f"amplitude must be one of {AMPLITUDES}, got {self.amplitude!r}")
         if self.label not in ("content", "style"):
             raise ValueError(f"label must be 'content' or 'style', got {self.label!r}")
         for name in ("ridge", "alpha", "beta", "tol"):
             v = getattr(self, name)
             if not (isinstance(v, numbers.Real) and not isinstance(v, bool) and v >= 0):
                 raise ValueError(f"{name} must be a number >= 0, got {v!r}")
-        for name in ("refit_iter", "align_iter", "basis_steps", "max_iter"):
+        for name, lo in (("refit_iter", 1), ("align_iter", 1), ("basis_steps", 1), ("max_iter", 1),
+                         ("realign", 0)):
             v = getattr(self, name)
-            if not (isinstance(v, numbers.Integral) and not isinstance(v, bool) and v >= 1):
-                raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
+            if not (isinstance(v, numbers.Integral) and not isinstance(v, bool) and v >= lo):
+                raise ValueError(f"{name} must be an integer >= {lo}, got {v!r}")
 
     def _check_X(self, X, who):
         X = check_array(X, dtype=np.float64, ensure_min_samples=1)
@@ -483,9 +605,20 @@ class StyleTranslator(BaseEstimator):
                 perm, _ = match_atoms(U0, sub.components_)
                 bases[s] = sub.components_[perm]
         else:
-            bases, self.reference_clips_ = self._fit_aligned(X, V, U0, style, content, clip)
+            bases, offsets, self.reference_clips_ = self._fit_aligned(X, V, U0, style, content, clip)
+        if self.basis != "aligned":
+            offsets = np.zeros((len(self.styles_), d))
+            if self.style_offset:
+                s_idx = np.searchsorted(self.styles_, style)
+                for i, s in enumerate(self.styles_):
+                    rows = s_idx == i
+                    offsets[i] = (X[rows] - weights_for_basis(
+                        X[rows], bases[s], alpha=float(self.alpha), max_iter=self.max_iter,
+                        tol=float(self.tol)) @ bases[s]).mean(axis=0)
+                offsets -= np.bincount(s_idx, minlength=len(self.styles_)) @ offsets / n
         self.style_bases_ = bases
-        self.atom_cosine_ = {s: np.einsum("kd,kd->k", U, U0) for s, U in bases.items()}
+        self.style_offsets_ = {s: offsets[i] for i, s in enumerate(self.styles_)}
+        self.atom_cosine_ = {s: np.diag(atom_cosines(U0, U)) for s, U in bases.items()}
         self.content_means_ = {c: X[content == c].mean(axis=0) for c in self.contents_}
         # The content_basis reading takes weights from a clip of the target
         # style: keep every clip's frames by (style, content).
@@ -494,55 +627,97 @@ class StyleTranslator(BaseEstimator):
             rows = np.flatnonzero(clip == q)
             key = (style[rows[0]], content[rows[0]])
             self.clips_.setdefault(key, []).append(X[rows])
+        self.style_tempo_ = _style_tempo(self.clips_)
         return self
 
     def _fit_aligned(self, X, V, U0, style, content, clip):
         """Per-style bases with weights shared by DTW-aligned frames of one content.
 
-        Returns the bases and, per content, the reference clip's name.
+        Returns the bases, the offsets ``(S, d)`` and, per content, the
+        reference clip's name.
         """
         n = X.shape[0]
-        k = U0.shape[0]
         styles = self.styles_
         s_idx = np.searchsorted(styles, style)
-        g = np.empty(n, dtype=int)                 # shared weight row of every frame
-        refs, offset = {}, 0
         clip_names, first = np.unique(clip, return_index=True)
+        clip_rows = {q: np.flatnonzero(clip == q) for q in clip_names}
+        refs, offset, self.content_rows_ = {}, 0, {}
+        members = {}
         for c in self.contents_:
             names = [q for q, f in zip(clip_names, first) if content[f] == c]
-            lengths = np.array([np.sum(clip == q) for q in names])
+            lengths = np.array([len(clip_rows[q]) for q in names])
             # Reference: the clip of median length (deterministic, and not an
             # outlier in tempo), ties to the first name.
             order = np.argsort(lengths, kind="stable")
-            ref = names[order[(len(order) - 1) // 2]]
-            refs[c] = ref
-            X_ref = X[clip == ref]
-            for q in names:
-                rows = np.flatnonzero(clip == q)
-                r = np.arange(len(rows)) if q == ref else align_to_reference(X[rows], X_ref)
-                g[rows] = offset + r
-            offset += len(X_ref)
+            refs[c] = names[order[(len(order) - 1) // 2]]
+            members[c] = names
+            m = len(clip_rows[refs[c]])
+            self.content_rows_[c] = (offset, offset + m)
+            offset += m
         R = offset
+
+        def align(targets):
+            """Shared row of every frame: DTW of each clip to its content's target."""
+            g = np.empty(n, dtype=int)
+            for c, names in members.items():
+                a = self.content_rows_[c][0]
+                for q in names:
+                    rows = clip_rows[q]
+                    target = targets(c, q)
+                    r = np.arange(len(rows)) if target is None else align_to_reference(X[rows], target)
+                    g[rows] = a + r
+            return g
+
+        # First alignment: to the reference clip itself (raw features).
+        g = align(lambda c, q: None if q == refs[c] else X[clip_rows[refs[c]]])
+        # Shared weights start as the mean pooled weights of the frames of a row.
+        M = sp.csr_matrix((np.ones(n), (g, np.arange(n))), shape=(R, n))
+        counts = np.asarray(M.sum(axis=1)).ravel()
+        W = np.maximum(np.asarray(M @ V) / np.maximum(counts, 1)[:, None], EPSILON)
+        bases = np.stack([U0.copy() for _ in styles])                          # (S, k, d)
+        offsets = np.zeros((len(styles), X.shape[1]))
+        for round_ in range(self.realign + 1):
+            if round_ > 0:
+                # Re-align every clip to the model's rendering of its content in
+                # its own style, V_c U_s + b_s: like is then compared with like,
+                # and the reference clip's own style no longer biases the warp.
+                def target(c, q):
+                    a, b = self.content_rows_[c]
+                    i = s_idx[clip_rows[q][0]]
+                    return np.maximum(W[a:b] @ bases[i] + offsets[i], 0.0)
+                g = align(target)
+            W, bases, offsets = self._alternate(X, s_idx, g, R, W, bases, offsets, U0)
+        self.shared_weights_ = W
+        self.frame_rows_ = g
+        return {s: bases[i] for i, s in enumerate(styles)}, offsets, refs
+
+    def _alternate(self, X, s_idx, g, R, W, bases, offsets, U0):
+        """``align_iter`` alternations of the shared weights and per-style bases/offsets."""
+        n, k = X.shape[0], U0.shape[0]
+        S = bases.shape[0]
         M = sp.csr_matrix((np.ones(n), (g, np.arange(n))), shape=(R, n))      # frames -> rows
         counts = np.asarray(M.sum(axis=1)).ravel()
-        cnt = np.zeros((R, len(styles)))
+        cnt = np.zeros((R, S))
         np.add.at(cnt, (g, s_idx), 1.0)
-
-        # Shared weights start as the mean pooled weights of the frames of a row.
-        W = np.asarray(M @ V) / np.maximum(counts, 1)[:, None]
-        W = np.maximum(W, EPSILON)
-        bases = np.stack([U0.copy() for _ in styles])                          # (S, k, d)
-        steps = np.zeros(len(styles))
-        rows_of = [np.flatnonzero(s_idx == i) for i in range(len(styles))]
+        rows_of = [np.flatnonzero(s_idx == i) for i in range(S)]
+        n_of = np.array([len(r) for r in rows_of], dtype=float)
+        steps = np.zeros(S)
         alpha = float(self.alpha)
+        step_fn = _free_basis_step if self.free_norms else _basis_step
+        W = np.maximum(W, EPSILON)     # a row no frame maps to any more keeps a live start
+        Xb = X
         for _ in range(self.align_iter):
+            if self.style_offset:
+                # The non-negative part models X − b_s; a coordinate the offset
+                # would push below zero is held at zero.
+                Xb = np.maximum(X - offsets[s_idx], 0.0)
             # Weight step: Hoyer's update of every shared row over all frames mapped to it.
             XU = np.empty((n, k))
             for i, rows in enumerate(rows_of):
-                XU[rows] = X[rows] @ bases[i].T
+                XU[rows] = Xb[rows] @ bases[i].T
             num = np.asarray(M @ XU)
             den = np.zeros_like(W)
-            for i in range(len(styles)):
+            for i in range(S):
                 # Σ_s cnt[r, s] · w_r U_s U_sᵀ, one (R × k)(k × k) product per style.
                 den += cnt[:, i, None] * (W @ (bases[i] @ bases[i].T))
             if alpha > 0:
@@ -551,7 +726,7 @@ class StyleTranslator(BaseEstimator):
             # Basis steps per style, weights fixed.
             for i, rows in enumerate(rows_of):
                 Vs = W[g[rows]]
-                VtV, VtX = Vs.T @ Vs, Vs.T @ X[rows]
+                VtV, VtX = Vs.T @ Vs, Vs.T @ Xb[rows]
                 if self.ridge > 0:
                     lam = self.ridge * max(float(np.trace(VtV)) / k, np.finfo(float).tiny)
                     VtV = VtV + lam * np.eye(k)
@@ -560,18 +735,32 @@ class StyleTranslator(BaseEstimator):
                     steps[i] = 1.0 / max(float(np.linalg.eigvalsh(VtV)[-1]), np.finfo(float).tiny)
                 U = bases[i]
                 for _ in range(self.basis_steps):
-                    U, steps[i] = _basis_step(U, VtV, VtX, steps[i])
+                    U, steps[i] = step_fn(U, VtV, VtX, steps[i])
                 bases[i] = U
-        self.shared_weights_ = W
-        self.frame_rows_ = g
-        return {s: bases[i] for i, s in enumerate(styles)}, refs
+                if self.style_offset:
+                    offsets[i] = (X[rows] - Vs @ U).mean(axis=0)
+            if self.style_offset:
+                offsets -= n_of @ offsets / n_of.sum()
+            if self.free_norms:
+                # Only the styles' relative atom lengths are identifiable: keep
+                # each atom's mean length over the styles at 1.
+                scale = np.linalg.norm(bases, axis=2).mean(axis=0)
+                scale = np.where(scale > 0, scale, 1.0)
+                bases /= scale[None, :, None]
+                W *= scale[None, :]
+        return W, bases, offsets
 
     # --------------------------------------------------------------- translate
     def encode(self, X_clip, style_name=None) -> np.ndarray:
         """Weights ``(n, k)`` of a clip under style ``style_name``'s basis (U₀ if None)."""
         check_is_fitted(self, "style_bases_")
         X_clip = self._check_X(X_clip, "StyleTranslator.encode")
-        U = self.components_ if style_name is None else self.style_bases_[self._check_style(style_name, "source")]
+        if style_name is None:
+            U = self.components_
+        else:
+            style_name = self._check_style(style_name, "source")
+            U = self.style_bases_[style_name]
+            X_clip = np.maximum(X_clip - self.style_offsets_[style_name], 0.0)
         return weights_for_basis(X_clip, U, alpha=float(self.alpha), max_iter=self.max_iter, tol=float(self.tol))
 
     def nearest_content(self, X_clip) -> str:
@@ -630,9 +819,9 @@ class StyleTranslator(BaseEstimator):
         if self.reading == "style_basis":
             U_src = self.style_bases_[source_style]
             V = self.encode(X_clip, source_style)
-            X_hat = V @ self.style_bases_[target_style]
+            X_hat = V @ self.style_bases_[target_style] + self.style_offsets_[target_style]
             if self.keep_residual:
-                X_hat += X_clip - V @ U_src
+                X_hat += X_clip - (V @ U_src + self.style_offsets_[source_style])
             return X_hat
         # content_basis: the clip's own basis (refitted from U0 with its
         # weights fixed) recombined with the weights of a target-style clip.
@@ -649,10 +838,72 @@ class StyleTranslator(BaseEstimator):
             X_hat += style_clip - V_style @ U0
         return X_hat
 
+    def synthesize(self, content, target_style) -> np.ndarray:
+        """The model's own clip of ``content`` in ``target_style``, ``(m, d)``, template units.
+
+        Only for ``basis="aligned"``: X̂ = V_c U_t + b_t with V_c the content's
+        shared weights (one row per frame of its reference clip, fitted on
+        every style that performs it), U_t and b_t the target's basis and
+        offset.  The content comes from all its clips at once instead of one
+        source clip.  Then, as the parameters say:
+
+        * ``amplitude="restore"``: V_c is a least-squares compromise of
+          several time-aligned performances, so it moves less than any one of
+          them.  Each coordinate's deviation from the clip mean is scaled by
+          g_j = mean_q sd(X_q)_j / mean_q sd(V_c U_{s_q} + b_{s_q})_j over
+          the fitted clips q of the content (their own styles s_q): the
+          model's own shrinkage, measured where the truth is known.
+        * ``tempo=True``: resampled (linear interpolation) to the content's
+          mean clip length times the target style's tempo
+          (:attr:`style_tempo_`).
+        """
+        check_is_fitted(self, "style_bases_")
+        if self.basis != "aligned":
+            raise ValueError("synthesize needs basis='aligned' (shared per-content weights)")
+        target_style = self._check_style(target_style, "target")
+        content = str(content)
+        if content not in self.content_rows_:
+            raise ValueError(f"unknown content {content!r}; fitted contents: {list(self.contents_)}")
+        X_hat = self._render(content, target_style)
+        if self.amplitude == "restore":
+            have = [(s, Xq) for (s, c), lst in self.clips_.items() if c == content for Xq in lst]
+            num = np.mean([Xq.std(axis=0) for _, Xq in have], axis=0)
+            den = np.mean([self._render(content, s).std(axis=0) for s, _ in have], axis=0)
+            gain = np.where(den > 1e-12, num / np.maximum(den, 1e-12), 1.0)
+            mean = X_hat.mean(axis=0)
+            X_hat = np.maximum(mean + (X_hat - mean) * gain, 0.0)
+        if self.tempo:
+            lengths = [len(Xq) for (s, c), lst in self.clips_.items() if c == content for Xq in lst]
+            m = max(2, int(round(np.mean(lengths) * self.style_tempo_.get(target_style, 1.0))))
+            X_hat = resample_clip(X_hat, m)
+        return X_hat
+
+    def _render(self, content, style_name):
+        a, b = self.content_rows_[content]
+        return self.shared_weights_[a:b] @ self.style_bases_[style_name] + self.style_offsets_[style_name]
+
+    def synthesize_cell(self, content, target_style, X_source=None, source_style=None) -> np.ndarray:
+        """The cell (``content`` in ``target_style``) the way ``synthesis`` says.
+
+        ``"consensus"``: :meth:`synthesize`; ``"source"``: :meth:`translate`
+        of ``X_source`` (performed in ``source_style``), then resampled to the
+        target's tempo when ``tempo`` is on.
+        """
+        if self.synthesis == "consensus" and self.reading == "style_basis":
+            return self.synthesize(content, target_style)
+        if X_source is None or source_style is None:
+            raise ValueError(f"synthesis={self.synthesis!r} with reading={self.reading!r} needs a "
+                             "source clip and its style")
+        X_hat = self.translate(X_source, source_style, target_style, content=content)
+        if self.tempo and self.reading == "style_basis":
+            ts, ss = self.style_tempo_.get(str(target_style), 1.0), self.style_tempo_.get(str(source_style), 1.0)
+            X_hat = resample_clip(X_hat, max(2, int(round(len(X_hat) * ts / ss))))
+        return X_hat
+
     def reconstruct(self, X_clip, style_name) -> np.ndarray:
         """``encode(X_clip, style) @ U_style``: the clip as the style's basis reproduces it, (n, d)."""
         style_name = self._check_style(style_name, "source")
-        return self.encode(X_clip, style_name) @ self.style_bases_[style_name]
+        return self.encode(X_clip, style_name) @ self.style_bases_[style_name] + self.style_offsets_[style_name]
 
 
 # --------------------------------------------------------------------------- #
@@ -666,82 +917,3 @@ def to_character_points(features, character: str, unifier) -> np.ndarray:
     character's own bone proportions and place on the canvas.
     """
     return unifier.inverse_transform(np.asarray(features, dtype=float), character)
-
-
-def _limits(sequences, pad=0.08):
-    allp = np.concatenate([np.asarray(s).reshape(-1, 2) for s in sequences])
-    lo, hi = allp.min(axis=0), allp.max(axis=0)
-    span = float(max(hi - lo)) or 1.0
-    mid = (lo + hi) / 2
-    half = span * (0.5 + pad)
-    return (mid[0] - half, mid[0] + half), (mid[1] - half, mid[1] + half)
-
-
-def write_stick_gif(path, sequences, *, titles=None, fps: float = 15.0, size: float = 2.6,
-                    colors=None) -> Path:
-    """Write stick figures of one or more clips side by side as an animated GIF.
-
-    Parameters
-    ----------
-    path : output file (``.gif``), written atomically.
-    sequences : array (n, 17, 2) or (n, 34), or a list of them
-        Key points (pixels or template units, y down).  Clips of different
-        lengths loop over the longest; shorter ones hold their last frame.
-    titles : list of str, optional, one per clip.
-    fps : frames per second of the animation.
-    size : inches per panel (the GIF is 100 dpi).
-    colors : list of matplotlib colours, optional.
-
-    Returns
-    -------
-    Path of the written file.
-    """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-    from PIL import Image
-
-    from nnsf.io import atomic_path
-
-    if isinstance(sequences, np.ndarray) and sequences.ndim in (2, 3) and (
-            sequences.ndim == 2 or sequences.shape[-2:] == (N_JOINTS, 2)):
-        sequences = [sequences]
-    seqs = [to_points(s) if np.asarray(s).shape[-1] == N_FEATURES else np.asarray(s, dtype=float)
-            for s in sequences]
-    if not seqs or any(s.ndim != 3 or s.shape[1:] != (N_JOINTS, 2) or len(s) == 0 for s in seqs):
-        raise ValueError("write_stick_gif: every sequence must be (n >= 1, 17, 2) points or (n, 34) features")
-    if not fps > 0:
-        raise ValueError(f"fps must be > 0, got {fps!r}")
-    titles = list(titles) if titles is not None else [""] * len(seqs)
-    colors = list(colors) if colors is not None else [f"C{i}" for i in range(len(seqs))]
-    xlim, ylim = _limits(seqs)
-    n_frames = max(len(s) for s in seqs)
-
-    fig = Figure(figsize=(size * len(seqs), size + 0.3), dpi=100, layout="constrained")
-    canvas = FigureCanvasAgg(fig)
-    axes = [fig.add_subplot(1, len(seqs), i + 1) for i in range(len(seqs))]
-    lines = []
-    for ax, title, col in zip(axes, titles, colors):
-        ax.set_xlim(*xlim)
-        ax.set_ylim(ylim[1], ylim[0])          # image axes: y down
-        ax.set_aspect("equal")
-        ax.set_xticks([])
-        ax.set_yticks([])
-        ax.set_title(title, fontsize=10)
-        bones = [ax.plot([], [], color=col, linewidth=2.5, solid_capstyle="round")[0] for _ in BONES]
-        dots = ax.plot([], [], linestyle="none", marker="o", markersize=3, color="0.2")[0]
-        lines.append((bones, dots))
-    images = []
-    for t in range(n_frames):
-        for seq, (bones, dots) in zip(seqs, lines):
-            p = seq[min(t, len(seq) - 1)]
-            for line, (a, b) in zip(bones, BONES):
-                line.set_data([p[a, 0], p[b, 0]], [p[a, 1], p[b, 1]])
-            dots.set_data(p[:, 0], p[:, 1])
-        canvas.draw()
-        rgba = np.asarray(canvas.buffer_rgba())
-        images.append(Image.fromarray(rgba[..., :3].copy()))
-    path = Path(path)
-    with atomic_path(path) as tmp:
-        images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:],
-                       duration=int(round(1000.0 / fps)), loop=0, optimize=False)
-    return path
