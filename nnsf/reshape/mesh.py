@@ -29,7 +29,18 @@ inside of the joint (an arm raised ~75° or more).  ``split=True`` cuts it into
 :data:`PIECES` (body, each arm, each leg) by duplicating the seam vertices;
 each piece is then pinned by its own key points (:data:`PIECE_KEYPOINTS`,
 the shoulder or hip on both sides of a seam) and a limb can move over the
-body, which a renderer must then draw in depth order.
+body, which a renderer must then draw in depth order; its seams follow the
+triangles, so they are jagged, and a bent elbow or knee still folds.
+
+``split="layered"`` (:func:`layer_pieces`, the default of the ``reshape``
+stage) fixes both: limb triangles are labelled by capsules of the limb's own
+width (a drawn arm over the chest does not take the chest with it), each of
+the ten segments (body, eight limb segments, head) is its own piece, cut
+along a straight segment across each joint (:func:`joint_cuts`; the cut and a
+half-elliptic collar arc are inserted into the triangulation so the seams are
+smooth), each child carries a joint cap (a copy of the parent's triangles
+inside the arc) that covers the wedge a bending joint opens, and the body
+gets an inpainted underlay where a limb lay over it.
 """
 from __future__ import annotations
 
@@ -78,6 +89,33 @@ PIECE_KEYPOINTS: dict[str, tuple[int, ...]] = {
     "r_leg": tuple(JOINT_INDEX[j] for j in ("r_hip", "r_knee", "r_ankle")),
 }
 
+#: Pieces of a layered mesh (:func:`layer_pieces`): the body (torso), every
+#: limb segment and the head, each on its own, so no joint can fold.
+SEGMENTS: tuple[str, ...] = ("body",) + tuple(LIMBS) + ("head",)
+#: Segment piece of each part, ``(10,)``, and the part of each segment, ``(10,)``.
+PART_SEGMENT = np.array([0, len(SEGMENTS) - 1] + list(range(1, 1 + len(LIMBS))), dtype=np.int64)
+SEGMENT_PART = np.array([0] + list(range(2, 2 + len(LIMBS))) + [1], dtype=np.int64)
+SEGMENT_KEYPOINTS: tuple[tuple[int, ...], ...] = (
+    (tuple(JOINT_INDEX[j] for j in ("pelvis", "r_hip", "l_hip", "spine", "thorax", "neck", "l_shoulder",
+                                    "r_shoulder")),)
+    + tuple((int(a), int(b)) for a, b in LIMBS.values())
+    + ((JOINT_INDEX["neck"], JOINT_INDEX["head_top"]),))
+#: Joints where a child piece overlaps its parent (:func:`layer_pieces`):
+#: (joint, parent piece, child piece, collar scale), indices into ``JOINTS`` /
+#: ``SEGMENTS``.  The scale is the cap's depth into the parent as a fraction
+#: of half the cut: 0.6 covers the wedge of bends up to ~40° while a strongly
+#: bent joint's cap pokes out less (at 1.0 the caps showed as grey bumps in a
+#: run); the neck's is smaller: a drawn head is much wider than its neck.
+COLLARS: tuple[tuple[int, int, int, float], ...] = tuple(
+    (JOINT_INDEX[j], SEGMENTS.index(parent), SEGMENTS.index(child), scale) for j, parent, child, scale in (
+        ("l_shoulder", "body", "l_upper_arm", 0.6), ("l_elbow", "l_upper_arm", "l_forearm", 0.6),
+        ("r_shoulder", "body", "r_upper_arm", 0.6), ("r_elbow", "r_upper_arm", "r_forearm", 0.6),
+        ("l_hip", "body", "l_thigh", 0.6), ("l_knee", "l_thigh", "l_shin", 0.6),
+        ("r_hip", "body", "r_thigh", 0.6), ("r_knee", "r_thigh", "r_shin", 0.6),
+        ("neck", "body", "head", 0.4)))
+#: The torso polygon (key points, in order) under which limb triangles get an underlay.
+TORSO_POLYGON = tuple(JOINT_INDEX[j] for j in ("l_hip", "pelvis", "r_hip", "r_shoulder", "thorax", "l_shoulder"))
+
 
 @dataclass
 class Mesh:
@@ -105,10 +143,28 @@ class Mesh:
     parts: np.ndarray
     spacing: float
     pieces: np.ndarray | None = None
+    #: Names of the pieces (:data:`PIECES` for :func:`split_pieces`,
+    #: :data:`SEGMENTS` for :func:`layer_pieces`).
+    piece_names: tuple[str, ...] = PIECES
+    #: Key points pinning each piece, one tuple per name in ``piece_names``.
+    piece_keypoints: tuple[tuple[int, ...], ...] | None = None
+    #: Texture layer per triangle ``(t,)``: 0 the drawing, 1 the inpainted
+    #: underlay (body triangles under a limb drawn over the body).
+    layer: np.ndarray | None = None
+    #: For a collar copy (:func:`layer_pieces`) the part id of the parent it
+    #: overlaps, else −1, ``(t,)``; a renderer draws a collar just before its
+    #: parent part, so it fills the joint's gap but never covers the parent.
+    collar: np.ndarray | None = None
 
     def __post_init__(self):
+        if self.collar is None:
+            self.collar = np.full(len(self.triangles), -1, dtype=np.int64)
         if self.pieces is None:
             self.pieces = np.zeros(len(self.triangles), dtype=np.int64)
+        if self.layer is None:
+            self.layer = np.zeros(len(self.triangles), dtype=np.int64)
+        if self.piece_keypoints is None:
+            self.piece_keypoints = tuple(PIECE_KEYPOINTS.get(n, ()) for n in self.piece_names)
 
     @property
     def n_vertices(self) -> int:
@@ -313,7 +369,7 @@ def spacing_for(mask: np.ndarray, n_vertices: int) -> float:
 
 def triangulate_mask(mask: np.ndarray, n_vertices: int = 800, min_angle: float = 15.0,
                      simplify: float = 0.75, jitter: float = 0.0, smooth_sweeps: int = 3,
-                     seed: int = 0) -> tuple[np.ndarray, np.ndarray, float]:
+                     seed: int = 0, cuts=()) -> tuple[np.ndarray, np.ndarray, float]:
     """Triangulate a silhouette.
 
     Parameters
@@ -340,7 +396,7 @@ def triangulate_mask(mask: np.ndarray, n_vertices: int = 800, min_angle: float =
         raise InputError("mask", "mask", "a silhouette with at least one foreground pixel", "an empty mask")
     if n_vertices < 20:
         raise InputError("triangulate_mask", "n_vertices", "at least 20", n_vertices)
-    args = (min_angle, simplify, jitter, smooth_sweeps, seed)
+    args = (min_angle, simplify, jitter, smooth_sweeps, seed, tuple(cuts))
     vertices, tri, h = _triangulate_at(mask, spacing_for(mask, n_vertices), *args)
     # The lattice loses points near the outline and thin parts gain some, so
     # the count misses the target by 10-15 %; one rescaled pass fixes that.
@@ -350,7 +406,33 @@ def triangulate_mask(mask: np.ndarray, n_vertices: int = 800, min_angle: float =
     return vertices, tri, h
 
 
-def _triangulate_at(mask, h, min_angle, simplify, jitter, smooth_sweeps, seed):
+def _cut_points(cuts, spacing_at, h: float) -> np.ndarray:
+    """Points along cut segments ``[(p, q), ...]`` at about half the local spacing, ends excluded."""
+    out = []
+    for p, q in cuts:
+        p, q = np.asarray(p, float), np.asarray(q, float)
+        L = float(np.linalg.norm(q - p))
+        sp = 0.5 * min(float(spacing_at(0.5 * (p + q)[None])[0]), h)
+        k = int(np.ceil(L / max(sp, 1e-9)))
+        if k < 2:
+            continue
+        t = np.arange(1, k) / k
+        out.append(p + t[:, None] * (q - p))
+    return np.vstack(out) if out else np.zeros((0, 2))
+
+
+def _seg_distance(points: np.ndarray, cuts) -> np.ndarray:
+    """Distance ``(k,)`` from each point to the nearest cut segment (inf without cuts)."""
+    d = np.full(len(points), np.inf)
+    for p, q in cuts:
+        p, q = np.asarray(p, float), np.asarray(q, float)
+        e = q - p
+        t = np.clip(((points - p) @ e) / max(float(e @ e), 1e-12), 0, 1)
+        d = np.minimum(d, np.linalg.norm(points - (p + t[:, None] * e), axis=1))
+    return d
+
+
+def _triangulate_at(mask, h, min_angle, simplify, jitter, smooth_sweeps, seed, cuts=()):
     rng = np.random.default_rng(seed)
     m8 = mask.astype(np.uint8)
     # Half-width of the silhouette near each pixel: the distance transform's
@@ -374,9 +456,18 @@ def _triangulate_at(mask, h, min_angle, simplify, jitter, smooth_sweeps, seed):
     if len(interior):
         d, _ = cKDTree(boundary).query(interior)
         interior = interior[d > 0.6 * spacing_at(interior)]
-    points = np.vstack([boundary, interior])
+    # Cut lines (seams between pieces of a layered mesh): fixed points at half
+    # the spacing and no lattice point closer than that, so Delaunay keeps
+    # the short edges between consecutive cut points and the seam is straight.
+    cut_pts = _cut_points(cuts, spacing_at, h)
+    if len(cut_pts):
+        cut_pts = cut_pts[cKDTree(boundary).query(cut_pts)[0] > 0.4 * spacing_at(cut_pts)]
+        cut_pts = cut_pts[_lookup(mask.astype(np.uint8), cut_pts).astype(bool)]
+    if len(cut_pts) and len(interior):
+        interior = interior[_seg_distance(interior, cuts) > 0.6 * spacing_at(interior)]
+    points = np.vstack([boundary, cut_pts, interior])
     fixed = np.zeros(len(points), dtype=bool)
-    fixed[: len(boundary)] = True
+    fixed[: len(boundary) + len(cut_pts)] = True
     points = _smooth_interior(points, fixed, mask, smooth_sweeps)
     # Triangles may overhang the pixel silhouette by the polygon tolerance,
     # so edge midpoints are tested against a slightly grown mask.
@@ -401,10 +492,32 @@ def _triangulate_at(mask, h, min_angle, simplify, jitter, smooth_sweeps, seed):
     return vertices, tri, h
 
 
-def label_parts(vertices: np.ndarray, triangles: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
+def limb_radii(mask: np.ndarray, keypoints: np.ndarray, scale: float = 1.3, span=(0.5, 0.8)) -> np.ndarray:
+    """A capsule radius per limb ``(8,)``, pixels: ``scale`` × the limb's half-width.
+
+    The half-width is the median of the mask's distance transform at
+    ``span`` fractions along the bone: the outer part of a limb, which is
+    usually free of the body, unlike the root where a drawn arm may lie over
+    the chest.
+    """
+    dist = cv2.distanceTransform(np.pad(np.asarray(mask, np.uint8), 1), cv2.DIST_L2, 5)[1:-1, 1:-1]
+    kp = np.asarray(keypoints, dtype=np.float64)
+    lam = np.linspace(*span, 5)[:, None]
+    out = []
+    for a, b in LIMBS.values():
+        pts = kp[a] + lam * (kp[b] - kp[a])
+        out.append(scale * float(np.median(_lookup(dist, pts))))
+    return np.array(out)
+
+
+def label_parts(vertices: np.ndarray, triangles: np.ndarray, keypoints: np.ndarray,
+                limb_radius: np.ndarray | None = None) -> np.ndarray:
     """Part id ``(t,)`` per triangle: the part of the bone nearest its centroid.
 
     keypoints : ``(17, 2)`` rest key points, pixels.
+    limb_radius : optional ``(8,)`` capsule radii (:func:`limb_radii`): a
+        limb bone only claims triangles within its radius, so a drawn arm
+        lying over the chest does not take the chest's texture with it.
     """
     c = vertices[triangles].mean(axis=1)  # (t, 2)
     a = keypoints[[p for p, _, _ in PART_BONES]]  # (B, 2)
@@ -414,11 +527,15 @@ def label_parts(vertices: np.ndarray, triangles: np.ndarray, keypoints: np.ndarr
     closest = a[None] + np.clip(t, 0, 1)[..., None] * d[None]
     dist = np.linalg.norm(c[:, None, :] - closest, axis=2)
     part_of_bone = np.array([part for _, _, part in PART_BONES])
+    if limb_radius is not None:
+        limb = part_of_bone >= 2
+        radius = np.asarray(limb_radius, dtype=np.float64)[np.maximum(part_of_bone - 2, 0)]
+        dist = np.where(limb[None] & (dist > radius[None]), np.inf, dist)
     return part_of_bone[np.argmin(dist, axis=1)]
 
 
 def _clean_pieces(triangles: np.ndarray, pieces: np.ndarray, vertices: np.ndarray,
-                  keypoints: np.ndarray) -> np.ndarray:
+                  keypoints: np.ndarray, names=PIECES, piece_keypoints=None) -> np.ndarray:
     """Make every piece one edge-connected group of triangles.
 
     Nearest-bone labels can leave islands (a few arm-labelled triangles on the
@@ -426,6 +543,8 @@ def _clean_pieces(triangles: np.ndarray, pieces: np.ndarray, vertices: np.ndarra
     piece keeps the group nearest its own key points; other groups join the
     piece most of their neighbours belong to.
     """
+    if piece_keypoints is None:
+        piece_keypoints = [PIECE_KEYPOINTS[n] for n in names]
     pieces = pieces.copy()
     a, b = triangle_adjacency(triangles)
     centroids = vertices[triangles].mean(axis=1)
@@ -433,11 +552,11 @@ def _clean_pieces(triangles: np.ndarray, pieces: np.ndarray, vertices: np.ndarra
         same = pieces[a] == pieces[b]
         labels = _components(len(triangles), a[same], b[same])
         stray = np.zeros(len(triangles), dtype=bool)
-        for pc, name in enumerate(PIECES):
+        for pc in range(len(names)):
             groups = np.unique(labels[pieces == pc])
             if len(groups) <= 1:
                 continue
-            kp = keypoints[list(PIECE_KEYPOINTS[name])]
+            kp = keypoints[list(piece_keypoints[pc])]
             dist = [np.linalg.norm(centroids[labels == g][:, None] - kp[None], axis=2).min() for g in groups]
             keep = groups[int(np.argmin(dist))]
             stray |= (pieces == pc) & (labels != keep)
@@ -445,7 +564,7 @@ def _clean_pieces(triangles: np.ndarray, pieces: np.ndarray, vertices: np.ndarra
             break
         # Give each stray triangle the commonest piece among its non-stray neighbours; repeat
         # until every island has been absorbed.
-        votes = np.zeros((len(triangles), len(PIECES)))
+        votes = np.zeros((len(triangles), len(names)))
         for x, y in ((a, b), (b, a)):
             ok = stray[x] & ~stray[y]
             np.add.at(votes, (x[ok], pieces[y[ok]]), 1.0)
@@ -474,13 +593,230 @@ def split_pieces(mesh: Mesh, keypoints: np.ndarray) -> Mesh:
                 spacing=mesh.spacing, pieces=pieces)
 
 
-def build_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int = 800, split: bool = False,
-               **kwargs) -> Mesh:
+def build_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int = 800, split=False,
+               collar: float = 1.0, **kwargs) -> Mesh:
     """Triangulate ``mask`` (:func:`triangulate_mask`) and label parts (:func:`label_parts`).
 
-    ``split=True`` cuts the limbs loose (:func:`split_pieces`).
+    ``split``: ``False`` (one connected mesh), ``True`` (limbs cut loose,
+    :func:`split_pieces`) or ``"layered"`` (every segment its own piece with
+    overlapping collars and a body underlay, :func:`layer_pieces`).
     """
-    vertices, triangles, h = triangulate_mask(mask, n_vertices=n_vertices, **kwargs)
+    if split not in (False, True, "layered", "connected", "split"):
+        raise InputError("build_mesh", "split", "False, True or 'layered'", split)
     kp = np.asarray(keypoints, dtype=float)
-    mesh = Mesh(vertices=vertices, triangles=triangles, parts=label_parts(vertices, triangles, kp), spacing=h)
-    return split_pieces(mesh, kp) if split else mesh
+    cuts = joint_cuts(mask, kp) if split == "layered" else []
+    vertices, triangles, h = triangulate_mask(mask, n_vertices=n_vertices, cuts=cut_segments(cuts),
+                                              **kwargs)
+    parts = label_parts(vertices, triangles, kp)
+    if split == "layered":
+        capsule = label_parts(vertices, triangles, kp, limb_radii(mask, kp) + 0.5 * h)
+        # A limb the capsules leave without triangles (thin, on a coarse mesh)
+        # keeps its nearest-bone triangles.
+        empty = [p for p in range(2, len(PARTS)) if not (capsule == p).any()]
+        parts = np.where(np.isin(parts, empty), parts, capsule)
+    mesh = Mesh(vertices=vertices, triangles=triangles, parts=parts, spacing=h)
+    if split == "layered":
+        return layer_pieces(mesh, kp, mask, collar=collar, cuts=cuts)
+    return split_pieces(mesh, kp) if split in (True, "split") else mesh
+
+
+def _limb_half_width(mask: np.ndarray, keypoints: np.ndarray, a: int, b: int) -> float:
+    """Half-width (pixels) of the limb a→b: the mask's distance transform at ¼ and ½ along it."""
+    dist = cv2.distanceTransform(np.pad(mask.astype(np.uint8), 1), cv2.DIST_L2, 5)[1:-1, 1:-1]
+    pts = keypoints[a] + np.array([[0.25], [0.5]]) * (keypoints[b] - keypoints[a])
+    return float(np.median(_lookup(dist, pts)))
+
+
+def joint_cuts(mask: np.ndarray, keypoints: np.ndarray, reach: float = 1.25) -> list[dict]:
+    """Straight seams between the pieces of a layered mesh, one per joint of :data:`COLLARS`.
+
+    The cut passes through the joint, across the limb: perpendicular to the
+    child bone at a shoulder or hip, perpendicular to the mean direction of
+    the two bones at an elbow or knee.  It runs each way until it leaves the
+    mask, but at most ``reach`` × the child's half-width (so at a shoulder
+    whose arm hangs beside the torso it does not cut into the torso).
+
+    Returns dicts with ``joint``, ``parent``, ``child`` (indices), ``p``,
+    ``q`` (segment ends, pixels), ``normal`` (unit, pointing to the child)
+    and ``half_width`` (pixels).
+    """
+    m = np.asarray(mask, dtype=bool)
+    kp = np.asarray(keypoints, dtype=np.float64)
+    out = []
+    for joint, parent, child, scale in COLLARS:
+        ja, jb = SEGMENT_KEYPOINTS[child]
+        uc = kp[jb] - kp[ja]
+        Lc = float(np.linalg.norm(uc))
+        if Lc < 1e-6:
+            continue
+        uc = uc / Lc
+        n = uc
+        if parent != 0:
+            pa, pb = SEGMENT_KEYPOINTS[parent]
+            up = kp[pb] - kp[pa]
+            if np.linalg.norm(up) > 1e-6:
+                s_ = up / np.linalg.norm(up) + uc
+                if np.linalg.norm(s_) > 1e-3:
+                    n = s_ / np.linalg.norm(s_)
+        d = np.array([-n[1], n[0]])
+        hw = _limb_half_width(m, kp, ja, jb)
+        cap = reach * max(hw, 1.0)
+        steps = np.arange(0.0, cap + 0.25, 0.25)
+        ends = []
+        for sgn in (1.0, -1.0):
+            inside = points_in(m, kp[joint] + sgn * steps[:, None] * d)
+            ends.append(steps[np.argmin(inside)] if not inside.all() else steps[-1])
+        p, q = kp[joint] + ends[0] * d, kp[joint] - ends[1] * d
+        # The collar: a half-disc on the parent's side with the cut as its diameter.
+        mid, R = 0.5 * (p + q), 0.5 * float(np.linalg.norm(p - q))
+        dh = (p - mid) / max(R, 1e-12)
+        theta = np.linspace(0.0, np.pi, 13)
+        # The arc bounding the collar: a half-ellipse, the cut as its long axis,
+        # reaching ``scale`` × R into the parent.
+        arc = mid + R * np.cos(theta)[:, None] * dh - scale * R * np.sin(theta)[:, None] * n
+        out.append({"joint": joint, "parent": parent, "child": child, "p": p, "q": q, "normal": n,
+                    "half_width": hw, "centre": mid, "radius": R, "arc": arc, "collar": scale})
+    return out
+
+
+def cut_segments(cuts: list[dict], arcs: bool = True) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The straight segments to insert into a triangulation: each cut, and its collar arc."""
+    segs = [(c["p"], c["q"]) for c in cuts]
+    if arcs:
+        segs += [(c["arc"][i], c["arc"][i + 1]) for c in cuts for i in range(len(c["arc"]) - 1)]
+    return segs
+
+
+def points_in(mask: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Whether points ``(k, 2)`` fall on foreground pixels of ``mask`` (nearest pixel)."""
+    return _lookup(mask.astype(np.uint8), np.atleast_2d(pts)).astype(bool)
+
+
+def _relabel_at_cuts(triangles, vertices, pieces, cuts) -> np.ndarray:
+    """Give triangles near each cut the piece of their side of it (parent or child)."""
+    pieces = pieces.copy()
+    c = vertices[triangles].mean(axis=1)
+    for cut in cuts:
+        p, q, n = cut["p"], cut["q"], cut["normal"]
+        d = q - p
+        L = float(np.linalg.norm(d))
+        if L < 1e-9:
+            continue
+        d = d / L
+        r = c - p
+        along = r @ d
+        across = r @ n
+        zone = ((along >= 0) & (along <= L) & (np.abs(across) <= max(cut["radius"], 1.0))
+                & np.isin(pieces, (cut["parent"], cut["child"])))
+        pieces[zone & (across > 0)] = cut["child"]
+        pieces[zone & (across <= 0)] = cut["parent"]
+    return pieces
+
+
+def layer_pieces(mesh: Mesh, keypoints: np.ndarray, mask: np.ndarray, collar: float = 1.0,
+                 cuts=None, underlay_shrink: float = 0.85) -> Mesh:
+    """Cut a connected mesh into :data:`SEGMENTS` that overlap, so limbs neither fold nor tear.
+
+    * every limb segment (upper arm, forearm, thigh, shin) and the body
+      (torso and head) become separate pieces, each pinned by its own key
+      points: a bent elbow or a limb swung over the body cannot fold a
+      triangle across a joint;
+    * **straight seams**: each joint of :data:`COLLARS` is cut along a
+      straight segment across the limb (:func:`joint_cuts`; its points were
+      inserted into the triangulation by :func:`build_mesh`), and triangles
+      near it take the piece of their side;
+    * **collars**: the child piece also takes a copy of the parent's
+      triangles in the half-disc (radius ``collar`` × half the cut's length)
+      on the parent's side of the cut, bounded by an inserted arc (same
+      texture coordinates): a round joint cap that covers the wedge opening
+      between the two pieces when the joint bends.  ``Mesh.collar`` names
+      each collar's parent part; a renderer draws it just before that part,
+      so it fills the wedge but never covers the parent's drawing;
+    * **underlay**: limb triangles lying over the torso (inside both the
+      key-point polygon :data:`TORSO_POLYGON` shrunk by ``underlay_shrink``
+      and the convex hull of the torso's own triangles) are copied into the
+      body with ``layer`` 1; a
+      renderer textures them from an inpainted drawing (the body as it would
+      look without the limb), so a limb drawn across the chest leaves no
+      hole when it moves away.
+
+    Vertices are then duplicated per piece as in :func:`split_pieces`.
+    """
+    kp = np.asarray(keypoints, dtype=np.float64)
+    mask = np.asarray(mask, dtype=bool)
+    tri0, V0 = mesh.triangles, mesh.vertices
+    if cuts is None:
+        cuts = joint_cuts(mask, kp)
+    seg = _relabel_at_cuts(tri0, V0, PART_SEGMENT[mesh.parts], cuts)
+    seg = _clean_pieces(tri0, seg, V0, kp, SEGMENTS, SEGMENT_KEYPOINTS)
+    # Parts follow the pieces (a relabelled triangle is drawn with its piece).
+    parts0 = SEGMENT_PART[seg]
+    a, b = triangle_adjacency(tri0)
+    centroids = V0[tri0].mean(axis=1)
+    extra_tri, extra_piece, extra_part, extra_layer, collar_parent = [], [], [], [], []
+    for cut in cuts:
+        parent, child = cut["parent"], cut["child"]
+        # Parent triangles in the half-disc on the parent's side of the cut
+        # (its boundary arc was inserted into the triangulation: a smooth edge).
+        R = cut["radius"]
+        rel = centroids - cut["centre"]
+        dh = (cut["p"] - cut["centre"]) / max(R, 1e-12)
+        u, v = rel @ dh, -(rel @ cut["normal"])
+        depth_ = collar * cut.get("collar", 1.0) * R
+        near = (seg == parent) & (v >= 0) & ((u / max(R, 1e-12)) ** 2 + (v / max(depth_, 1e-12)) ** 2 < 1)
+        if not near.any():
+            continue
+        # Keep only collar triangles connected (through the collar) to the child.
+        use = near | (seg == child)
+        ok = use[a] & use[b]
+        labels = _components(len(tri0), a[ok], b[ok])
+        child_groups = np.unique(labels[seg == child])
+        near &= np.isin(labels, child_groups)
+        idx = np.flatnonzero(near)
+        extra_tri.append(tri0[idx])
+        extra_piece.append(np.full(len(idx), child))
+        extra_part.append(np.full(len(idx), SEGMENT_PART[child]))
+        collar_parent.append(int(SEGMENT_PART[parent]))
+        extra_layer.append(np.zeros(len(idx), np.int64))
+    # The torso polygon, shrunk toward its centre: drawn shoulders and hips sit
+    # on the body's outline, and an underlay must not stick out of the body.
+    # The underlay region: the convex hull of the torso's own triangles (the
+    # chest as drawn, where a limb lies over it), cut to the key-point torso
+    # polygon shrunk toward its centre, so the underlay never sticks out of
+    # the body when the limb moves away.
+    n_collars = len(extra_tri)
+    poly = kp[list(TORSO_POLYGON)]
+    poly = (poly.mean(0) + underlay_shrink * (poly - poly.mean(0))).astype(np.float32)
+    hull = cv2.convexHull(poly)
+    torso_pts = V0[np.unique(tri0[(seg == 0) & (mesh.parts == PART_INDEX["torso"])])].astype(np.float32)
+    hull2 = cv2.convexHull(torso_pts) if len(torso_pts) >= 3 else hull
+    inside = np.array([cv2.pointPolygonTest(hull, (float(x), float(y)), False) >= 0
+                       and cv2.pointPolygonTest(hull2, (float(x), float(y)), False) >= 0 for x, y in centroids])
+    # Not next to the outline: there the limb is the body's edge at rest, and
+    # an underlay would show as an inkless bump once the limb moves away.
+    edge = cv2.distanceTransform(np.pad(mask.astype(np.uint8), 1), cv2.DIST_L2, 5)[1:-1, 1:-1]
+    inside &= _lookup(edge, centroids) > 2.0 * mesh.spacing
+    under = inside & (seg != 0)
+    if under.any():
+        # Keep underlay triangles connected to the body's own triangles.
+        use = under | (seg == 0)
+        ok = use[a] & use[b]
+        labels = _components(len(tri0), a[ok], b[ok])
+        body_groups = np.unique(labels[seg == 0])
+        under &= np.isin(labels, body_groups)
+        idx = np.flatnonzero(under)
+        extra_tri.append(tri0[idx])
+        extra_piece.append(np.zeros(len(idx), np.int64))
+        extra_part.append(np.full(len(idx), PART_INDEX["torso"]))
+        extra_layer.append(np.ones(len(idx), np.int64))
+    tris = np.concatenate([tri0] + extra_tri)
+    pieces = np.concatenate([seg] + extra_piece).astype(np.int64)
+    parts = np.concatenate([parts0] + extra_part).astype(np.int64)
+    layer = np.concatenate([np.zeros(len(tri0), np.int64)] + extra_layer)
+    is_collar = np.concatenate([np.full(len(tri0), -1, np.int64)] + [
+        np.full(len(e), collar_parent[k] if k < n_collars else -1, np.int64) for k, e in enumerate(extra_tri)])
+    pairs = np.stack([tris.ravel(), np.repeat(pieces, 3)], axis=1)
+    uniq, inv = np.unique(pairs, axis=0, return_inverse=True)
+    return Mesh(vertices=V0[uniq[:, 0]].copy(), triangles=inv.ravel().reshape(-1, 3).astype(np.int64),
+                parts=parts, spacing=mesh.spacing, pieces=pieces, piece_names=SEGMENTS,
+                piece_keypoints=SEGMENT_KEYPOINTS, layer=layer, collar=is_collar)

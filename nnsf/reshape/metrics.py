@@ -206,3 +206,37 @@ def deformation_report(rest, frames, triangles, parts=None, keypoints=None, omeg
         report["width_drift_mean"] = float(np.nanmean(drift)) if np.isfinite(drift).any() else float("nan")
         report["width_drift_max"] = float(np.nanmax(drift)) if np.isfinite(drift).any() else float("nan")
     return report
+
+
+def deformed_bending(rig, frames: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
+    """Bending energy of each limb as deformed, ``(T, 8)`` (same units as :func:`limb_bending`).
+
+    The rest curve's midpoint B₀(½) is embedded in the limb's own triangles
+    (barycentric, layer 0, the piece holding most of the limb) and carried by
+    the deformation to m_t; the quadratic through the frame's end points
+    with B(½) = m_t has control point p_con = 2 m_t − (p_j + p_{j+1})/2,
+    hence ω_t (Eq. 10) and its bending.  A limb that stays straight scores
+    0; a rigidly moved bent limb keeps its rest score.
+    """
+    from nnsf.reshape.arap import barycentric
+    from nnsf.reshape.limbs import bezier, omega_from_control
+
+    m = rig.mesh
+    V = np.asarray(frames, dtype=np.float64)
+    kp = np.asarray(keypoints, dtype=np.float64)
+    p0r, p1r = endpoints(rig.character.keypoints)
+    mid = bezier(p0r, control_from_omega(p0r, p1r, rig.rest_omega), p1r, 0.5)  # (8, 2)
+    p0, p1 = endpoints(kp)
+    out = np.full((len(V), N_LIMBS), np.nan)
+    for i, name in enumerate(LIMBS):
+        sel = (m.parts == PART_INDEX[name]) & (m.layer == 0)
+        if not sel.any():
+            continue
+        piece = np.bincount(m.pieces[sel]).argmax()
+        tris = m.triangles[sel & (m.pieces == piece)]
+        bary, k = barycentric(m.vertices, tris, mid[i:i + 1])
+        mt = np.einsum("k,tkc->tc", bary[0], V[:, tris[k[0]]])
+        pc = 2 * mt - 0.5 * (p0[:, i] + p1[:, i])
+        with np.errstate(all="ignore"):
+            out[:, i] = limb_bending(omega_from_control(p0[:, i], p1[:, i], pc))
+    return out

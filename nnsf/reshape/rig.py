@@ -21,7 +21,7 @@ import numpy as np
 from nnsf.reshape.arap import Handles, TwoStepARAP
 from nnsf.reshape.character import Character
 from nnsf.reshape.limbs import N_LIMBS, STRAIGHT, fit_omega
-from nnsf.reshape.mesh import PART_PIECE, PIECE_KEYPOINTS, PIECES, Mesh, build_mesh
+from nnsf.reshape.mesh import Mesh, build_mesh
 from nnsf.reshape.subkeys import SubkeyTracker, Subkeys, init_subkeys
 from nnsf.skeleton import N_JOINTS
 
@@ -54,7 +54,7 @@ class Rig:
     @classmethod
     def build(cls, character: Character, n_vertices: int = 800, handle_set: str = "subkeys",
               subkeys_per_limb: int = 4, keypoint_weight: float = 10.0, subkey_weight: float = 10.0,
-              omega: np.ndarray | str = "fit", mesh: Mesh | None = None, split: bool = False,
+              omega: np.ndarray | str = "fit", mesh: Mesh | None = None, split=False,
               fit_subkeys: bool = True, keep_offset: bool = True, propagation: str = "eq12") -> "Rig":
         """Mesh ``character`` and factorise the deformation for one handle set.
 
@@ -71,8 +71,11 @@ class Rig:
         omega : rest ω ``(8, 2)``, ``"fit"`` (:func:`~nnsf.reshape.limbs.fit_omega`)
             or ``"straight"``.
         mesh : reuse a mesh, e.g. to compare handle sets on the same triangles.
-        split : cut the limbs loose from the body (:func:`~nnsf.reshape.mesh.split_pieces`);
-            ignored when ``mesh`` is given (its own ``pieces`` decide).
+        split : ``False`` (connected mesh), ``True`` (limbs cut loose,
+            :func:`~nnsf.reshape.mesh.split_pieces`) or ``"layered"`` (every
+            segment a piece, with collars and an underlay,
+            :func:`~nnsf.reshape.mesh.layer_pieces`); ignored when ``mesh``
+            is given (its own ``pieces`` decide).
         fit_subkeys, keep_offset, propagation : see
             :class:`~nnsf.reshape.subkeys.SubkeyTracker`.
         """
@@ -92,7 +95,9 @@ class Rig:
         if mesh.is_split:
             # Each piece is pinned by its own key points; a shoulder or hip
             # becomes one handle on each side of its seam.
-            parts = [(pc, j) for pc, name in enumerate(PIECES) for j in PIECE_KEYPOINTS[name]]
+            # (A piece without triangles, possible on a very coarse mesh, gets no handles.)
+            used = set(np.unique(mesh.pieces).tolist())
+            parts = [(pc, j) for pc, kps in enumerate(mesh.piece_keypoints) if pc in used for j in kps]
             handle_kp = np.array([j for _, j in parts], dtype=np.int64)
             handles = None
             for pc, j in parts:
@@ -100,7 +105,10 @@ class Rig:
                                       keypoint_weight)
                 handles = h if handles is None else handles + h
             vp = mesh.vertex_pieces()
-            candidates = [np.flatnonzero(vp == PART_PIECE[2 + i]) for i in range(N_LIMBS)]
+            # A limb's subkeys come from its own piece: the one holding most of its triangles.
+            own = [np.bincount(mesh.pieces[(mesh.parts == 2 + i) & (mesh.layer == 0)],
+                               minlength=len(mesh.piece_names)).argmax() for i in range(N_LIMBS)]
+            candidates = [np.flatnonzero(vp == own[i]) for i in range(N_LIMBS)]
         else:
             handle_kp = np.arange(N_JOINTS)
             handles = Handles.at_points(mesh.vertices, mesh.triangles, kp, keypoint_weight)

@@ -167,10 +167,12 @@ def init_subkeys(vertices: np.ndarray, keypoints: np.ndarray, omega: np.ndarray,
     samples = limb_curves(keypoints, omega, lam)  # (8, L, 2)
     if candidates is None:
         _, idx = cKDTree(vertices).query(samples.reshape(-1, 2))
-    else:
-        idx = np.concatenate([np.asarray(c)[cKDTree(vertices[c]).query(samples[i])[1]]
-                              for i, c in enumerate(candidates)])
+    else:  # a limb without candidate vertices gets no subkeys (index −1, dropped below)
+        idx = np.concatenate([np.asarray(c)[cKDTree(vertices[c]).query(samples[i])[1]] if len(c)
+                              else np.full(len(lam), -1) for i, c in enumerate(candidates)])
     limb = np.repeat(np.arange(N_LIMBS), len(lam))
+    keep = idx >= 0
+    limb, idx = limb[keep], idx[keep]
     _, first = np.unique(idx, return_index=True)
     first = np.sort(first)
     limb, idx = limb[first], idx[first].astype(np.int64)

@@ -1,0 +1,176 @@
+"""Driving a drawn character from a motion (SPEC §1 inverse unification, §4).
+
+A motion is any 17-point clip ``(T, 17, 2)``: unified template features
+(``data/features/features.csv``), pixel key points, a translated clip, or a
+projected BVH clip.  :func:`retarget` puts it on a character:
+
+* bone directions come from the motion, frame by frame;
+* bone lengths come from the drawing: bone b of frame t becomes
+  ``v_b(t) · L_b(drawing) / median_t L_b(motion)``, so a bone the motion
+  foreshortens stays foreshortened by the same ratio, while the drawn
+  proportions are kept;
+* the root is anchored at the drawing's pelvis: it moves by
+  ``s · (root(t) − median root)``, with ``s`` the ratio of the drawing's to
+  the motion's leg-plus-torso length (the body scale).
+
+For limbs and head this is the composition ``W_char⁻¹ ∘ W_motion`` of two
+template-unification maps (``W = D⁻¹ R D``, :mod:`nnsf.skeleton.unify`),
+each fitted with :func:`nnsf.skeleton.character_scale`: the motion's on its
+own frames, the character's on its rest pose; two departures, both for
+drawings, are documented in :func:`retarget` (a rigid drawn torso, and a
+clipped foreshortening ratio).  Coordinates are pixels, x right, y down.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from nnsf.datasets import contract
+from nnsf.errors import InputError
+from nnsf.skeleton import BONES, JOINT_INDEX, JOINTS, N_JOINTS, character_scale, to_points
+from nnsf.skeleton.layout import FEATURE_COLUMNS
+
+
+def check_finite(points: np.ndarray, source="motion", frames=None) -> np.ndarray:
+    """Return ``points`` ``(T, 17, 2)`` as float64 or raise :class:`InputError` naming the first bad frame.
+
+    ``frames`` ``(T,)`` are the frame numbers to report (default 0..T−1).
+    """
+    P = np.asarray(points, dtype=np.float64)
+    if P.ndim != 3 or P.shape[1:] != (N_JOINTS, 2):
+        raise InputError(source, "points", f"a clip of shape (frames, {N_JOINTS}, 2)", f"shape {P.shape}")
+    if len(P) == 0:
+        raise InputError(source, "frames", "at least one frame", "none")
+    bad = ~np.isfinite(P).all(axis=2)
+    if bad.any():
+        t, j = np.argwhere(bad)[0]
+        n_bad = int(bad.any(axis=1).sum())
+        frame = int(frames[t]) if frames is not None else int(t)
+        raise InputError(source, f"frame {frame}", "finite coordinates for all 17 key points",
+                         f"NaN/Inf at {JOINTS[j]} ({n_bad} bad frame{'s' if n_bad > 1 else ''} in all)")
+    return P
+
+
+#: Key points moved as one rigid body by :func:`retarget` (rotation plus a
+#: clamped stretch along and across the spine), so the drawn torso keeps its shape;
+#: the neck is the base of the head in the drawings, so it moves with the torso
+#: and only head_top follows the motion (the head turns about the neck).
+TORSO = tuple(JOINT_INDEX[j] for j in (
+    "pelvis", "r_hip", "l_hip", "spine", "thorax", "neck", "l_shoulder", "r_shoulder"))
+
+
+def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", frames=None,
+             foreshortening=(1.0, 1.0), rigid_torso: bool = True,
+             torso_stretch=(1.0, 1.0)) -> np.ndarray:
+    """Map a motion ``(T, 17, 2)`` (any units) onto a character: ``(T, 17, 2)`` pixels.
+
+    ``rest_keypoints`` ``(17, 2)``: the drawing's key points.
+
+    * Root: the drawing's pelvis plus ``s · (root(t) − median root)``, ``s``
+      the body-scale ratio (:func:`nnsf.skeleton.character_scale`).
+    * Torso (:data:`TORSO`, with ``rigid_torso``): the drawn torso, turned by
+      the motion's spine angle (pelvis→thorax) relative to the drawing's and
+      stretched along / across the spine by the motion's spine length /
+      hip-plus-shoulder width relative to their medians, each ratio clipped to
+      ``torso_stretch``.  The default (1, 1) keeps the torso rigid: ARAP
+      cannot meet handles that are not a similarity of the drawing, and on
+      char1 a kick's 0.85-1.15 stretch concentrated σ1/σ2 ≈ 5 at the
+      shoulder handles in 17 % of frames.  A drawn torso is one rigid shape; copying the
+      motion's hip and shoulder bone directions would shear it.
+    * Every other bone (limbs, neck, head): the motion's direction, the
+      drawing's length times the motion's foreshortening ratio
+      ``L_b(t) / median_t L_b`` clipped to ``foreshortening``, chained from
+      its parent.  Without clipping this is exactly the inverse unification
+      ``W_char⁻¹ W_motion`` (module docstring).  The default (1, 1) keeps
+      the drawn lengths exactly (SPEC §1: "bone lengths from the drawing"):
+      a drawn limb cannot shrink without squashing, and with (0.6, 1.2) a
+      foreshortened shin squeezed its handle triangles to σ1/σ2 ≈ 18.
+
+    A NaN/Inf frame or a bone of zero median length raises
+    :class:`InputError` naming ``source`` and the frame / bone.
+    """
+    P = check_finite(points, source, frames)
+    rest = np.asarray(rest_keypoints, dtype=np.float64)
+    try:
+        mot = character_scale(P)
+        drawn = character_scale(rest[None])
+    except ValueError as exc:
+        raise InputError(source, "bones", "bones of non-zero length", str(exc)) from None
+    lo, hi = foreshortening
+    T = len(P)
+    out = np.empty_like(P)
+    out[:, 0] = rest[0] + (mot.root_scale / drawn.root_scale) * (P[:, 0] - mot.root_ref)
+    vec = P[:, [c for _, c in BONES]] - P[:, [p for p, _ in BONES]]  # (T, 16, 2)
+    length = np.linalg.norm(vec, axis=2)
+    med = np.median(length, axis=0)
+    ratio = np.clip(length / np.maximum(med, 1e-12), lo, hi)
+    unit = vec / np.maximum(length, 1e-12)[..., None]
+    drawn_len = mot.bone_ratio / drawn.bone_ratio * med  # = drawn bone lengths
+    placed = np.zeros(N_JOINTS, dtype=bool)
+    placed[0] = True
+    if rigid_torso:
+        J = JOINT_INDEX
+        up_m = P[:, J["thorax"]] - P[:, J["pelvis"]]
+        up_d = rest[J["thorax"]] - rest[J["pelvis"]]
+        ang = np.arctan2(up_m[:, 1], up_m[:, 0]) - np.arctan2(up_d[1], up_d[0])
+        spine = np.linalg.norm(up_m, axis=1)
+        width = (np.linalg.norm(P[:, J["l_hip"]] - P[:, J["r_hip"]], axis=1)
+                 + np.linalg.norm(P[:, J["l_shoulder"]] - P[:, J["r_shoulder"]], axis=1))
+        s_up = np.clip(spine / np.median(spine), *torso_stretch)
+        s_across = np.clip(width / max(float(np.median(width)), 1e-12), *torso_stretch)
+        u = up_d / np.linalg.norm(up_d)
+        n = np.array([-u[1], u[0]])
+        rel = rest[list(TORSO)] - rest[0]  # (7, 2)
+        a_up, a_across = rel @ u, rel @ n
+        local = (a_up[None] * s_up[:, None])[..., None] * u + (a_across[None] * s_across[:, None])[..., None] * n
+        c, s_ = np.cos(ang)[:, None], np.sin(ang)[:, None]
+        rot = np.stack([c * local[..., 0] - s_ * local[..., 1], s_ * local[..., 0] + c * local[..., 1]], -1)
+        out[:, list(TORSO)] = out[:, :1] + rot
+        placed[list(TORSO)] = True
+    for b, (p, c) in enumerate(BONES):
+        if placed[c]:
+            continue
+        out[:, c] = out[:, p] + unit[:, b] * (drawn_len[b] * ratio[:, b])[:, None]
+        placed[c] = True
+    return out
+
+
+def read_motion(path, clip: str | None = None) -> tuple[str, np.ndarray, np.ndarray]:
+    """One clip of a feature-matrix CSV (contract layout): ``(name, frames (T,), points (T, 17, 2))``.
+
+    ``clip`` None takes the first clip (sorted by name).  NaN or missing
+    coordinates raise :class:`InputError` naming the file, the clip and the
+    frame (before the contract's own checks, which name only the row).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, "file", "an existing feature-matrix CSV")
+    try:
+        table = pd.read_csv(path, dtype={"clip": str, "character": str, "motion": str})
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise InputError(path, "file", "a CSV table", str(exc).splitlines()[0]) from None
+    missing = [c for c in contract.COLUMNS if c not in table.columns]
+    if missing:
+        raise InputError(path, missing[0], "a column of the feature-matrix contract (clip, frame, "
+                         "character, motion, x1..y17)")
+    clips = sorted(table["clip"].astype(str).unique())
+    if not clips:
+        raise InputError(path, "rows", "at least one frame")
+    name = clips[0] if clip is None else str(clip)
+    if name not in clips:
+        raise InputError(path, "clip", f"one of the file's clips ({', '.join(clips[:8])}"
+                         f"{', ...' if len(clips) > 8 else ''})", name)
+    rows = table[table["clip"].astype(str) == name]
+    vals = rows.loc[:, list(FEATURE_COLUMNS)].apply(pd.to_numeric, errors="coerce").to_numpy(float)
+    frames = pd.to_numeric(rows["frame"], errors="coerce").to_numpy()
+    order = np.argsort(frames, kind="stable")
+    check_finite(vals[order].reshape(-1, N_JOINTS, 2), f"{path} (clip {name})", frames[order])
+    table = contract.validate(rows, path)
+    return name, table["frame"].to_numpy(), to_points(contract.features(table))
+
+
+def drive(character, points: np.ndarray, source="motion", frames=None) -> np.ndarray:
+    """Key points ``(T, 17, 2)`` in ``character``'s pixels for a motion ``(T, 17, 2)``."""
+    return retarget(points, character.keypoints, source=source, frames=frames)

@@ -1,0 +1,358 @@
+"""Textured-mesh rasterisation of a deformed character, and animation files.
+
+:class:`MeshRenderer` draws a deformed mesh with the character's texture:
+texture coordinates are the rest vertex positions, so every deformed
+triangle shows the patch of the drawing it covered at rest.  Parts are drawn
+back to front in a given depth order (:mod:`nnsf.reshape.depth`).
+
+Rasterisation, vectorised (no per-triangle Python loop):
+
+1. every triangle's pixel bounding box is expanded into candidate pixels
+   (ragged ranges built with ``np.repeat``/``cumsum``);
+2. a candidate is inside when its three edge functions are ≥ −ε (a shared
+   edge then belongs to both neighbours: no cracks; both give the same
+   texture coordinate there since the map is continuous);
+3. candidates are written part by part in depth order into a per-pixel
+   triangle-id image, so a nearer part overwrites a farther one;
+4. each covered pixel's texture coordinate is its triangle's inverse affine
+   map applied to the pixel centre, and one ``cv2.remap`` (bilinear)
+   samples the premultiplied texture.
+
+Pixel centres are at integer coordinates (pixel (x, y) covers
+[x−½, x+½] × [y−½, y+½]), the convention of :mod:`nnsf.reshape.character`.
+
+Writers: :func:`write_png_frames` (a folder of PNGs), :func:`write_gif`
+(Pillow) and :func:`write_mp4` (OpenCV's ``VideoWriter``, codec ``mp4v``,
+works headless).  All write atomically.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from nnsf.io import atomic_dir, atomic_path
+from nnsf.reshape.mesh import PARTS
+
+
+class MeshRenderer:
+    """Draws one character's mesh, deformed, at the texture's resolution.
+
+    Parameters
+    ----------
+    rest_vertices : ``(n, 2)`` rest positions = texture coordinates, pixels.
+    triangles : ``(t, 3)``.
+    parts : ``(t,)`` part id per triangle (indices into :data:`PARTS`).
+    texture : ``(H, W, 4)`` uint8 RGBA.
+    mask : optional ``(H, W)`` bool: texture pixels outside it are transparent.
+    size : output ``(H, W)``; default the texture's.
+    """
+
+    def __init__(self, rest_vertices, triangles, parts, texture, mask=None, size=None,
+                 layer=None, underlay=None, behind=None):
+        self.uv = np.asarray(rest_vertices, dtype=np.float64)
+        self.triangles = np.asarray(triangles, dtype=np.int64)
+        self.parts = np.asarray(parts, dtype=np.int64)
+        tex = np.asarray(texture)
+        H, W = tex.shape[:2]
+
+        def premultiplied(t):
+            alpha = t[..., 3].astype(np.float32) / 255.0
+            if mask is not None:
+                alpha = alpha * np.asarray(mask, dtype=np.float32)
+            # Premultiplied colour, so bilinear sampling at the silhouette's edge
+            # does not bleed the drawing's background colour into the result.
+            return np.dstack([t[..., :3].astype(np.float32) * alpha[..., None], alpha])
+
+        # Layer-1 triangles (a layered mesh's underlay) sample a second
+        # texture placed to the right of the first in one atlas: one remap.
+        self.layer = (np.zeros(len(self.triangles), np.int64) if layer is None
+                      else np.asarray(layer, dtype=np.int64))
+        if underlay is not None and self.layer.any():
+            self._tex = np.hstack([premultiplied(tex), premultiplied(np.asarray(underlay))])
+        else:
+            self._tex = premultiplied(tex)
+            self.layer = np.zeros(len(self.triangles), np.int64)
+        self._shift = self.layer.astype(np.float64) * W
+        self._tex8 = np.clip(np.rint(self._tex * np.array([1, 1, 1, 255], np.float32)), 0, 255).astype(np.uint8)
+        self.size = tuple(size) if size is not None else (H, W)
+        # ``behind[k] = p`` (a layered mesh's collars) draws triangle k just
+        # before part p instead of with its own part: under the parent, over
+        # whatever lies behind the parent.
+        behind = (np.full(len(self.triangles), -1, np.int64) if behind is None
+                  else np.asarray(behind, dtype=np.int64))
+        P = len(PARTS)
+        self._order = [np.concatenate([np.flatnonzero(behind == p), np.flatnonzero((self.parts == p) & (behind < 0))])
+                       for p in range(P)]
+        # Draw groups: collars before part p get group 2p, part p's own 2p + 1.
+        self._group = np.where(behind >= 0, 2 * behind, 2 * self.parts + 1)
+
+    @classmethod
+    def for_mesh(cls, mesh, character, size=None) -> "MeshRenderer":
+        """A renderer for ``mesh`` (:class:`~nnsf.reshape.mesh.Mesh`) of ``character``, with its underlay."""
+        underlay = underlay_texture(character.texture, character.mask, mesh) if mesh.layer.any() else None
+        return cls(mesh.vertices, mesh.triangles, mesh.parts, character.texture, character.mask,
+                   size=size, layer=mesh.layer, underlay=underlay, behind=mesh.collar)
+
+    def _raster(self, V: np.ndarray, order):
+        """Covered pixel runs ``(y, x_first, length, triangle)``, each ``(r,)``, nearest part last.
+
+        Scanline rasterisation vectorised over (triangle, row) pairs: on row
+        y each edge's half-plane a x + b y + c ≥ 0 bounds x from one side,
+        so a triangle covers the run ⌈max lower bounds⌉ … ⌊min upper bounds⌋;
+        only the runs are expanded into pixels.
+        """
+        H, W = self.size
+        sel = np.concatenate([np.zeros(0, np.int64)] + [self._order[p] for p in order])
+        P = V[self.triangles[sel]]  # (s, 3, 2)
+        y0 = np.clip(np.ceil(P[..., 1].min(axis=1) - 1e-9), 0, H).astype(np.int64)
+        y1 = np.clip(np.floor(P[..., 1].max(axis=1) + 1e-9), -1, H - 1).astype(np.int64)
+        nrows = np.maximum(y1 - y0 + 1, 0)
+        area2 = ((P[:, 1, 0] - P[:, 0, 0]) * (P[:, 2, 1] - P[:, 0, 1])
+                 - (P[:, 1, 1] - P[:, 0, 1]) * (P[:, 2, 0] - P[:, 0, 0]))
+        nrows[np.abs(area2) < 1e-12] = 0
+        total = int(nrows.sum())
+        if total == 0:
+            z = np.zeros(0, np.int64)
+            return z, z, z, z
+        sgn = np.where(area2 >= 0, 1.0, -1.0)
+        # Edge k from corner k to k+1: inside when sgn·((q−p) × (x−p)) ≥ 0, i.e.
+        # a x + b y + c ≥ 0 with a = −sgn·dy, b = sgn·dx, c = sgn·(dy px − dx py).
+        p = P
+        q = P[:, [1, 2, 0]]
+        dx, dy = q[..., 0] - p[..., 0], q[..., 1] - p[..., 1]
+        a = -sgn[:, None] * dy
+        b = sgn[:, None] * dx
+        c = sgn[:, None] * (dy * p[..., 0] - dx * p[..., 1])
+        eps = 1e-7 * np.abs(area2)[:, None] + 1e-9
+        row_t = np.repeat(np.arange(len(sel)), nrows)
+        start = np.repeat(np.cumsum(nrows) - nrows, nrows)
+        y = (y0[row_t] + np.arange(total) - start).astype(np.float64)
+        r = b[row_t] * y[:, None] + c[row_t] + eps[row_t]  # (R, 3): a x + r ≥ 0
+        ar = a[row_t]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            bound = -r / ar
+        lo = np.where(ar > 0, bound, -np.inf).max(axis=1)
+        hi = np.where(ar < 0, bound, np.inf).min(axis=1)
+        # An edge parallel to the row excludes the whole row when the row is outside it.
+        blocked = ((ar == 0) & (r < 0)).any(axis=1)
+        xl = np.clip(np.ceil(lo), 0, W).astype(np.int64)
+        xr = np.clip(np.floor(hi), -1, W - 1).astype(np.int64)
+        n = np.where(blocked, 0, np.maximum(xr - xl + 1, 0))
+        keep = n > 0
+        return y[keep].astype(np.int64), xl[keep], n[keep], sel[row_t[keep]]
+
+    def _affine(self, V: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Inverse affine map of every triangle, deformed pixel -> atlas texel: A ``(t, 2, 2)``, b ``(t, 2)``."""
+        tri = self.triangles
+        D = V[tri]
+        U = self.uv[tri]
+        Md = np.stack([D[:, 1] - D[:, 0], D[:, 2] - D[:, 0]], axis=-1)  # (t, 2, 2)
+        Mu = np.stack([U[:, 1] - U[:, 0], U[:, 2] - U[:, 0]], axis=-1)
+        det = Md[:, 0, 0] * Md[:, 1, 1] - Md[:, 0, 1] * Md[:, 1, 0]
+        ok = np.abs(det) > 1e-12
+        inv = np.zeros_like(Md)
+        sd = np.where(ok, det, 1.0)
+        inv[:, 0, 0], inv[:, 0, 1] = Md[:, 1, 1] / sd, -Md[:, 0, 1] / sd
+        inv[:, 1, 0], inv[:, 1, 1] = -Md[:, 1, 0] / sd, Md[:, 0, 0] / sd
+        A = Mu @ inv
+        b = U[:, 0] - np.einsum("tij,tj->ti", A, D[:, 0])
+        b[:, 0] += self._shift
+        return A, b
+
+    def _crop_maps(self, vertices, order, with_ids: bool = False):
+        """Maps for the bounding box of the drawn pixels: ``(y0, x0, ids, map_x, map_y)``, crop-sized.
+
+        ``ids`` (triangle per pixel, −1 empty) is None unless ``with_ids``.
+        Along a run the texel coordinate is linear in x, so per-run offsets
+        are computed once and repeated (no per-pixel gather of triangle maps).
+        """
+        V = np.asarray(vertices, dtype=np.float64)
+        order = list(range(len(PARTS))) if order is None else list(order)
+        ry, rx, rn, rt = self._raster(V, order)
+        if len(ry) == 0:
+            e = np.zeros((0, 0), np.float32)
+            return 0, 0, (e.astype(np.int32) if with_ids else None), e, e
+        y0, x0 = int(ry.min()), int(rx.min())
+        h, w = int(ry.max()) - y0 + 1, int((rx + rn).max()) - x0
+        A, b = self._affine(V)
+        # Per run: texel = A[:, 0] x + (A[:, 1] y + b).
+        a0, a1 = A[rt, 0, 0], A[rt, 1, 0]
+        c0 = A[rt, 0, 1] * ry + b[rt, 0]
+        c1 = A[rt, 1, 1] * ry + b[rt, 1]
+        k = int(rn.sum())
+        first = np.cumsum(rn) - rn
+        x = (np.arange(k) - np.repeat(first - rx, rn)).astype(np.float32)  # pixel x
+        mxv = np.repeat(a0.astype(np.float32), rn) * x + np.repeat(c0.astype(np.float32), rn)
+        myv = np.repeat(a1.astype(np.float32), rn) * x + np.repeat(c1.astype(np.float32), rn)
+        cpix = np.repeat((ry - y0) * w - x0, rn) + x.astype(np.int64)
+        mx = np.full(h * w, -1.0, dtype=np.float32)
+        my = np.full(h * w, -1.0, dtype=np.float32)
+        ids = np.full(h * w, -1, dtype=np.int32) if with_ids else None
+        # Runs come grouped by part in depth order; numpy leaves the order of
+        # duplicate writes within one fancy assignment unspecified, so each
+        # part is written separately: a later (nearer) part always wins.
+        run_part = self._group[rt]
+        cut = np.flatnonzero(np.diff(run_part)) + 1
+        pstart = np.r_[0, first[cut], k] if len(cut) else np.r_[0, k]
+        rstart = np.r_[0, cut, len(rt)]
+        for g in range(len(pstart) - 1):
+            s, e = pstart[g], pstart[g + 1]
+            mx[cpix[s:e]] = mxv[s:e]
+            my[cpix[s:e]] = myv[s:e]
+            if with_ids:
+                ids[cpix[s:e]] = np.repeat(rt[rstart[g]:rstart[g + 1]], rn[rstart[g]:rstart[g + 1]])
+        return (y0, x0, None if ids is None else ids.reshape(h, w), mx.reshape(h, w), my.reshape(h, w))
+
+    def maps(self, vertices, order=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Texture look-up maps for one frame.
+
+        Returns ``map_x, map_y`` ``(H, W)`` float32 (texel coordinates in the
+        texture atlas, −1 where nothing is drawn) and the triangle-id image
+        ``(H, W)`` int32 (−1 where empty).  ``order``: part ids back to front
+        (default: :data:`PARTS` order); parts not listed are not drawn.
+        """
+        H, W = self.size
+        y0, x0, ids, mx, my = self._crop_maps(vertices, order, with_ids=True)
+        h, w = ids.shape
+        full = [np.full((H, W), -1, dtype=d) for d in (np.float32, np.float32, np.int32)]
+        for f, c in zip(full, (mx, my, ids)):
+            f[y0:y0 + h, x0:x0 + w] = c
+        return full[0], full[1], full[2]
+
+    def render(self, vertices, order=None, background=None) -> np.ndarray:
+        """One frame: RGBA ``(H, W, 4)`` uint8, or RGB over ``background`` (an RGB triple)."""
+        H, W = self.size
+        y0, x0, _, mx, my = self._crop_maps(vertices, order)
+        h, w = mx.shape
+        # One bilinear remap of the premultiplied 8-bit atlas, on the drawn box only.
+        crop = cv2.remap(self._tex8, mx, my, interpolation=cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0, 0)) if h else None
+        if background is not None:
+            out = np.empty((H, W, 3), np.uint8)
+            out[:] = np.asarray(background, dtype=np.uint8)
+            if h:
+                a = crop[..., 3:4].astype(np.uint16)
+                bg = np.asarray(background, dtype=np.uint16).reshape(1, 1, 3)
+                # premultiplied over: rgb + (1 − α) bg, in integers with rounding
+                out[y0:y0 + h, x0:x0 + w] = np.minimum(
+                    crop[..., :3] + ((255 - a) * bg + 127) // 255, 255).astype(np.uint8)
+            return out
+        out = np.zeros((H, W, 4), np.uint8)
+        if h:
+            a = crop[..., 3:4].astype(np.uint16)
+            rgb = (crop[..., :3].astype(np.uint16) * 255 + a // 2) // np.maximum(a, 1)
+            out[y0:y0 + h, x0:x0 + w, :3] = np.minimum(rgb, 255).astype(np.uint8)
+            out[y0:y0 + h, x0:x0 + w, 3] = crop[..., 3]
+        return out
+
+    def render_clip(self, frames, orders=None, background=None) -> np.ndarray:
+        """Frames ``(T, n, 2)`` (and orders ``(T, parts)``) -> images ``(T, H, W, 3|4)`` uint8."""
+        frames = np.asarray(frames)
+        return np.stack([self.render(frames[t], None if orders is None else orders[t], background)
+                         for t in range(len(frames))])
+
+
+def underlay_texture(texture: np.ndarray, mask: np.ndarray, mesh, radius: float = 6.0) -> np.ndarray:
+    """The drawing with the limbs lying over the body painted out, ``(H, W, 4)`` uint8 RGBA.
+
+    The region covered at rest by ``mesh``'s layer-1 triangles (grown by
+    2 px) is filled with ``cv2.inpaint`` (Telea) from the surrounding
+    pixels of the silhouette; pixels outside the silhouette are first set to
+    the silhouette's mean colour, so the fill does not pull in the paper.
+    """
+    H, W = mask.shape
+    region = np.zeros((H, W), np.uint8)
+    tri = mesh.triangles[mesh.layer == 1]
+    if len(tri):
+        cv2.fillPoly(region, list(np.rint(mesh.vertices[tri]).astype(np.int32)), 255)
+    region = cv2.dilate(region, np.ones((5, 5), np.uint8))
+    rgb = np.ascontiguousarray(texture[..., :3]).copy()
+    m = np.asarray(mask, dtype=bool)
+    if m.any():
+        rgb[~m] = rgb[m].mean(axis=0).astype(np.uint8)
+    filled = cv2.inpaint(rgb, region, radius, cv2.INPAINT_TELEA)
+    return np.dstack([filled, texture[..., 3]])
+
+
+# --------------------------------------------------------------------------- files
+
+def _bgr(img: np.ndarray) -> np.ndarray:
+    return cv2.cvtColor(img, cv2.COLOR_RGBA2BGRA if img.shape[2] == 4 else cv2.COLOR_RGB2BGR)
+
+
+def write_png_frames(folder, images, prefix: str = "frame") -> list[Path]:
+    """Write images ``(T, H, W, 3|4)`` (RGB[A]) as ``<folder>/<prefix>_0000.png`` …, atomically as a folder."""
+    folder = Path(folder)
+    names = [f"{prefix}_{t:04d}.png" for t in range(len(images))]
+    with atomic_dir(folder) as tmp:
+        for name, img in zip(names, images):
+            if not cv2.imwrite(str(tmp / name), _bgr(np.asarray(img))):
+                raise OSError(f"could not write {folder / name}")
+    return [folder / n for n in names]
+
+
+def write_gif(path, images, fps: float) -> Path:
+    """Write RGB(A) images ``(T, H, W, 3|4)`` as a looping GIF (Pillow), atomically."""
+    from PIL import Image
+
+    path = Path(path)
+    frames = []
+    for img in images:
+        img = np.asarray(img)
+        if img.shape[2] == 4:  # GIF has 1-bit transparency; composite over white instead
+            a = img[..., 3:4].astype(np.float32) / 255.0
+            img = np.clip(np.rint(img[..., :3] * a + 255.0 * (1 - a)), 0, 255).astype(np.uint8)
+        frames.append(Image.fromarray(img, "RGB").quantize(colors=255, method=Image.Quantize.MEDIANCUT,
+                                                            dither=Image.Dither.NONE))
+    with atomic_path(path) as tmp:
+        frames[0].save(tmp, format="GIF", save_all=True, append_images=frames[1:], loop=0,
+                       duration=int(round(1000.0 / fps)), disposal=1, optimize=False)
+    return path
+
+
+def write_mp4(path, images, fps: float) -> Path:
+    """Write RGB(A) images ``(T, H, W, 3|4)`` as MP4 (``mp4v``), atomically.
+
+    Odd sizes are padded by one pixel (the codec wants even dimensions);
+    RGBA is composited over white.  Raises ``OSError`` if OpenCV cannot open
+    the writer (no video backend).
+    """
+    path = Path(path)
+    images = [np.asarray(i) for i in images]
+    H, W = images[0].shape[:2]
+    He, We = H + H % 2, W + W % 2
+    with atomic_path(path) as tmp:
+        vw = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (We, He))
+        if not vw.isOpened():
+            raise OSError(f"OpenCV could not open an mp4v video writer for {path}")
+        try:
+            for img in images:
+                if img.shape[2] == 4:
+                    a = img[..., 3:4].astype(np.float32) / 255.0
+                    img = np.clip(np.rint(img[..., :3] * a + 255.0 * (1 - a)), 0, 255).astype(np.uint8)
+                frame = np.full((He, We, 3), 255, np.uint8)
+                frame[:H, :W] = img
+                vw.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+        finally:
+            vw.release()
+        if tmp.stat().st_size == 0:
+            raise OSError(f"OpenCV wrote an empty video for {path}")
+    return path
+
+
+def contact_sheet(images, columns: int = 6, scale: float = 0.5, labels=None) -> np.ndarray:
+    """Tile images ``(T, H, W, C)`` into one RGB(A) image (for looking at a GIF's frames)."""
+    images = [np.asarray(i) for i in images]
+    small = [cv2.resize(i, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA) for i in images]
+    h, w, c = small[0].shape
+    rows = -(-len(small) // columns)
+    sheet = np.full((rows * h, columns * w, c), 255, np.uint8)
+    for k, img in enumerate(small):
+        r, q = divmod(k, columns)
+        sheet[r * h:(r + 1) * h, q * w:(q + 1) * w] = img
+        if labels is not None:
+            cv2.putText(sheet, str(labels[k]), (q * w + 4, r * h + 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4,
+                        (0, 0, 0) + ((255,) if c == 4 else ()), 1, cv2.LINE_AA)
+    return sheet

@@ -1,0 +1,258 @@
+"""The ``reshape`` stage: a drawn character performing a motion clip, rendered to files.
+
+:func:`reshape` reads the ``reshape:`` section of ``params.yaml``::
+
+    reshape:
+      clip: null            # clip name in the motion CSV; null = the first clip
+      character: bruno      # a built-in synthetic character name (rendered by
+                            # nnsf.frames.render), or a path inside the project to a
+                            # character .json / AnimatedDrawings folder
+      character_size: 512   # px, for a synthetic character
+      n_vertices: 800       # mesh size (100..6000)
+      subkeys_per_limb: 4   # 0..12
+      method: ours          # ours (key points + subkeys) | keypoints (the ARAP baseline)
+      mesh: layered         # layered | split | connected
+      propagation: limb-frame   # limb-frame | eq12
+      fps: 24               # frames per second of the motion rows (1..120)
+      max_frames: 240       # at most this many frames are rendered (1..5000)
+      formats: [png, gif, mp4]
+
+and writes, atomically as one folder ``out_dir``: ``frames/frame_0000.png``…,
+``<name>.gif``, ``<name>.mp4``, ``<name>_sheet.png`` (a contact sheet) and
+``metrics.json`` (SPEC §6.5; no wall times, so reruns are byte-identical).
+
+:func:`animate` is the shared pipeline (also used by the evaluation):
+character + motion -> key points -> rig -> deformed vertices -> depth orders.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from nnsf.errors import InputError
+from nnsf.reshape import depth as depth_mod
+from nnsf.reshape import metrics
+from nnsf.reshape.character import Character, load_character, stick_figure
+from nnsf.reshape.drive import read_motion, retarget
+from nnsf.reshape.render import MeshRenderer, contact_sheet, write_gif, write_mp4, write_png_frames
+from nnsf.reshape.rig import Rig
+
+METHODS = {"ours": "subkeys", "keypoints": "keypoints"}
+MESHES = {"layered": "layered", "split": True, "connected": False}
+FORMATS = ("png", "gif", "mp4")
+BACKGROUND = (255, 255, 255)
+
+
+# --------------------------------------------------------------------------- characters
+
+def synthetic_character(name: str, size: int = 512) -> Character:
+    """A built-in synthetic character drawn at rest (``nnsf.frames.render``); the stick figure if absent."""
+    try:
+        from nnsf.frames.render import render_character
+    except ImportError:  # the frames package is optional for this stage
+        return stick_figure(height=size, name=name)
+    try:
+        rgba, mask, kp = render_character(name, size)
+    except ValueError as exc:
+        raise InputError("params.yaml", "reshape.character", "a built-in character name or a character "
+                         "file/folder", str(exc)) from None
+    return Character(name=name, texture=rgba, mask=mask, keypoints=kp, source=f"<rendered {name}>")
+
+
+def resolve_character(spec, size: int = 512, root=Path("."), source="params.yaml") -> Character:
+    """A character from a path (``.json``, AnimatedDrawings folder or ``char_cfg.yaml``) or a built-in name.
+
+    A path given in a config file must be relative and stay inside ``root``.
+    """
+    if isinstance(spec, Character):
+        return spec
+    if not isinstance(spec, (str, Path)) or not str(spec):
+        raise InputError(source, "reshape.character", "a character name or path", spec)
+    text = str(spec)
+    looks_like_path = ("/" in text or "\\" in text or text.endswith((".json", ".yaml", ".yml")))
+    if not looks_like_path:
+        return synthetic_character(text, size)
+    p = Path(text)
+    if p.is_absolute() or ".." in p.parts:
+        raise InputError(source, "reshape.character", "a relative path inside the project", text)
+    full = Path(root) / p
+    if not full.exists():
+        raise InputError(source, "reshape.character", "an existing character file or folder", text)
+    return load_character(full)
+
+
+# --------------------------------------------------------------------------- the pipeline
+
+@dataclass
+class Animation:
+    """A driven character: key points ``(T, 17, 2)``, vertices ``(T, n, 2)``, orders ``(T, 10)``."""
+
+    rig: Rig
+    keypoints: np.ndarray
+    frames: np.ndarray
+    orders: np.ndarray
+    part_z: np.ndarray | None
+
+
+def build_rig(character: Character, method: str = "ours", mesh: str = "layered", n_vertices: int = 800,
+              subkeys_per_limb: int = 4, propagation: str = "limb-frame", base_mesh=None) -> Rig:
+    """The rig of one method (``ours`` | ``keypoints``) and mesh kind (``layered`` | ``split`` | ``connected``)."""
+    if method not in METHODS:
+        raise InputError("params.yaml", "reshape.method", "ours or keypoints", method)
+    if mesh not in MESHES:
+        raise InputError("params.yaml", "reshape.mesh", "layered, split or connected", mesh)
+    return Rig.build(character, n_vertices=n_vertices, handle_set=METHODS[method], split=MESHES[mesh],
+                     subkeys_per_limb=subkeys_per_limb, propagation=propagation, mesh=base_mesh)
+
+
+def animate(rig: Rig, motion: np.ndarray, joint_depth: np.ndarray | None = None, source="motion",
+            frames=None, hysteresis: float = 0.015) -> Animation:
+    """Drive ``rig`` with a motion ``(T, 17, 2)`` (any units); depth ``(T, 17)`` optional.
+
+    ``hysteresis``: depth tie band as a fraction of the motion's body height
+    (median vertical extent of its key points).
+    """
+    kp = retarget(motion, rig.character.keypoints, source=source, frames=frames)
+    V = rig.animate(kp)
+    if joint_depth is None:
+        orders = np.tile(depth_mod.default_order(), (len(V), 1))
+        z = None
+    else:
+        z = depth_mod.part_depths(joint_depth)
+        height = float(np.median(np.ptp(np.asarray(motion)[..., 1], axis=1)))
+        pairs = depth_mod.part_overlaps(V, rig.mesh.triangles, rig.mesh.parts)
+        orders = depth_mod.depth_orders(z, hysteresis * height, pairs=pairs)
+    return Animation(rig, kp, V, orders, z)
+
+
+def report(anim: Animation, depth_margin: float | None = None) -> dict:
+    """SPEC §6.5-6.6 numbers for an animation (flat dict; see :func:`metrics.deformation_report`)."""
+    rig, V = anim.rig, anim.frames
+    m = rig.mesh
+    om = np.broadcast_to(rig.rest_omega, (len(V),) + rig.rest_omega.shape)
+    out = metrics.deformation_report(m.vertices, V, m.triangles, parts=m.parts, keypoints=anim.keypoints,
+                                     omega=om, rest_keypoints=rig.character.keypoints,
+                                     rest_omega=rig.rest_omega, pieces=m.pieces if m.is_split else None)
+    bend = metrics.deformed_bending(rig, V, anim.keypoints)
+    out["limb_bending_mean"] = float(np.nanmean(bend))
+    out["limb_bending_change"] = float(np.nanmean(np.abs(bend - metrics.limb_bending(rig.rest_omega))))
+    out["frames"] = int(len(V))
+    out["vertices"] = int(m.n_vertices)
+    out["triangles"] = int(len(m.triangles))
+    if anim.part_z is not None:
+        margin = depth_margin if depth_margin is not None else 0.0
+        pairs = depth_mod.part_overlaps(V, m.triangles, m.parts)
+        out.update(depth_mod.depth_metric(anim.orders, anim.part_z, margin, pairs=pairs))
+    return out
+
+
+def canvas(character: Character, frames: np.ndarray, margin: int = 8) -> tuple[np.ndarray, tuple[int, int]]:
+    """Offset ``(2,)`` and size ``(H, W)`` of a canvas holding the drawing and every frame ``(T, n, 2)``.
+
+    The scale stays the drawing's (one pixel per texture pixel); the canvas
+    grows to the union of the drawing's box and all deformed vertices plus
+    ``margin`` pixels, with even sides (video codecs want them).
+    """
+    H, W = character.shape
+    V = np.asarray(frames, dtype=np.float64).reshape(-1, 2)
+    lo = np.minimum(np.floor(V.min(axis=0)) - margin, 0) if len(V) else np.zeros(2)
+    hi = np.maximum(np.ceil(V.max(axis=0)) + margin, [W - 1, H - 1]) if len(V) else np.array([W - 1, H - 1])
+    w, h = int(hi[0] - lo[0] + 1), int(hi[1] - lo[1] + 1)
+    return -lo, (h + h % 2, w + w % 2)
+
+
+# --------------------------------------------------------------------------- the stage
+
+def _params(params: dict) -> dict:
+    from nnsf.params import require
+
+    def get(key, default):
+        try:
+            return require(params, f"reshape.{key}")
+        except InputError:
+            return default
+
+    p = {
+        "clip": get("clip", None),
+        "character": get("character", "bruno"),
+        "character_size": get("character_size", 512),
+        "n_vertices": get("n_vertices", 800),
+        "subkeys_per_limb": get("subkeys_per_limb", 4),
+        "method": get("method", "ours"),
+        "mesh": get("mesh", "layered"),
+        "propagation": get("propagation", "limb-frame"),
+        "fps": get("fps", 24),
+        "max_frames": get("max_frames", 240),
+        "formats": get("formats", list(FORMATS)),
+    }
+    checks = [
+        ("character_size", isinstance(p["character_size"], int) and 64 <= p["character_size"] <= 4096,
+         "an integer 64..4096"),
+        ("n_vertices", isinstance(p["n_vertices"], int) and 100 <= p["n_vertices"] <= 6000, "an integer 100..6000"),
+        ("subkeys_per_limb", isinstance(p["subkeys_per_limb"], int) and 0 <= p["subkeys_per_limb"] <= 12,
+         "an integer 0..12"),
+        ("method", p["method"] in METHODS, "ours or keypoints"),
+        ("mesh", p["mesh"] in MESHES, "layered, split or connected"),
+        ("propagation", p["propagation"] in ("limb-frame", "eq12"), "limb-frame or eq12"),
+        ("fps", isinstance(p["fps"], (int, float)) and not isinstance(p["fps"], bool) and 1 <= p["fps"] <= 120,
+         "a number 1..120"),
+        ("max_frames", isinstance(p["max_frames"], int) and 1 <= p["max_frames"] <= 5000, "an integer 1..5000"),
+        ("formats", isinstance(p["formats"], list) and p["formats"] and set(p["formats"]) <= set(FORMATS),
+         "a non-empty list of png, gif, mp4"),
+        ("clip", p["clip"] is None or isinstance(p["clip"], str), "a clip name or null"),
+    ]
+    for key, ok, what in checks:
+        if not ok:
+            raise InputError("params.yaml", f"reshape.{key}", what, p[key])
+    if p["method"] == "ours" and p["subkeys_per_limb"] == 0:
+        raise InputError("params.yaml", "reshape.subkeys_per_limb", "at least 1 for method ours", 0)
+    return p
+
+
+def reshape(params: dict, motion_csv=Path("data/features/features.csv"), character_path=None,
+            out_dir=Path("reports/reshape"), mapper=None):
+    """Render a character performing one clip of ``motion_csv`` into ``out_dir`` (module docstring).
+
+    ``character_path`` (a character ``.json`` or AnimatedDrawings folder)
+    overrides ``reshape.character``.  Returns a :class:`nnsf.stages.StageResult`.
+    """
+    from nnsf.stages import StageResult
+    from nnsf.io import atomic_dir, write_json
+
+    p = _params(params)
+    character = (load_character(character_path) if character_path is not None
+                 else resolve_character(p["character"], p["character_size"]))
+    clip, frame_ids, points = read_motion(motion_csv, p["clip"])
+    points, frame_ids = points[: p["max_frames"]], frame_ids[: p["max_frames"]]
+    rig = build_rig(character, p["method"], p["mesh"], p["n_vertices"], p["subkeys_per_limb"], p["propagation"])
+    anim = animate(rig, points, source=f"{motion_csv} (clip {clip})", frames=frame_ids)
+    offset, size = canvas(character, anim.frames)
+    renderer = MeshRenderer.for_mesh(rig.mesh, character, size=size)
+    images = renderer.render_clip(anim.frames + offset, anim.orders, background=BACKGROUND)
+    numbers = report(anim)
+    name = f"{character.name}_{clip}"
+    out_dir = Path(out_dir)
+    artifacts = []
+    with atomic_dir(out_dir) as tmp:
+        if "png" in p["formats"]:
+            write_png_frames(tmp / "frames", images)
+        if "gif" in p["formats"]:
+            write_gif(tmp / f"{name}.gif", images, p["fps"])
+            artifacts.append(out_dir / f"{name}.gif")
+        if "mp4" in p["formats"]:
+            write_mp4(tmp / f"{name}.mp4", images, p["fps"])
+            artifacts.append(out_dir / f"{name}.mp4")
+        import cv2
+
+        pick = np.linspace(0, len(images) - 1, min(12, len(images))).astype(int)
+        sheet = contact_sheet(images[pick], columns=6, scale=0.5, labels=[f"t={t}" for t in pick])
+        cv2.imwrite(str(tmp / f"{name}_sheet.png"), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))
+        artifacts.append(out_dir / f"{name}_sheet.png")
+        write_json(tmp / "metrics.json", {"character": character.name, "clip": clip, "params": p,
+                                          "metrics": numbers})
+    scalar = {f"reshape_{k}": v for k, v in numbers.items() if isinstance(v, (int, float)) and np.isfinite(v)}
+    return StageResult(params={f"reshape.{k}": (v if not isinstance(v, list) else ",".join(v))
+                               for k, v in p.items()},
+                       metrics=scalar, artifacts=artifacts + [out_dir / "metrics.json"])

@@ -1,0 +1,157 @@
+"""Layered mesh (segments, straight cuts, collars, underlay) and driving a character from a motion."""
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from nnsf.errors import InputError
+from nnsf.reshape import metrics
+from nnsf.reshape.character import stick_figure
+from nnsf.reshape.drive import TORSO, read_motion, retarget
+from nnsf.reshape.mesh import (
+    COLLARS, SEGMENTS, build_mesh, joint_cuts, triangle_adjacency, triangle_areas,
+)
+from nnsf.reshape.rig import Rig
+from nnsf.skeleton import BONES, JOINT_INDEX as J, JOINTS, rest_pose
+from nnsf.skeleton.layout import FEATURE_COLUMNS
+
+
+@pytest.fixture(scope="module")
+def figure():
+    return stick_figure(height=360)
+
+
+@pytest.fixture(scope="module")
+def layered(figure):
+    return Rig.build(figure, n_vertices=500, split="layered", propagation="limb-frame")
+
+
+def _rot(p, c, deg):
+    a = np.radians(deg)
+    R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    return (p - c) @ R.T + c
+
+
+def _bend_elbow(kp, deg):
+    out = kp.copy()
+    out[J["l_wrist"]] = _rot(kp[J["l_wrist"]], kp[J["l_elbow"]], deg)
+    return out
+
+
+# --------------------------------------------------------------------------- mesh
+
+def test_layered_mesh_pieces_are_connected_segments_with_collars(figure, layered):
+    m = layered.mesh
+    assert m.piece_names == SEGMENTS and set(np.unique(m.pieces)) == set(range(len(SEGMENTS)))
+    for pc in range(len(SEGMENTS)):  # every piece is one edge-connected group (else ARAP is singular)
+        tri = m.triangles[m.pieces == pc]
+        a, b = triangle_adjacency(tri)
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import connected_components
+        n = len(tri)
+        assert connected_components(coo_matrix((np.ones(len(a)), (a, b)), shape=(n, n)), directed=False)[0] == 1
+    # every vertex belongs to exactly one piece; collar copies name a parent part
+    vp = np.full(m.n_vertices, -1)
+    for k, pc in enumerate(m.pieces):
+        assert np.all((vp[m.triangles[k]] == -1) | (vp[m.triangles[k]] == pc))
+        vp[m.triangles[k]] = pc
+    assert (m.collar >= 0).sum() > 0 and np.all(m.parts[m.collar >= 0] != m.collar[m.collar >= 0])
+    assert np.all(triangle_areas(m.vertices, m.triangles) > 0)
+
+
+def test_cuts_cross_each_joint_inside_the_mask(figure):
+    cuts = joint_cuts(figure.mask, figure.keypoints)
+    assert len(cuts) == len(COLLARS)
+    for c in cuts:
+        j = figure.keypoints[c["joint"]]
+        d = c["q"] - c["p"]
+        # the joint lies on the cut segment, and the cut is perpendicular to its normal
+        t = np.dot(j - c["p"], d) / np.dot(d, d)
+        assert 0 <= t <= 1 and np.linalg.norm(c["p"] + t * d - j) < 1e-6
+        assert abs(np.dot(d, c["normal"])) < 1e-6 * np.linalg.norm(d)
+
+
+def test_rigid_motion_is_reproduced_exactly(figure, layered):
+    kp = _rot(figure.keypoints, np.array([100.0, 80.0]), 27.0) + [13.0, -4.0]
+    V = layered.animate(kp[None])[0]
+    ref = _rot(layered.mesh.vertices, np.array([100.0, 80.0]), 27.0) + [13.0, -4.0]
+    assert np.abs(V - ref).max() < 1e-6
+
+
+@pytest.mark.parametrize("deg", [60.0, 120.0, 150.0])
+def test_a_strong_elbow_bend_folds_the_connected_mesh_but_not_the_layered_one(figure, layered, deg):
+    kp = np.stack([_bend_elbow(figure.keypoints, d) for d in np.linspace(0, deg, 6)])
+    V = layered.animate(kp)
+    m = layered.mesh
+    assert metrics.flipped(m.vertices, V, m.triangles).max() == 0
+    # every piece moves rigidly: each triangle's map is a rotation (σ1 = σ2 = 1)
+    assert metrics.stretch_ratio(m.vertices, V, m.triangles).max() < 1.0 + 1e-6
+    assert metrics.driving_failure_ratio(m.vertices, V, m.triangles, pieces=m.pieces) == 0.0
+    if deg >= 120:
+        whole = Rig.build(figure, n_vertices=500)
+        W = whole.animate(kp)
+        assert metrics.driving_failures(whole.mesh.vertices, W, whole.mesh.triangles)[-1]
+
+
+# --------------------------------------------------------------------------- driving
+
+def _motion(frames=8, scale=3.0, shift=(40.0, 10.0)):
+    """The template rest pose, scaled and shifted, with the left arm waving (any units)."""
+    kp = rest_pose() * scale + shift
+    out = np.repeat(kp[None], frames, 0)
+    for t in range(frames):
+        ang = 50 * np.sin(2 * np.pi * t / frames)
+        out[t, [J["l_elbow"], J["l_wrist"]]] = _rot(kp[[J["l_elbow"], J["l_wrist"]]], kp[J["l_shoulder"]], ang)
+    return out
+
+
+def test_retarget_takes_lengths_from_the_drawing_and_directions_from_the_motion(figure):
+    P = _motion()
+    Q = retarget(P, figure.keypoints)
+    rest = figure.keypoints
+    for b, (p, c) in enumerate(BONES):
+        if c in TORSO:
+            continue
+        drawn = np.linalg.norm(rest[c] - rest[p])
+        assert np.allclose(np.linalg.norm(Q[:, c] - Q[:, p], axis=1), drawn, rtol=1e-9)
+        u = (P[:, c] - P[:, p]) / np.linalg.norm(P[:, c] - P[:, p], axis=1, keepdims=True)
+        v = (Q[:, c] - Q[:, p]) / np.linalg.norm(Q[:, c] - Q[:, p], axis=1, keepdims=True)
+        assert np.allclose(u, v, atol=1e-9)
+    # the torso is the drawn torso, moved rigidly; the root stays at the drawn pelvis (the clip
+    # does not travel), and a drawing retargeted onto itself is unchanged
+    for t in range(len(Q)):
+        d0 = rest[list(TORSO)] - rest[0]
+        d1 = Q[t, list(TORSO)] - Q[t, 0]
+        assert np.allclose(np.linalg.norm(d0, axis=1), np.linalg.norm(d1, axis=1), atol=1e-9)
+    assert np.allclose(Q[:, 0], rest[0])
+    assert np.allclose(retarget(np.repeat(rest[None], 3, 0), rest), rest[None], atol=1e-9)
+
+
+def test_nan_frames_are_refused_naming_the_frame(figure, tmp_path):
+    P = _motion()
+    P[5, J["r_knee"], 1] = np.nan
+    with pytest.raises(InputError, match=r"frame 5.*r_knee"):
+        retarget(P, figure.keypoints, source="clip.csv")
+    rows = []
+    for t, pts in enumerate(P):
+        rows.append({"clip": "c0", "frame": t, "character": "x", "motion": "wave",
+                     **dict(zip(FEATURE_COLUMNS, pts.ravel()))})
+    path = tmp_path / "motion.csv"
+    pd.DataFrame(rows).to_csv(path, index=False)
+    with pytest.raises(InputError, match=r"clip c0.*frame 5"):
+        read_motion(path)
+    with pytest.raises(InputError, match="clip"):
+        read_motion(path, "nope")
+
+
+def test_read_motion_returns_the_clip_in_frame_order(tmp_path):
+    P = _motion(frames=5)
+    rows = [{"clip": c, "frame": t, "character": "x", "motion": "wave", **dict(zip(FEATURE_COLUMNS, (P[t] + k).ravel()))}
+            for k, c in enumerate(("b", "a")) for t in (3, 1, 0, 4, 2)]
+    path = tmp_path / "m.csv"
+    pd.DataFrame(rows).to_csv(path, index=False)
+    name, frames, pts = read_motion(path)
+    assert name == "a" and frames.tolist() == [0, 1, 2, 3, 4]
+    assert np.allclose(pts, P + 1)
+    assert JOINTS[0] == "pelvis"

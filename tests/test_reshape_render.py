@@ -1,0 +1,175 @@
+"""Depth order, textured-mesh rendering and the animation writers."""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from nnsf.errors import InputError
+from nnsf.reshape.character import stick_figure
+from nnsf.reshape.depth import (
+    default_order, depth_metric, depth_orders, order_ranks, part_depths, part_overlaps,
+)
+from nnsf.reshape.mesh import PART_INDEX, PARTS
+from nnsf.reshape.render import MeshRenderer, write_gif, write_mp4, write_png_frames
+from nnsf.reshape.rig import Rig
+
+
+@pytest.fixture(scope="module")
+def figure():
+    return stick_figure(height=240)
+
+
+@pytest.fixture(scope="module")
+def rig(figure):
+    return Rig.build(figure, n_vertices=400, split="layered", propagation="limb-frame")
+
+
+# --------------------------------------------------------------------------- depth
+
+def _two_parts(z_arm):
+    """Part depths (T, 10): everything at 0 except the left forearm at ``z_arm`` (T,)."""
+    z = np.zeros((len(z_arm), len(PARTS)))
+    z[:, PART_INDEX["torso"]] = 0.0
+    z[:, PART_INDEX["l_forearm"]] = z_arm
+    return z
+
+
+def test_order_follows_clear_depth_and_ignores_noise_within_the_band():
+    T = 60
+    base = np.where(np.arange(T) < 30, -5.0, 5.0)  # in front, then behind the torso
+    noise = np.random.default_rng(0).uniform(-0.9, 0.9, T)
+    z = _two_parts(base + noise)
+    orders = depth_orders(z, hysteresis=1.0)
+    r = order_ranks(orders)
+    torso, arm = PART_INDEX["torso"], PART_INDEX["l_forearm"]
+    in_front = r[:, arm] > r[:, torso]
+    assert in_front[:30].all() and not in_front[30:].any()
+    # near a tie the previous order is kept: depths jittering within ±0.9 around 0 never flip it
+    z2 = _two_parts(np.r_[np.full(10, -5.0), noise[:50]])
+    r2 = order_ranks(depth_orders(z2, hysteresis=1.0))
+    assert (r2[:, arm] > r2[:, torso]).all()
+    m = depth_metric(orders, z, margin=1.0)
+    assert m["depth_agreement"] == 1.0 and m["order_flips"] >= 1
+
+
+def test_fixed_constraints_and_stability():
+    z = np.random.default_rng(1).normal(0, 10, (40, len(PARTS)))
+    orders = depth_orders(z, hysteresis=0.0)
+    r = order_ranks(orders)
+    assert (r[:, PART_INDEX["head"]] > r[:, PART_INDEX["torso"]]).all()  # annotation: head over torso
+    assert all(sorted(o) == list(range(len(PARTS))) for o in orders)
+    # with no depth difference anywhere, nothing moves from the default order
+    flat = depth_orders(np.zeros((5, len(PARTS))), hysteresis=1.0)
+    assert (flat == default_order()).all()
+    with pytest.raises(InputError, match="frame 2"):
+        bad = np.zeros((4, len(PARTS)))
+        bad[2, 3] = np.nan
+        depth_orders(bad, 1.0)
+
+
+def test_part_depths_are_means_of_their_key_points():
+    zj = np.arange(17, dtype=float)[None].repeat(2, 0)
+    zp = part_depths(zj)
+    assert zp[0, PART_INDEX["l_forearm"]] == pytest.approx((12 + 13) / 2)
+    with pytest.raises(InputError):
+        part_depths(np.zeros((3, 16)))
+
+
+# --------------------------------------------------------------------------- rendering
+
+def test_rest_render_reproduces_the_drawing(figure, rig):
+    r = MeshRenderer.for_mesh(rig.mesh, figure)
+    img = r.render(rig.mesh.vertices)
+    a = img[..., 3] >= 128
+    inter = (a & figure.mask).sum()
+    assert inter / (a | figure.mask).sum() > 0.95
+    both = a & figure.mask & (cv2.erode(figure.mask.astype(np.uint8), np.ones((5, 5))) > 0)
+    diff = np.abs(img[..., :3].astype(int) - figure.texture[..., :3].astype(int))[both]
+    assert diff.mean() < 2.0
+
+
+def test_integer_translation_translates_the_image(figure, rig):
+    r = MeshRenderer.for_mesh(rig.mesh, figure, size=(figure.shape[0] + 20, figure.shape[1] + 30))
+    a = r.render(rig.mesh.vertices)
+    b = r.render(rig.mesh.vertices + [30.0, 20.0])
+    assert np.array_equal(b[20:, 30:], a[:-20, :-30])
+
+
+@pytest.mark.parametrize("V", [np.array([[10.3, 12.7], [90.2, 30.1], [40.6, 95.4]]),
+                               np.array([[10.3, 12.7], [40.6, 95.4], [90.2, 30.1]]),  # clockwise (a fold)
+                               np.array([[-20.0, 50.5], [50.0, -30.0], [130.0, 120.0]])])  # past the edges
+def test_scanline_coverage_is_the_pixel_centres_inside(V):
+    # oracle: the sign of the three edge functions at every pixel centre
+    tex = np.full((100, 100, 4), 255, np.uint8)
+    r = MeshRenderer(V, np.array([[0, 1, 2]]), np.array([0]), tex)
+    _, _, ids = r.maps(V)
+    y, x = np.mgrid[0:100, 0:100].astype(float)
+    e = []
+    for a, b in ((V[0], V[1]), (V[1], V[2]), (V[2], V[0])):
+        e.append((b[0] - a[0]) * (y - a[1]) - (b[1] - a[1]) * (x - a[0]))
+    e = np.stack(e)
+    inside = (e >= 0).all(0) | (e <= 0).all(0)
+    assert np.array_equal(ids >= 0, inside)
+
+
+def test_depth_order_decides_which_part_is_seen():
+    # two overlapping squares, parts torso (red) and l_forearm (blue)
+    V = np.array([[0, 0], [40, 0], [40, 40], [0, 40], [20, 20], [60, 20], [60, 60], [20, 60]], float)
+    T = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]])
+    tex = np.zeros((70, 70, 4), np.uint8)
+    tex[:45, :45] = (255, 0, 0, 255)
+    tex[15:65, 15:65] = (0, 0, 255, 255)
+    # texture coordinates: the first square samples red, the second blue
+    uv = V.copy()
+    uv[:4] = uv[:4] * 0.25 + 2
+    uv[4:] = (uv[4:] - 20) * 0.25 + 40
+    parts = np.array([PART_INDEX["torso"]] * 2 + [PART_INDEX["l_forearm"]] * 2)
+    r = MeshRenderer(uv, T, parts, tex, size=(70, 70))
+    arm_front = r.render(V, order=[PART_INDEX["torso"], PART_INDEX["l_forearm"]])
+    arm_back = r.render(V, order=[PART_INDEX["l_forearm"], PART_INDEX["torso"]])
+    assert tuple(arm_front[30, 30, :3]) == (0, 0, 255)
+    assert tuple(arm_back[30, 30, :3]) == (255, 0, 0)
+    assert arm_front[65, 65, 3] == 0
+
+
+def test_overlaps_from_boxes(rig):
+    V = rig.mesh.vertices[None]
+    ov = part_overlaps(V, rig.mesh.triangles, rig.mesh.parts)
+    assert ov[0, PART_INDEX["l_upper_arm"], PART_INDEX["l_forearm"]]
+    assert not ov[0, PART_INDEX["l_forearm"], PART_INDEX["r_forearm"]]
+    assert (ov == ov.transpose(0, 2, 1)).all()
+
+
+# --------------------------------------------------------------------------- files
+
+def test_writers_round_trip_and_are_atomic(tmp_path):
+    rng = np.random.default_rng(0)
+    imgs = np.zeros((5, 31, 40, 3), np.uint8)
+    for t in range(5):
+        imgs[t, :, 5 * t: 5 * t + 8] = (200, 50, 20)
+        imgs[t, 0, 0] = rng.integers(0, 255, 3)
+    files = write_png_frames(tmp_path / "frames", imgs)
+    assert len(files) == 5
+    back = cv2.cvtColor(cv2.imread(str(files[3])), cv2.COLOR_BGR2RGB)
+    assert np.array_equal(back, imgs[3])
+    gif = write_gif(tmp_path / "a.gif", imgs, fps=10)
+    from PIL import Image
+
+    with Image.open(gif) as im:
+        assert im.n_frames == 5 and im.size == (40, 31)
+    mp4 = write_mp4(tmp_path / "a.mp4", imgs, fps=10)
+    cap = cv2.VideoCapture(str(mp4))
+    n = 0
+    while cap.read()[0]:
+        n += 1
+    cap.release()
+    assert n == 5
+    # same inputs, same bytes (no timestamps)
+    write_gif(tmp_path / "b.gif", imgs, fps=10)
+    assert (tmp_path / "a.gif").read_bytes() == (tmp_path / "b.gif").read_bytes()
+    # a failing writer leaves nothing behind
+    with pytest.raises(Exception):
+        write_png_frames(tmp_path / "bad", [imgs[0], np.zeros((3, 3, 7), np.uint8)])
+    assert not (tmp_path / "bad").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.gif", "a.mp4", "b.gif", "frames"]

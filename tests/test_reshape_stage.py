@@ -1,0 +1,157 @@
+"""The ``reshape`` stage end to end, its bad inputs, the evaluation and the Kenney real-frame check."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from nnsf.errors import InputError
+from nnsf.reshape.character import stick_figure, write_character
+from nnsf.reshape.stage import reshape
+from nnsf.skeleton import JOINT_INDEX as J, rest_pose
+from nnsf.skeleton.layout import FEATURE_COLUMNS
+
+SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
+KENNEY_ANN = Path(__file__).resolve().parent / "data" / "kenney"
+
+
+def _rot(p, c, deg):
+    a = np.radians(deg)
+    R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    return (p - c) @ R.T + c
+
+
+def _csv(path: Path, frames: int = 6, nan_at: int | None = None) -> Path:
+    """A contract CSV with two clips: the template body waving an arm (template units)."""
+    kp = rest_pose() + 2.0
+    rows = []
+    for clip in ("wave-00", "wave-01"):
+        for t in range(frames):
+            p = kp.copy()
+            p[[J["r_elbow"], J["r_wrist"]]] = _rot(kp[[J["r_elbow"], J["r_wrist"]]], kp[J["r_shoulder"]],
+                                                   70 * np.sin(np.pi * t / frames))
+            if nan_at is not None and t == nan_at and clip == "wave-00":
+                p[J["l_knee"], 0] = np.nan
+            rows.append({"clip": clip, "frame": t, "character": "x", "motion": "wave",
+                         **dict(zip(FEATURE_COLUMNS, p.ravel()))})
+    pd.DataFrame(rows).to_csv(path, index=False)
+    return path
+
+
+def _params(**kw):
+    p = {"clip": None, "character": "stick-for-tests", "character_size": 200, "n_vertices": 300,
+         "subkeys_per_limb": 3, "method": "ours", "mesh": "layered", "propagation": "limb-frame",
+         "fps": 12, "max_frames": 6, "formats": ["png", "gif", "mp4"]}
+    p.update(kw)
+    return {"reshape": p}
+
+
+@pytest.fixture(scope="module")
+def character_file(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("char")
+    return write_character(stick_figure(height=200, name="stick"), folder / "stick.json")
+
+
+def test_stage_writes_frames_gif_mp4_and_metrics_reproducibly(tmp_path, character_file):
+    csv = _csv(tmp_path / "motion.csv")
+    out = tmp_path / "out"
+    res = reshape(_params(), csv, character_file, out)
+    names = sorted(p.name for p in out.iterdir())
+    assert names == ["frames", "metrics.json", "stick_wave-00.gif", "stick_wave-00.mp4", "stick_wave-00_sheet.png"]
+    assert len(list((out / "frames").glob("frame_*.png"))) == 6
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["clip"] == "wave-00" and m["metrics"]["frames"] == 6
+    # layered mesh, lengths from the drawing: no flip, no fold, pieces move rigidly
+    assert m["metrics"]["flipped_triangles"] == 0 and m["metrics"]["driving_failure_ratio"] == 0.0
+    assert res.metrics["reshape_stretch_ratio_max"] < 1.01
+    before = {p.name: p.read_bytes() for p in out.rglob("*") if p.is_file() and p.suffix != ".mp4"}
+    reshape(_params(), csv, character_file, out)
+    after = {p.name: p.read_bytes() for p in out.rglob("*") if p.is_file() and p.suffix != ".mp4"}
+    assert before == after
+
+
+def test_default_character_needs_no_shared_data(tmp_path):
+    csv = _csv(tmp_path / "motion.csv", frames=3)
+    out = tmp_path / "out"
+    reshape(_params(character="bruno", character_size=160, max_frames=3, formats=["gif"]), csv, None, out)
+    assert (out / "metrics.json").is_file() and len(list(out.glob("*.gif"))) == 1
+
+
+@pytest.mark.parametrize("case", ["nan", "clip", "method", "formats", "character_path", "escape"])
+def test_bad_inputs_raise_and_write_nothing(tmp_path, character_file, case):
+    csv = _csv(tmp_path / "motion.csv", nan_at=4 if case == "nan" else None)
+    params, char = _params(), character_file
+    match = {"nan": r"clip wave-00.*frame 4", "clip": "clip", "method": "reshape.method",
+             "formats": "reshape.formats", "character_path": "nope.json", "escape": "inside the project"}[case]
+    if case == "clip":
+        params["reshape"]["clip"] = "missing"
+    elif case == "method":
+        params["reshape"]["method"] = "magic"
+    elif case == "formats":
+        params["reshape"]["formats"] = ["avi"]
+    elif case == "character_path":
+        char = tmp_path / "nope.json"
+    elif case == "escape":
+        params["reshape"]["character"] = "../elsewhere/char.json"
+        char = None
+    out = tmp_path / "out"
+    with pytest.raises(InputError, match=match):
+        reshape(params, csv, char, out)
+    assert not out.exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".out")]
+
+
+def test_joint_outside_mask_and_missing_joints_are_refused(tmp_path, character_file):
+    obj = json.loads(character_file.read_text())
+    folder = character_file.parent
+    bad = dict(obj, keypoints=dict(obj["keypoints"], l_wrist=[0.0, 0.0]))
+    (tmp_path / "c.json").write_text(json.dumps(bad))
+    for name in ("stick.texture.png", "stick.mask.png"):
+        (tmp_path / name).write_bytes((folder / name).read_bytes())
+    csv = _csv(tmp_path / "motion.csv")
+    with pytest.raises(InputError, match="l_wrist.*inside the mask"):
+        reshape(_params(), csv, tmp_path / "c.json", tmp_path / "out")
+    missing = dict(obj, keypoints={k: v for k, v in obj["keypoints"].items() if k != "r_knee"})
+    (tmp_path / "c.json").write_text(json.dumps(missing))
+    with pytest.raises(InputError, match="r_knee"):
+        reshape(_params(), csv, tmp_path / "c.json", tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+
+
+# --------------------------------------------------------------------------- real data
+
+def test_evaluation_on_one_character_and_motion(tmp_path):
+    chars = SHARED / "animated-drawings" / "characters"
+    bvh = SHARED / "bandai-namco-1" / "data" / "dataset-1_walk_normal_001.bvh"
+    if not (chars / "char3").is_dir() or not bvh.is_file():
+        pytest.skip(f"AnimatedDrawings characters or Bandai-Namco clips not found under {SHARED}")
+    from nnsf.reshape.evaluation import evaluate_item
+
+    out = evaluate_item({"character": str(chars / "char3"), "motion": str(bvh), "n_vertices": 800,
+                         "max_frames": 30, "subkeys_per_limb": 4, "figure": False, "gif_dir": None})
+    rows = {f"{r['mesh']}/{r['method']}": r for r in out["rows"]}
+    assert set(rows) == {"connected/keypoints", "connected/ours", "layered/keypoints", "layered/ours"}
+    ours = rows["layered/ours"]
+    assert ours["flipped_triangles"] == 0 and ours["driving_failure_ratio"] == 0.0
+    assert ours["stretch_ratio_max"] < 1.05 and ours["subkey_slide"] < 1e-6
+    assert ours["depth_agreement"] > 0.9
+    # subkeys keep the limbs' drawn shape on the connected mesh (the paper's claim)
+    assert rows["connected/ours"]["limb_bending_change"] < rows["connected/keypoints"]["limb_bending_change"]
+
+
+def test_kenney_idle_deformed_to_walk_beats_the_identity_baseline():
+    from nnsf.reshape.kenney import check_character
+
+    images = SHARED / "kenney-toon"
+    name = "male_person"
+    if not (images / name).is_dir():
+        pytest.skip(f"Kenney Toon Characters not found at {images}")
+    if not (KENNEY_ANN / f"{name}.keypoints.json").is_file():
+        pytest.skip(f"hand key-point annotations not found at {KENNEY_ANN}")
+    rows = pd.DataFrame(check_character(name, images, KENNEY_ANN, n_vertices=250,
+                                        variants=(("layered", "ours"),)))
+    iou = rows.groupby("variant")["iou"].mean()
+    assert iou["layered/ours"] > 0.85 and iou["layered/ours"] > iou["identity"] + 0.05
