@@ -2,7 +2,8 @@
 
 Commands::
 
-    python -m flows data|features|factorize|evaluate|isomap|sweep [--params FILE]
+    python -m flows frames|track|tracking|data|features|factorize|evaluate|isomap|sweep|
+                    heldout|translate|reshape [--params FILE]
         run one DVC stage as a Prefect flow and log it to MLflow (dvc.yaml's cmd)
     python -m flows repro [dvc repro arguments]
         `dvc repro` with one short-lived local Prefect server shared by all stages
@@ -29,7 +30,8 @@ from flows.console import error_line, one_line
 # nnsf is imported only by the commands that run stages: importing it pulls in
 # scikit-learn (about 2 s), which a no-op `python -m flows repro` does not need.
 
-STAGES = ("frames", "data", "features", "factorize", "evaluate", "isomap", "sweep")
+STAGES = ("frames", "track", "tracking", "data", "features", "factorize", "evaluate", "isomap", "sweep",
+          "heldout", "translate", "reshape")
 USAGE = __doc__.split("Commands::", 1)[1].split("Exit codes", 1)[0].rstrip()
 
 
@@ -97,9 +99,9 @@ def run_stage_command(stage: str, args: list[str]) -> int:
         from flows import runners
         from flows.sweep import sweep
 
-        runner = runners.task_runner()  # validates NNSF_TASK_RUNNER before the flow starts
+        configured = runners.configured(sweep)  # validates NNSF_TASK_RUNNER before the flow starts
         quiet_prefect_console()
-        state = sweep.with_options(task_runner=runner)(params, return_state=True)
+        state = configured(params, return_state=True)
     else:
         from flows.stage_flows import FAN_OUT, FLOWS
 

@@ -101,7 +101,38 @@ def frames(params: dict):
     return run_stage("frames", lambda p: stages.frames(p, mapper=_mapper("render-clip")), params)
 
 
+@flow(name="nnsf-track", **_OPTIONS)
+def track(params: dict):
+    """Track the clips' contours and derive key points (data/tracks, data/tracked); one task per clip."""
+    return run_stage("track", lambda p: stages.track(p, mapper=_mapper("track-clip")), params)
+
+
+@flow(name="nnsf-tracking", **_OPTIONS)
+def tracking(params: dict):
+    """Score three trackers against the rendered ground truth; one task per (clip, tracker)."""
+    return run_stage("tracking", lambda p: stages.tracking(p, mapper=_mapper("score-tracker")), params)
+
+
+@flow(name="nnsf-heldout", **_OPTIONS)
+def heldout(params: dict):
+    """Leave-one-cell-out style translation; one task per held-out cell."""
+    return run_stage("heldout", lambda p: stages.heldout(p, mapper=_mapper("heldout-cell")), params)
+
+
+@flow(name="nnsf-translate", **_OPTIONS)
+def translate(params: dict):
+    """One clip re-performed in another style (reports/translation)."""
+    return run_stage("translate", stages.translate, params)
+
+
+@flow(name="nnsf-reshape", **_OPTIONS)
+def reshape(params: dict):
+    """A drawn character performing the translated motion (reports/reshape)."""
+    return run_stage("reshape", stages.reshape, params)
+
+
 #: The stage flows by DVC stage name (the sweep lives in :mod:`flows.sweep`).
-FLOWS = {f.fn.__name__: f for f in (data, features, factorize, evaluate, isomap, frames)}
+FLOWS = {f.fn.__name__: f for f in (data, features, factorize, evaluate, isomap, frames, track, tracking,
+                                    heldout, translate, reshape)}
 #: Stages that fan out on the configured task runner (flows.runners).
-FAN_OUT = {"evaluate", "frames"}
+FAN_OUT = {"evaluate", "frames", "track", "tracking", "heldout"}

@@ -1,8 +1,14 @@
 """The ``nnsf`` command: each pipeline stage as a plain command, without orchestration.
 
-    nnsf data|features|factorize|evaluate|isomap [--params params.yaml]
-    nnsf sweep [--params params.yaml]        every sweep point in turn, a CSV on stdout
-    nnsf check [--params params.yaml]        validate params.yaml and exit
+    nnsf frames|track|tracking|data|features|factorize|evaluate|isomap|heldout [--params FILE]
+    nnsf sweep [--params FILE]          every sweep point in turn, a CSV on stdout
+    nnsf check [--params FILE]          validate params.yaml and exit
+    nnsf translate --clip CLIP --style STYLE [--out DIR]
+                                        one clip's motion performed in another style
+    nnsf reshape [--motion CSV] [--clip CLIP] [--character NAME|FILE|FOLDER] [--out DIR]
+                                        a drawn character performing a motion clip
+    nnsf reshape-eval [--data DIR] [--out DIR]
+                                        the reshaping evaluation on the shared drawn characters
 
 The same stages run as Prefect flows with MLflow logging through
 ``python -m flows <stage>`` (what ``dvc repro`` calls).  Exit codes: 0 done,
@@ -14,10 +20,11 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from pathlib import Path
 
 from nnsf.errors import InputError
 
-STAGES = ("data", "features", "factorize", "evaluate", "isomap")
+STAGES = ("frames", "track", "tracking", "data", "features", "factorize", "evaluate", "isomap", "heldout")
 
 
 def _one_line(exc: BaseException) -> str:
@@ -25,11 +32,50 @@ def _one_line(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {lines[0]}" if lines else type(exc).__name__
 
 
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="nnsf", description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter,
+                                     epilog=__doc__.split("\n\n", 1)[1])
+    sub = parser.add_subparsers(dest="command", required=True, metavar="command")
+    for name in STAGES + ("sweep", "check"):
+        p = sub.add_parser(name, help=f"the {name} stage" if name in STAGES else None)
+        p.add_argument("--params", default="params.yaml", help="parameters file (default: params.yaml)")
+
+    p = sub.add_parser("translate", help="one clip's motion performed in another style")
+    p.add_argument("--params", default="params.yaml")
+    p.add_argument("--features", type=Path, default=Path("data/features/features.csv"),
+                   help="unified feature table (its unifier.json beside it)")
+    p.add_argument("--clip", default=None, help="the content clip (default: translation.content_clip)")
+    p.add_argument("--style", default=None, help="the target style (default: translation.style)")
+    p.add_argument("--out", type=Path, default=Path("reports/translation"))
+
+    p = sub.add_parser("reshape", help="a drawn character performing a motion clip")
+    p.add_argument("--params", default="params.yaml")
+    p.add_argument("--motion", type=Path, default=Path("reports/translation/translated_features.csv"),
+                   help="a feature-matrix CSV (any 17-point clip: synthetic, BVH, tracked, translated)")
+    p.add_argument("--clip", default=None, help="its clip (default: reshape.clip, else the first)")
+    p.add_argument("--character", default=None,
+                   help="synthetic character name, character .json or AnimatedDrawings folder "
+                        "(default: reshape.character)")
+    p.add_argument("--out", type=Path, default=Path("reports/reshape"))
+
+    p = sub.add_parser("reshape-eval", help="reshaping evaluation on ../shared/data (SPEC §6.5-6.6)")
+    p.add_argument("--params", default="params.yaml")
+    p.add_argument("--data", type=Path, default=Path("../shared/data"))
+    p.add_argument("--kenney", type=Path, default=Path("tests/data/kenney"),
+                   help="hand-made Kenney key-point annotations")
+    p.add_argument("--out", type=Path, default=Path("reports"))
+    return parser
+
+
+def _print_metrics(command: str, metrics: dict) -> None:
+    for key, value in metrics.items():
+        print(f"{command}: {key} = {value:.6g}" if isinstance(value, float)
+              else f"{command}: {key} = {value}")
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="nnsf", description=__doc__.split("\n\n")[0])
-    parser.add_argument("command", choices=STAGES + ("sweep", "check"))
-    parser.add_argument("--params", default="params.yaml", help="parameters file (default: params.yaml)")
-    args = parser.parse_args(argv)
+    args = _parser().parse_args(argv)
     try:
         from nnsf import params as params_mod
         from nnsf import stages
@@ -49,10 +95,35 @@ def main(argv: list[str] | None = None) -> int:
                       f"precision {res.metrics['precision_mean']:.3f}", file=sys.stderr)
             pd.DataFrame(rows).to_csv(sys.stdout, index=False)
             return 0
-        result = getattr(stages, args.command)(params)
-        for key, value in result.metrics.items():
-            print(f"{args.command}: {key} = {value:.6g}" if isinstance(value, float)
-                  else f"{args.command}: {key} = {value}")
+        if args.command == "translate":
+            result = stages.translate(params, features_csv=args.features, out_dir=args.out,
+                                      content_clip=args.clip, style=args.style)
+            print(f"translate: wrote {args.out}/ ({result.params['content_clip']} as "
+                  f"{result.params['style']}); open {args.out / 'translation.gif'}")
+        elif args.command == "reshape":
+            if args.clip is not None:
+                params.setdefault("reshape", {})["clip"] = args.clip
+            character_path = None
+            if args.character is not None:
+                if Path(args.character).exists():
+                    character_path = Path(args.character)
+                else:
+                    params.setdefault("reshape", {})["character"] = args.character
+            result = stages.reshape(params, motion_csv=args.motion, out_dir=args.out,
+                                    character_path=character_path)
+            shown = [str(a) for a in result.artifacts if str(a).endswith(".gif")]
+            print(f"reshape: wrote {args.out}/" + (f"; open {shown[0]}" if shown else ""))
+        elif args.command == "reshape-eval":
+            from nnsf.reshape.evaluation import reshape_eval
+
+            if not args.data.is_dir():
+                raise InputError(args.data, "--data", "the shared data folder (animated-drawings, "
+                                 "bandai-namco-1, kenney-toon)")
+            result = reshape_eval(params, data_root=args.data, out_dir=args.out,
+                                  kenney_annotations=args.kenney)
+        else:
+            result = getattr(stages, args.command)(params)
+        _print_metrics(args.command, result.metrics)
         return 0
     except InputError as err:
         print(f"error: {err}", file=sys.stderr)

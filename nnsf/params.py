@@ -19,6 +19,12 @@ FACINGS = ("normalise", "none")
 INITS = ("random", "nndsvd", "nndsvda", "nndsvdar")
 METHODS = ("nnsf", "nnsc", "nmf", "bilinear")
 LABELS = ("motion", "character")
+TRACKERS = ("ours", "agarwala", "lk")
+TRANSLATION_METHODS = ("nnsf", "nnsf_swapped", "nnsf_beta0", "nnsf_refit", "bilinear", "identity", "real")
+
+
+def _optional_str():
+    return (lambda v: v is None or (isinstance(v, str) and v != "")), "a non-empty string or null"
 
 
 def _int(lo=None, hi=None):
@@ -80,6 +86,22 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "frames.size": _int(64, 4096),
     "frames.keyframe_every": _int(0),
     "frames.control_points": _int(2, 32),
+    "track.method": _choice(TRACKERS),
+    "track.w_velocity": _num(0),
+    "track.w_length": _num(0),
+    "track.w_curvature": _num(0),
+    "track.w_edge": _num(0),
+    "track.w_sketch": _num(0),
+    "track.w_colour": _num(0),
+    "track.window": _int(1),
+    "track.samples": _int(3),
+    "track.levels": _int(1),
+    "track.max_iter": _int(1),
+    "track.init": _choice(("linear", "lk")),
+    "track.lk_end": _choice(("blend", "none")),
+    "track.eval_clips": _int(1),
+    "track.edit_tol_px": _num(0, strict=True),
+    "track.max_edits": _int(0),
     "unify.margin": _num(0, strict=True),
     "nnsf.label": _choice(LABELS),
     "nnsf.rank": _rank(),
@@ -101,6 +123,40 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "sweep.beta": _list(_num(0)),
     "sweep.rank": _list(_rank()),
     "sweep.max_iter": _int(1),
+    "translation.rank": _rank(),
+    "translation.alpha": _num(0),
+    "translation.beta": _num(0),
+    "translation.label": _choice(LABELS),
+    "translation.basis": _choice(("aligned", "refit", "separate")),
+    "translation.synthesis": _choice(("consensus", "source")),
+    "translation.amplitude": _choice(("restore", "none")),
+    "translation.tempo": _bool(),
+    "translation.ridge": _num(0),
+    "translation.max_iter": _int(1),
+    "translation.align_iter": _int(1),
+    "translation.bilinear_rank": _int(1),
+    "translation.max_sources": _int(0),
+    "translation.max_cells": _int(0),
+    "translation.examples": _int(0),
+    "translation.methods": _list(_choice(TRANSLATION_METHODS)),
+    "translation.content_clip": _str(),
+    "translation.style": _str(),
+    "reshape.clip": _optional_str(),
+    "reshape.character": _str(),
+    "reshape.character_size": _int(64, 4096),
+    "reshape.n_vertices": _int(100, 6000),
+    "reshape.subkeys_per_limb": _int(0, 12),
+    "reshape.method": _choice(("ours", "keypoints")),
+    "reshape.mesh": _choice(("layered", "split", "connected")),
+    "reshape.propagation": _choice(("limb-frame", "eq12")),
+    "reshape.fps": _num(1),
+    "reshape.max_frames": _int(1, 5000),
+    "reshape.formats": _list(_choice(("png", "gif", "mp4"))),
+    "reshape_eval.characters": _list(_str()),
+    "reshape_eval.motions": _list(_str()),
+    "reshape_eval.n_vertices": _int(100, 6000),
+    "reshape_eval.max_frames": _int(3, 5000),
+    "reshape_eval.subkeys_per_limb": _int(1, 12),
     "mlflow.experiment": _str(),
 }
 

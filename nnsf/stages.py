@@ -92,6 +92,96 @@ def frames(params: dict, out_dir=FRAMES_DIR, mapper=None) -> StageResult:
     return render_frames(params, out_dir=out_dir, mapper=mapper)
 
 
+def track(params: dict, frames_dir=FRAMES_DIR, tracks_dir=TRACKS_DIR, tracked_dir=TRACKED_DIR,
+          mapper=None) -> StageResult:
+    """Track every clip's side contours, then derive its key points (the ``frames`` source).
+
+    Writes ``<tracks_dir>/<clip>/curves.npz`` (:func:`nnsf.track.stage.track_clips`)
+    and ``<tracked_dir>/keypoints.csv`` + ``characters.json`` in the
+    feature-matrix contract, pixels (:func:`nnsf.frames.stage.keypoints_from_tracks`),
+    which the data stage reads with ``dataset.name: frames`` and
+    ``dataset.path: data/tracked``.  ``mapper`` fans out over clips.
+    """
+    from nnsf.frames.stage import keypoints_from_tracks
+    from nnsf.track.stage import track_clips
+
+    tracked = track_clips(params, frames_dir=frames_dir, out_dir=tracks_dir, mapper=mapper)
+    points = keypoints_from_tracks(params, frames_dir=frames_dir, tracks_dir=tracks_dir,
+                                   out_dir=tracked_dir, mapper=mapper)
+    return StageResult(params=tracked.params,
+                       metrics={**tracked.metrics, **{f"keypoints_{k}": v for k, v in points.metrics.items()}})
+
+
+def tracking(params: dict, frames_dir=FRAMES_DIR, reports=REPORTS, mapper=None) -> StageResult:
+    """Score ours, Agarwala's and Lucas-Kanade tracking against the rendered ground truth (SPEC §6.4).
+
+    See :func:`nnsf.track.stage.evaluate_tracking`: ``reports/tracking.json``,
+    ``reports/tracking.csv``, ``reports/figures/tracking_overlay.png``.
+    """
+    from nnsf.track.stage import evaluate_tracking
+
+    return evaluate_tracking(params, frames_dir=frames_dir, reports=reports, mapper=mapper)
+
+
+def heldout(params: dict, features_csv=FEATURES_CSV, reports=REPORTS, mapper=None) -> StageResult:
+    """Leave-one-cell-out style translation against the hidden real clips (SPEC §6.3).
+
+    See :func:`nnsf.evaluate.translation.heldout`; ``mapper`` fans out over cells.
+    """
+    from nnsf.evaluate.translation import heldout as run
+
+    return run(params, features_csv=features_csv, reports=reports, mapper=mapper,
+               unifier_json=Path(features_csv).parent / "unifier.json")
+
+
+TRANSLATION_DIR = REPORTS / "translation"
+
+
+def translate(params: dict, features_csv=FEATURES_CSV, out_dir=TRANSLATION_DIR,
+              content_clip=None, style=None) -> StageResult:
+    """One clip's motion performed in another style (SPEC §3), to ``out_dir``.
+
+    ``content_clip`` and ``style`` default to ``translation.content_clip`` and
+    ``translation.style``; ``auto`` picks the first clip (sorted by name) and
+    the last style, other than the clip's own, that has no clip of that
+    content yet, else the last other style.  Writes ``translated_features.csv``
+    (template units), ``translated_pixels.csv``, ``translation.gif``,
+    ``translation_strip.png`` and ``translation.json``.
+    """
+    from nnsf.evaluate.translation import translate as run
+
+    clip = str(content_clip if content_clip is not None else require(params, "translation.content_clip"))
+    target = str(style if style is not None else require(params, "translation.style"))
+    if clip == "auto" or target == "auto":
+        table = contract.read_table(features_csv)
+        clips = table.drop_duplicates("clip").set_index("clip").sort_index()
+        if clip == "auto":
+            clip = str(clips.index[0])
+        if target == "auto" and clip in clips.index:
+            own, content = clips.loc[clip, "character"], clips.loc[clip, "motion"]
+            others = sorted(set(clips["character"]) - {own})
+            if not others:
+                raise InputError(features_csv, "character", "at least two styles to translate between")
+            have = set(clips.loc[clips["motion"] == content, "character"])
+            missing = [c for c in others if c not in have]
+            target = str((missing or others)[-1])
+    return run(params, features_csv=features_csv, unifier_json=Path(features_csv).parent / "unifier.json",
+               content_clip=clip, style=target, out_dir=out_dir)
+
+
+def reshape(params: dict, motion_csv=TRANSLATION_DIR / "translated_features.csv",
+            out_dir=REPORTS / "reshape", character_path=None) -> StageResult:
+    """A drawn character performing one clip of ``motion_csv`` (SPEC §4), to ``out_dir``.
+
+    By default the translate stage's output, on ``reshape.character``.  See
+    :func:`nnsf.reshape.stage.reshape`: PNG frames, GIF, MP4, a contact sheet
+    and ``metrics.json``.
+    """
+    from nnsf.reshape.stage import reshape as run
+
+    return run(params, motion_csv=motion_csv, character_path=character_path, out_dir=out_dir)
+
+
 def data(params: dict, out_dir=RAW_DIR) -> StageResult:
     """Produce the raw key-point table for ``dataset.name`` into ``out_dir``.
 

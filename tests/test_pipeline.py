@@ -28,7 +28,8 @@ pytestmark = pytest.mark.slow
 
 FLOWS = [sys.executable, "-m", "flows"]
 DVC = [sys.executable, "-m", "dvc"]
-ALL_STAGES = {"frames", "data", "features", "factorize", "evaluate", "isomap", "sweep"}
+ALL_STAGES = {"frames", "track", "tracking", "data", "features", "factorize", "evaluate", "isomap", "sweep",
+              "heldout", "translate", "reshape"}
 EXPERIMENT = "nnsf-e2e"
 
 #: Small enough for seconds per stage, big enough for 3 grouped folds.
@@ -50,6 +51,23 @@ frames:
   size: 128
   keyframe_every: 0
   control_points: 4
+track:
+  method: ours
+  w_velocity: 3.0
+  w_length: 1.0
+  w_curvature: 1.0
+  w_edge: 1.0
+  w_sketch: 100.0
+  w_colour: 100.0
+  window: 3
+  samples: 8
+  levels: 1
+  max_iter: 5
+  init: linear
+  lk_end: blend
+  eval_clips: 1
+  edit_tol_px: 2.0
+  max_edits: 2
 unify:
   margin: 0.5
 nnsf:
@@ -76,6 +94,37 @@ sweep:
   beta: [0.0, 1.0]
   rank: [4]
   max_iter: 20
+translation:
+  rank: 4
+  alpha: 0.01
+  beta: 0.0
+  label: motion
+  basis: aligned
+  synthesis: consensus
+  amplitude: restore
+  tempo: true
+  ridge: 0.5
+  max_iter: 20
+  align_iter: 20
+  bilinear_rank: 1
+  max_sources: 0
+  max_cells: 2
+  examples: 1
+  methods: [nnsf, bilinear, identity]
+  content_clip: auto
+  style: auto
+reshape:
+  clip: null
+  character: bruno
+  character_size: 256
+  n_vertices: 300
+  subkeys_per_limb: 2
+  method: ours
+  mesh: layered
+  propagation: limb-frame
+  fps: 12
+  max_frames: 6
+  formats: [png, gif, mp4]
 mlflow:
   experiment: {EXPERIMENT}
 """
@@ -162,8 +211,9 @@ def test_mlflow_has_stage_runs_and_nested_sweep_runs(pipeline):
     runs = mlflow.search_runs(experiment_names=[EXPERIMENT])
     assert (runs["status"] == "FINISHED").all()
     by_stage = runs.groupby("tags.nnsf.stage").size().to_dict()
-    assert by_stage == {"frames": 1, "data": 1, "features": 1, "factorize": 1, "evaluate": 1, "isomap": 1,
-                        "sweep": 1, "sweep-point": 4}
+    assert by_stage == {"frames": 1, "track": 1, "tracking": 1, "data": 1, "features": 1, "factorize": 1,
+                        "evaluate": 1, "isomap": 1, "sweep": 1, "sweep-point": 4, "heldout": 1,
+                        "heldout-run": 3, "translate": 1, "reshape": 1}
     experiment = mlflow.get_experiment_by_name(EXPERIMENT)
     assert experiment.artifact_location == (pipeline.root / "mlartifacts").as_uri()
 
