@@ -43,6 +43,13 @@ dataset:
     clips_per_cell: 2
     frames: 12
     noise_px: 0.4
+  bvh:
+    fps: 30
+    azimuth: 0.0
+    elevation: 0.0
+    facing: normalise
+    center: true
+    complete_grid: true
 frames:
   characters: 1
   motions: [walk, wave]
