@@ -4,7 +4,7 @@ In one run, on AnimatedDrawings' char1 when ``../shared/data`` holds it (else
 the built-in stick figure scaled to 512 px):
 
 * deformation at about 800 and about 3,000 vertices, for the layered mesh
-  (our default) and the connected one, streaming frame by frame
+  (our default), the whole-limb one and the connected one, streaming frame by frame
   (:meth:`nnsf.reshape.Rig.step`: Eq. 12-14, right-hand sides, two
   back-solves against factors computed once), beside the **naive** baseline
   of the same frames: dense assembly of both least-squares systems and dense
@@ -121,13 +121,14 @@ def main(argv=None):
     print(f"{'mesh':>9} {'vertices':>8} {'handles':>7} {'build ms':>9} {'frame ms':>9} {'naive ms':>9} "
           f"{'naive/ours':>10} {'max |diff| px':>13}")
     rigs = {}
-    for split in ("layered", "connected"):
+    for split in ("layered", "limbs", "connected"):
         for n in args.sizes:
             t0 = time.perf_counter()
             # A layered mesh duplicates its seam, cut and collar vertices
-            # (~30 %): ask for fewer so both meshes end near the same size.
-            rig = Rig.build(ch, n_vertices=int(n / 1.3) if split == "layered" else n,
-                            split=split if split == "layered" else False, propagation="limb-frame")
+            # (~30 %; ~15 % for whole-limb pieces): ask for fewer so the
+            # meshes end near the same size.
+            rig = Rig.build(ch, n_vertices=int(n / {"layered": 1.3, "limbs": 1.15}.get(split, 1.0)),
+                            split=split if split != "connected" else False, propagation="limb-frame")
             build = time.perf_counter() - t0
 
             def step(f, rig=rig):

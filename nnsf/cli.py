@@ -9,6 +9,8 @@
                                         a drawn character performing a motion clip
     nnsf reshape-eval [--data DIR] [--out DIR]
                                         the reshaping evaluation on the shared drawn characters
+    nnsf tracking-real [--data DIR] [--out DIR]
+                                        the trackers on the Kenney toon walk cycles vs their silhouettes
 
 The same stages run as Prefect flows with MLflow logging through
 ``python -m flows <stage>`` (what ``dvc repro`` calls).  Exit codes: 0 done,
@@ -65,6 +67,14 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--kenney", type=Path, default=Path("tests/data/kenney"),
                    help="hand-made Kenney key-point annotations")
     p.add_argument("--out", type=Path, default=Path("reports"))
+
+    p = sub.add_parser("tracking-real", help="the trackers on real cartoon frames (Kenney toon walk cycles)")
+    p.add_argument("--params", default="params.yaml")
+    p.add_argument("--data", type=Path, default=Path("../shared/data/kenney-toon"))
+    p.add_argument("--annotations", type=Path, default=Path("tests/data/kenney"),
+                   help="hand-made keyframe annotations, <character>.annotation.json")
+    p.add_argument("--out", type=Path, default=Path("reports"))
+    p.add_argument("--tol", type=float, default=1.5, help="px from the silhouette boundary that counts as on it")
     return parser
 
 
@@ -121,6 +131,18 @@ def main(argv: list[str] | None = None) -> int:
                                  "bandai-namco-1, kenney-toon)")
             result = reshape_eval(params, data_root=args.data, out_dir=args.out,
                                   kenney_annotations=args.kenney)
+        elif args.command == "tracking-real":
+            from nnsf.track.real import kenney_report
+            from nnsf.track.stage import track_options
+
+            summary = kenney_report(args.data, args.annotations, args.out, tol=args.tol,
+                                    **track_options(params))
+            for tracker, score in summary["trackers"].items():
+                print(f"tracking-real: {tracker} = {score:.3f} of outline samples within {args.tol:g} px "
+                      f"of the silhouette")
+            print(f"tracking-real: keyframe ceiling = {summary['ceiling']:.3f}; "
+                  f"wrote {args.out / 'tracking_kenney.json'}")
+            return 0
         else:
             result = getattr(stages, args.command)(params)
         _print_metrics(args.command, result.metrics)

@@ -147,7 +147,7 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "reshape.n_vertices": _int(100, 6000),
     "reshape.subkeys_per_limb": _int(0, 12),
     "reshape.method": _choice(("ours", "keypoints")),
-    "reshape.mesh": _choice(("layered", "split", "connected")),
+    "reshape.mesh": _choice(("layered", "limbs", "split", "connected")),
     "reshape.propagation": _choice(("limb-frame", "eq12")),
     "reshape.fps": _num(1),
     "reshape.max_frames": _int(1, 5000),

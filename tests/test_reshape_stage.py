@@ -133,13 +133,19 @@ def test_evaluation_on_one_character_and_motion(tmp_path):
     out = evaluate_item({"character": str(chars / "char3"), "motion": str(bvh), "n_vertices": 800,
                          "max_frames": 30, "subkeys_per_limb": 4, "figure": False, "gif_dir": None})
     rows = {f"{r['mesh']}/{r['method']}": r for r in out["rows"]}
-    assert set(rows) == {"connected/keypoints", "connected/ours", "layered/keypoints", "layered/ours"}
+    assert set(rows) == {"connected/keypoints", "connected/ours", "limbs/keypoints", "limbs/ours",
+                         "layered/keypoints", "layered/ours"}
     ours = rows["layered/ours"]
     assert ours["flipped_triangles"] == 0 and ours["driving_failure_ratio"] == 0.0
     assert ours["stretch_ratio_max"] < 1.05 and ours["subkey_slide"] < 1e-6
     assert ours["depth_agreement"] > 0.9
     # subkeys keep the limbs' drawn shape on the connected mesh (the paper's claim)
     assert rows["connected/ours"]["limb_bending_change"] < rows["connected/keypoints"]["limb_bending_change"]
+    # on whole-limb pieces the limbs deform, and the subkeys change the result: they keep
+    # each drawn segment's shape (bending) where the key points alone let it bend
+    lk, lo = rows["limbs/keypoints"], rows["limbs/ours"]
+    assert lk["arap_energy_mean"] > 1.0 and lo["arap_energy_mean"] != lk["arap_energy_mean"]
+    assert lo["limb_bending_change"] < 0.5 * lk["limb_bending_change"]
 
 
 def test_kenney_idle_deformed_to_walk_beats_the_identity_baseline():
@@ -155,3 +161,16 @@ def test_kenney_idle_deformed_to_walk_beats_the_identity_baseline():
                                         variants=(("layered", "ours"),)))
     iou = rows.groupby("variant")["iou"].mean()
     assert iou["layered/ours"] > 0.85 and iou["layered/ours"] > iou["identity"] + 0.05
+
+
+def test_canvas_is_the_clip_extent_plus_margin():
+    from nnsf.reshape.character import stick_figure
+    from nnsf.reshape.stage import canvas
+
+    ch = stick_figure(height=200)
+    frames = np.array([[[50.0, 60.0], [80.0, 90.0]], [[40.0, 70.0], [85.0, 121.0]]])
+    offset, (h, w) = canvas(ch, frames, margin=5)
+    V = frames + offset
+    assert V.min() == 5.0                                # every vertex inside, margin 5 px on the low sides
+    assert (w, h) == (56, 72)                            # x 35..90 and y 55..126, rounded up to even sides
+    assert V[..., 0].max() <= w - 1 - 5 + 1 and V[..., 1].max() <= h - 1 - 5 + 1

@@ -12,6 +12,12 @@ with four rigs on the same character:
 ``layered/keypoints``  the layered mesh (:func:`nnsf.reshape.mesh.layer_pieces`),
                     key points only
 ``layered/ours``    the layered mesh plus subkeys: our default
+``limbs/keypoints``  whole-limb pieces (``build_mesh(split="limbs")``): each
+                    limb one deformable piece (bending at the elbow / knee),
+                    cut from the body at the shoulder / hip; key points only
+``limbs/ours``      the same plus subkeys: the comparison of the paper's
+                    Fig. 8 (on a layered mesh every segment is rigid, so the
+                    two methods coincide there)
 =================  ==========================================================
 
 Each row of ``reshape_eval.csv`` holds :func:`nnsf.reshape.stage.report`'s
@@ -23,7 +29,7 @@ Eq. 12).  ``reshape_eval.json`` holds the same rows and per-variant means.
 Figures: ``reshape_fig8_<character>_<motion>.png`` (the same frames, each
 variant a row, like the paper's Fig. 8) and ``reshape_fig9.png`` (a keyframe
 strip of ``layered/ours``, one row per motion, like Fig. 9), plus side-by-side
-GIFs ``reshape_eval/<character>_<motion>.gif`` (ARAP left, ours right).
+GIFs ``reshape_eval/<character>_<motion>.gif`` (:data:`GIF_PANELS`, left to right).
 
 The Kenney real-frame check (:mod:`nnsf.reshape.kenney`) writes
 ``reshape_kenney.csv`` / ``.json`` when its annotations and images exist.
@@ -47,12 +53,18 @@ from nnsf.errors import InputError
 #: char6 (a quadruped) are refused by the loader.
 CHARACTERS = ("char1", "char2", "char3", "char4")
 MOTIONS = ("walk_normal_001", "run_active_001", "kick_normal_001", "punch_normal_001")
-VARIANTS = (("connected", "keypoints"), ("connected", "ours"), ("layered", "keypoints"), ("layered", "ours"))
+VARIANTS = (("connected", "keypoints"), ("connected", "ours"), ("limbs", "keypoints"), ("limbs", "ours"),
+            ("layered", "keypoints"), ("layered", "ours"))
 LABELS = {"connected/keypoints": "ARAP, key points (connected mesh)",
           "connected/ours": "subkeys (connected mesh)",
+          "limbs/keypoints": "ARAP, key points (whole-limb pieces)",
+          "limbs/ours": "subkeys (whole-limb pieces)",
           "layered/keypoints": "key points (layered mesh)",
           "layered/ours": "ours: subkeys (layered mesh)"}
 FIGURE_ITEMS = (("char1", "kick_normal_001"), ("char4", "walk_normal_001"))
+#: Side-by-side GIF panels: the key-point baseline and subkeys on whole-limb
+#: pieces (the comparison of the paper's Fig. 8), and the stage's default.
+GIF_PANELS = ("limbs/keypoints", "limbs/ours", "layered/ours")
 
 
 def subkey_slide(rig, keypoints: np.ndarray) -> float:
@@ -91,8 +103,8 @@ def evaluate_item(item: dict) -> dict:
     T = min(len(clip.points), item["max_frames"])
     motion, depth = clip.points[:T], clip.depth[:T]
     height = float(np.median(np.ptp(motion[..., 1], axis=1)))
-    meshes = {"connected": build_mesh(ch.mask, ch.keypoints, item["n_vertices"], split=False),
-              "layered": build_mesh(ch.mask, ch.keypoints, item["n_vertices"], split="layered")}
+    meshes = {kind: build_mesh(ch.mask, ch.keypoints, item["n_vertices"], split=kind, texture=ch.texture)
+              for kind in dict.fromkeys(mesh for mesh, _ in VARIANTS)}
     rows, anims = [], {}
     for mesh, method in VARIANTS:
         rig = build_rig(ch, method, mesh, item["n_vertices"], item["subkeys_per_limb"], base_mesh=meshes[mesh])
@@ -118,11 +130,10 @@ def evaluate_item(item: dict) -> dict:
         out["strip"] = np.stack([renderers["layered/ours"].render(a.frames[t] + offset, a.orders[t],
                                                                   background=(255, 255, 255)) for t in strip])
         if item.get("gif_dir"):
-            left, right = anims["connected/keypoints"], anims["layered/ours"]
-            frames = [np.hstack([renderers["connected/keypoints"].render(left.frames[t] + offset, left.orders[t],
-                                                                         background=(255, 255, 255)),
-                                 renderers["layered/ours"].render(right.frames[t] + offset, right.orders[t],
-                                                                  background=(255, 255, 255))])
+            panels = [k for k in GIF_PANELS if k in anims]
+            frames = [np.hstack([_label(renderers[k].render(anims[k].frames[t] + offset, anims[k].orders[t],
+                                                            background=(255, 255, 255))[..., :3], k)
+                                 for k in panels])
                       for t in range(0, T, 2)]
             # every other frame at 40 %: a GIF a person can open (15 fps)
             frames = [cv2.resize(f, None, fx=0.4, fy=0.4, interpolation=cv2.INTER_AREA) for f in frames]

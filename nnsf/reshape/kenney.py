@@ -91,7 +91,8 @@ def iou(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def check_character(name: str, image_root, annotation_dir, n_vertices: int = 300,
-                    variants=(("layered", "ours"), ("layered", "keypoints"), ("connected", "keypoints"))) -> list[dict]:
+                    variants=(("layered", "ours"), ("layered", "keypoints"), ("limbs", "ours"), ("limbs", "keypoints"),
+                              ("connected", "keypoints"))) -> list[dict]:
     """IoU rows (one per walk frame and variant, plus the identity baseline) for one character."""
     from nnsf.reshape.render import MeshRenderer
     from nnsf.reshape.stage import build_rig

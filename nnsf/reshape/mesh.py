@@ -113,6 +113,18 @@ COLLARS: tuple[tuple[int, int, int, float], ...] = tuple(
         ("l_hip", "body", "l_thigh", 0.6), ("l_knee", "l_thigh", "l_shin", 0.6),
         ("r_hip", "body", "r_thigh", 0.6), ("r_knee", "r_thigh", "r_shin", 0.6),
         ("neck", "body", "head", 0.4)))
+#: Pieces of a whole-limb mesh (``split="limbs"``, :func:`layer_pieces` with
+#: ``whole_limbs=True``): the body, each whole limb (upper and lower segment
+#: one deformable piece, bending at the elbow or knee) and the head.  Cut and
+#: capped like the layered mesh at the shoulders, hips and neck only.
+LIMB_PIECES: tuple[str, ...] = ("body", "l_arm", "r_arm", "l_leg", "r_leg", "head")
+#: Whole-limb piece of each segment piece, ``(10,)``, indexed like :data:`SEGMENTS`.
+SEGMENT_LIMB_PIECE = np.array([0] + [LIMB_PIECES.index(f"{n[0]}_{'arm' if 'arm' in n else 'leg'}")
+                                     for n in LIMBS] + [len(LIMB_PIECES) - 1], dtype=np.int64)
+LIMB_PIECE_KEYPOINTS: tuple[tuple[int, ...], ...] = (
+    (SEGMENT_KEYPOINTS[0],) + tuple(PIECE_KEYPOINTS[n] for n in LIMB_PIECES[1:-1]) + (SEGMENT_KEYPOINTS[-1],))
+#: Mesh kinds :func:`build_mesh` accepts (``True`` / ``False`` are aliases of split / connected).
+MESH_KINDS = ("connected", "split", "layered", "limbs")
 #: The torso polygon (key points, in order) under which limb triangles get an underlay.
 TORSO_POLYGON = tuple(JOINT_INDEX[j] for j in ("l_hip", "pelvis", "r_hip", "r_shoulder", "thorax", "l_shoulder"))
 
@@ -594,30 +606,108 @@ def split_pieces(mesh: Mesh, keypoints: np.ndarray) -> Mesh:
 
 
 def build_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int = 800, split=False,
-               collar: float = 1.0, **kwargs) -> Mesh:
+               collar: float = 1.0, texture=None, **kwargs) -> Mesh:
     """Triangulate ``mask`` (:func:`triangulate_mask`) and label parts (:func:`label_parts`).
 
-    ``split``: ``False`` (one connected mesh), ``True`` (limbs cut loose,
-    :func:`split_pieces`) or ``"layered"`` (every segment its own piece with
-    overlapping collars and a body underlay, :func:`layer_pieces`).
+    ``split``: ``False`` / ``"connected"`` (one connected mesh), ``True`` /
+    ``"split"`` (limbs cut loose along nearest-bone seams, :func:`split_pieces`),
+    ``"layered"`` (every segment its own piece with overlapping collars and a
+    body underlay, :func:`layer_pieces`) or ``"limbs"`` (the same, but each
+    whole limb one deformable piece: cut only at the shoulders, hips and neck).
+
+    ``texture`` ``(H, W, 3|4)``: the drawing.  With it, the limb capsules of
+    the layered and limbs meshes give back to the body the triangles whose
+    ink-bounded region of the drawing is the body's (:func:`drawn_regions`),
+    so e.g. the chest next to an arm drawn behind it stays with the chest.
     """
-    if split not in (False, True, "layered", "connected", "split"):
-        raise InputError("build_mesh", "split", "False, True or 'layered'", split)
+    if split not in (False, True) + MESH_KINDS:
+        raise InputError("build_mesh", "split", "False, True, 'connected', 'split', 'layered' or 'limbs'", split)
     kp = np.asarray(keypoints, dtype=float)
-    cuts = joint_cuts(mask, kp) if split == "layered" else []
+    layered = split in ("layered", "limbs")
+    cuts = joint_cuts(mask, kp) if layered else []
+    if split == "limbs":
+        cuts = [c for c in cuts if c["parent"] == 0]
     vertices, triangles, h = triangulate_mask(mask, n_vertices=n_vertices, cuts=cut_segments(cuts),
                                               **kwargs)
     parts = label_parts(vertices, triangles, kp)
-    if split == "layered":
+    region_body = None
+    if layered:
         capsule = label_parts(vertices, triangles, kp, limb_radii(mask, kp) + 0.5 * h)
         # A limb the capsules leave without triangles (thin, on a coarse mesh)
         # keeps its nearest-bone triangles.
         empty = [p for p in range(2, len(PARTS)) if not (capsule == p).any()]
         parts = np.where(np.isin(parts, empty), parts, capsule)
+        if texture is not None:
+            region_body = body_region_triangles(vertices, triangles, kp, texture, mask)
+            parts = np.where(region_body & (parts >= 2), label_parts(vertices, triangles, kp, np.zeros(8) - 1),
+                             parts)
     mesh = Mesh(vertices=vertices, triangles=triangles, parts=parts, spacing=h)
-    if split == "layered":
-        return layer_pieces(mesh, kp, mask, collar=collar, cuts=cuts)
+    if layered:
+        return layer_pieces(mesh, kp, mask, collar=collar, cuts=cuts, whole_limbs=split == "limbs",
+                            body_triangles=region_body)
     return split_pieces(mesh, kp) if split in (True, "split") else mesh
+
+
+def drawn_regions(texture: np.ndarray, mask: np.ndarray, ink: float = 0.55, min_area: float = 0.002) -> np.ndarray:
+    """Ink-bounded regions of a drawing: a label ``(H, W)`` int, −1 outside ``mask``.
+
+    Ink is a pixel darker than ``ink`` × the median luminance of the mask;
+    the regions are the connected components (4-neighbour) of the rest of
+    the mask with at least ``min_area`` × the mask's area; every other mask
+    pixel (ink, specks) takes the label of the nearest region pixel, so a
+    line between two regions is split down its middle.
+    """
+    from scipy.ndimage import distance_transform_edt
+
+    m = np.asarray(mask, dtype=bool)
+    rgb = np.asarray(texture)[..., :3].astype(np.float64)
+    lum = rgb @ np.array([0.299, 0.587, 0.114])
+    out = np.full(m.shape, -1, np.int64)
+    if not m.any():
+        return out
+    fill = m & (lum >= ink * np.median(lum[m]))
+    n, lab = cv2.connectedComponents(fill.astype(np.uint8), connectivity=4)
+    area = np.bincount(lab.ravel(), minlength=n)
+    big = np.flatnonzero(area >= max(min_area * m.sum(), 1))
+    big = big[big > 0]
+    if len(big) == 0:
+        out[m] = 0
+        return out
+    keep = np.isin(lab, big)
+    _, (iy, ix) = distance_transform_edt(~keep, return_indices=True)
+    out[m] = lab[iy[m], ix[m]]
+    return out
+
+
+def body_region_triangles(vertices, triangles, keypoints, texture, mask) -> np.ndarray:
+    """Triangles ``(t,)`` that lie in a region of the drawing (:func:`drawn_regions`) that is the body's only.
+
+    A region is the body's when it holds a point of the spine or neck
+    (pelvis–spine–thorax–neck, sampled), and a limb's when it holds a point of
+    the limb's outer bone (upper segment λ ∈ [0.6, 0.95], lower segment
+    λ ∈ [0.1, 0.9]).  A region that is both (a limb not separated from the
+    body by a line, as in many sketches) says nothing and is not returned.
+    """
+    kp = np.asarray(keypoints, dtype=np.float64)
+    lab = drawn_regions(texture, mask)
+    J = JOINT_INDEX
+
+    def regions_along(a, b, lo, hi):
+        lam = np.linspace(lo, hi, 9)[:, None]
+        pts = kp[a] + lam * (kp[b] - kp[a])
+        r = _lookup(lab, pts)
+        return set(r[_lookup(np.asarray(mask, np.uint8), pts) > 0].tolist()) - {-1}
+
+    body = set()
+    for a, b in (("pelvis", "spine"), ("spine", "thorax"), ("thorax", "neck")):
+        body |= regions_along(J[a], J[b], 0.0, 1.0)
+    limb = set()
+    for name, (a, b) in LIMBS.items():
+        upper = "upper" in name or "thigh" in name
+        limb |= regions_along(a, b, *((0.6, 0.95) if upper else (0.1, 0.9)))
+    only_body = np.array(sorted(body - limb), dtype=np.int64)
+    c = np.asarray(vertices)[np.asarray(triangles)].mean(axis=1)
+    return np.isin(_lookup(lab, c), only_body)
 
 
 def _limb_half_width(mask: np.ndarray, keypoints: np.ndarray, a: int, b: int) -> float:
@@ -714,7 +804,8 @@ def _relabel_at_cuts(triangles, vertices, pieces, cuts) -> np.ndarray:
 
 
 def layer_pieces(mesh: Mesh, keypoints: np.ndarray, mask: np.ndarray, collar: float = 1.0,
-                 cuts=None, underlay_shrink: float = 0.85) -> Mesh:
+                 cuts=None, underlay_shrink: float = 0.85, whole_limbs: bool = False,
+                 body_triangles=None) -> Mesh:
     """Cut a connected mesh into :data:`SEGMENTS` that overlap, so limbs neither fold nor tear.
 
     * every limb segment (upper arm, forearm, thigh, shin) and the body
@@ -741,13 +832,25 @@ def layer_pieces(mesh: Mesh, keypoints: np.ndarray, mask: np.ndarray, collar: fl
       hole when it moves away.
 
     Vertices are then duplicated per piece as in :func:`split_pieces`.
+
+    ``whole_limbs``: merge each limb's two segments into one piece
+    (:data:`LIMB_PIECES`), which bends at the elbow or knee; give it the
+    cuts of the shoulders, hips and neck only.  ``body_triangles`` ``(t,)``:
+    triangles that must stay with the body even next to a cut (from
+    :func:`body_region_triangles`).
     """
     kp = np.asarray(keypoints, dtype=np.float64)
     mask = np.asarray(mask, dtype=bool)
     tri0, V0 = mesh.triangles, mesh.vertices
     if cuts is None:
         cuts = joint_cuts(mask, kp)
+        if whole_limbs:
+            cuts = [c for c in cuts if c["parent"] == 0]
     seg = _relabel_at_cuts(tri0, V0, PART_SEGMENT[mesh.parts], cuts)
+    if body_triangles is not None:
+        # The drawing says these belong to the body (or head), whatever the cut zone says.
+        bt = np.asarray(body_triangles, dtype=bool)
+        seg = np.where(bt & (seg != 0) & (seg != len(SEGMENTS) - 1), PART_SEGMENT[mesh.parts], seg)
     seg = _clean_pieces(tri0, seg, V0, kp, SEGMENTS, SEGMENT_KEYPOINTS)
     # Parts follow the pieces (a relabelled triangle is drawn with its piece).
     parts0 = SEGMENT_PART[seg]
@@ -815,8 +918,12 @@ def layer_pieces(mesh: Mesh, keypoints: np.ndarray, mask: np.ndarray, collar: fl
     layer = np.concatenate([np.zeros(len(tri0), np.int64)] + extra_layer)
     is_collar = np.concatenate([np.full(len(tri0), -1, np.int64)] + [
         np.full(len(e), collar_parent[k] if k < n_collars else -1, np.int64) for k, e in enumerate(extra_tri)])
+    names, piece_kp = SEGMENTS, SEGMENT_KEYPOINTS
+    if whole_limbs:
+        pieces = SEGMENT_LIMB_PIECE[pieces]
+        names, piece_kp = LIMB_PIECES, LIMB_PIECE_KEYPOINTS
     pairs = np.stack([tris.ravel(), np.repeat(pieces, 3)], axis=1)
     uniq, inv = np.unique(pairs, axis=0, return_inverse=True)
     return Mesh(vertices=V0[uniq[:, 0]].copy(), triangles=inv.ravel().reshape(-1, 3).astype(np.int64),
-                parts=parts, spacing=mesh.spacing, pieces=pieces, piece_names=SEGMENTS,
-                piece_keypoints=SEGMENT_KEYPOINTS, layer=layer, collar=is_collar)
+                parts=parts, spacing=mesh.spacing, pieces=pieces, piece_names=names,
+                piece_keypoints=piece_kp, layer=layer, collar=is_collar)

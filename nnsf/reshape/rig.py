@@ -83,7 +83,8 @@ class Rig:
             raise ValueError(f"handle_set must be one of {HANDLE_SETS}, got {handle_set!r}")
         kp = character.keypoints
         if mesh is None:
-            mesh = build_mesh(character.mask, kp, n_vertices=n_vertices, split=split)
+            mesh = build_mesh(character.mask, kp, n_vertices=n_vertices, split=split,
+                              texture=character.texture)
         if isinstance(omega, str):
             if omega == "fit":
                 omega = fit_omega(character.mask, kp)

@@ -11,7 +11,7 @@
       n_vertices: 800       # mesh size (100..6000)
       subkeys_per_limb: 4   # 0..12
       method: ours          # ours (key points + subkeys) | keypoints (the ARAP baseline)
-      mesh: layered         # layered | split | connected
+      mesh: layered         # layered | limbs | split | connected
       propagation: limb-frame   # limb-frame | eq12
       fps: 24               # frames per second of the motion rows (1..120)
       max_frames: 240       # at most this many frames are rendered (1..5000)
@@ -40,7 +40,7 @@ from nnsf.reshape.render import MeshRenderer, contact_sheet, write_gif, write_mp
 from nnsf.reshape.rig import Rig
 
 METHODS = {"ours": "subkeys", "keypoints": "keypoints"}
-MESHES = {"layered": "layered", "split": True, "connected": False}
+MESHES = {"layered": "layered", "limbs": "limbs", "split": True, "connected": False}
 FORMATS = ("png", "gif", "mp4")
 BACKGROUND = (255, 255, 255)
 
@@ -98,11 +98,11 @@ class Animation:
 
 def build_rig(character: Character, method: str = "ours", mesh: str = "layered", n_vertices: int = 800,
               subkeys_per_limb: int = 4, propagation: str = "limb-frame", base_mesh=None) -> Rig:
-    """The rig of one method (``ours`` | ``keypoints``) and mesh kind (``layered`` | ``split`` | ``connected``)."""
+    """The rig of one method (``ours`` | ``keypoints``) and mesh kind (``layered`` | ``limbs`` | ``split`` | ``connected``)."""
     if method not in METHODS:
         raise InputError("params.yaml", "reshape.method", "ours or keypoints", method)
     if mesh not in MESHES:
-        raise InputError("params.yaml", "reshape.mesh", "layered, split or connected", mesh)
+        raise InputError("params.yaml", "reshape.mesh", "layered, limbs, split or connected", mesh)
     return Rig.build(character, n_vertices=n_vertices, handle_set=METHODS[method], split=MESHES[mesh],
                      subkeys_per_limb=subkeys_per_limb, propagation=propagation, mesh=base_mesh)
 
@@ -148,17 +148,22 @@ def report(anim: Animation, depth_margin: float | None = None) -> dict:
     return out
 
 
-def canvas(character: Character, frames: np.ndarray, margin: int = 8) -> tuple[np.ndarray, tuple[int, int]]:
-    """Offset ``(2,)`` and size ``(H, W)`` of a canvas holding the drawing and every frame ``(T, n, 2)``.
+def canvas(character: Character, frames: np.ndarray, margin: int = 16) -> tuple[np.ndarray, tuple[int, int]]:
+    """Offset ``(2,)`` and size ``(H, W)`` of a canvas holding every frame ``(T, n, 2)``.
 
     The scale stays the drawing's (one pixel per texture pixel); the canvas
-    grows to the union of the drawing's box and all deformed vertices plus
-    ``margin`` pixels, with even sides (video codecs want them).
+    is cropped to the box of all deformed vertices over the clip plus
+    ``margin`` pixels (so the character fills it instead of sitting in the
+    drawing's mostly empty page), with even sides (video codecs want them).
+    Without frames it is the drawing's box.
     """
     H, W = character.shape
     V = np.asarray(frames, dtype=np.float64).reshape(-1, 2)
-    lo = np.minimum(np.floor(V.min(axis=0)) - margin, 0) if len(V) else np.zeros(2)
-    hi = np.maximum(np.ceil(V.max(axis=0)) + margin, [W - 1, H - 1]) if len(V) else np.array([W - 1, H - 1])
+    V = V[np.isfinite(V).all(axis=1)]
+    if not len(V):
+        return np.zeros(2), (H + H % 2, W + W % 2)
+    lo = np.floor(V.min(axis=0)) - margin
+    hi = np.ceil(V.max(axis=0)) + margin
     w, h = int(hi[0] - lo[0] + 1), int(hi[1] - lo[1] + 1)
     return -lo, (h + h % 2, w + w % 2)
 
@@ -194,7 +199,7 @@ def _params(params: dict) -> dict:
         ("subkeys_per_limb", isinstance(p["subkeys_per_limb"], int) and 0 <= p["subkeys_per_limb"] <= 12,
          "an integer 0..12"),
         ("method", p["method"] in METHODS, "ours or keypoints"),
-        ("mesh", p["mesh"] in MESHES, "layered, split or connected"),
+        ("mesh", p["mesh"] in MESHES, "layered, limbs, split or connected"),
         ("propagation", p["propagation"] in ("limb-frame", "eq12"), "limb-frame or eq12"),
         ("fps", isinstance(p["fps"], (int, float)) and not isinstance(p["fps"], bool) and 1 <= p["fps"] <= 120,
          "a number 1..120"),
