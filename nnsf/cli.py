@@ -138,8 +138,12 @@ def main(argv: list[str] | None = None) -> int:
             summary = kenney_report(args.data, args.annotations, args.out, tol=args.tol,
                                     **track_options(params))
             for tracker, score in summary["trackers"].items():
+                extra = ""
+                if tracker in summary.get("coverage", {}):
+                    extra = (f"; coverage {summary['coverage'][tracker]:.3f}, length ratio "
+                             f"{summary['length_ratio'][tracker]:.3f}")
                 print(f"tracking-real: {tracker} = {score:.3f} of outline samples within {args.tol:g} px "
-                      f"of the silhouette")
+                      f"of the silhouette{extra}")
             print(f"tracking-real: keyframe ceiling = {summary['ceiling']:.3f}; "
                   f"wrote {args.out / 'tracking_kenney.json'}")
             return 0

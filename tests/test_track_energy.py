@@ -92,3 +92,30 @@ def test_levenberg_marquardt_reaches_the_cost_scipy_reaches():
     assert info["cost"] == pytest.approx(ref.cost, abs=0.01 * (start - ref.cost))
     # fixed entries never move
     np.testing.assert_array_equal(prob.controls(x_lm)[prob.fixed], prob.P0[prob.fixed])
+
+
+def test_length_residuals_are_px_of_curve_length_and_anchored_to_the_keyframes():
+    # straight 2-point curves traverse at constant speed: (n-1)|c'| equals the length exactly
+    T, n = 5, 9
+    frames = np.full((T, 32, 96, 3), 230, np.uint8)
+    lev = build_pyramid(frames, 1)[0]
+    P = np.zeros((1, T, 2, 2))
+    P[0, :, 1, 0] = 40.0                                          # 40 px long in every frame
+    fixed = np.zeros((1, T, 2), bool)
+    w = Weights(velocity=0.0, length=2.0, curvature=0.0, edge=0.0, sketch=0.0, colour=0.0)
+    prob = SpaceTimeProblem(lev, P, fixed, w, n_samples=n, K=1, use_image_terms=False,
+                            length_anchor=4.0)
+    assert prob.cost(prob.x0()).sum() == pytest.approx(0.0, abs=1e-12)
+    # shrink the middle frame to 30 px: adjacent pairs (2 of them) and the anchor (1 frame)
+    Q = P.copy()
+    Q[0, 2, 1, 0] = 30.0
+    x = Q[prob.free]
+    expected = 0.5 * n * (2.0 * 2 * 10.0 ** 2 + 2.0 * 4.0 * 10.0 ** 2)
+    assert prob.cost(x).sum() == pytest.approx(expected, rel=1e-9)
+    # a curve 10x smaller shrunk by the same fraction: 1/100 of the cost (residuals in px)
+    small = SpaceTimeProblem(lev, P / 10, fixed, w, n_samples=n, K=1, use_image_terms=False)
+    assert small.cost((Q / 10)[small.free]).sum() == pytest.approx(expected / 100, rel=1e-9)
+    # without the anchor only the adjacent-frame differences remain
+    loose = SpaceTimeProblem(lev, P, fixed, w, n_samples=n, K=1, use_image_terms=False,
+                             length_anchor=0.0)
+    assert loose.cost(x).sum() == pytest.approx(0.5 * n * 2.0 * 2 * 10.0 ** 2, rel=1e-9)

@@ -3,7 +3,10 @@ import numpy as np
 import pytest
 
 from nnsf.track import curves
-from nnsf.track.metrics import curve_errors, edit_ratio, error_summary, pck, project_to_polyline
+from nnsf.track.metrics import (
+    curve_errors, edit_ratio, error_summary, length_ratio, pck, polygon_lengths,
+    project_to_polyline, reverse_errors, symmetric_summary,
+)
 from nnsf.track.toy import draw_polygons, rect, segment_controls
 
 
@@ -33,6 +36,42 @@ def test_curve_errors_zero_on_truth_and_equal_to_an_offset():
     padded = np.concatenate([shifted, np.full((1, 1, 1, 2), np.nan)], axis=2)
     np.testing.assert_allclose(curve_errors(padded, truth), 1.5, atol=1e-9)
     assert error_summary(np.array([1.0, 2.0, np.nan]))["mean_px"] == 1.5
+
+
+def test_symmetric_error_penalises_a_curve_shrunk_onto_the_truth():
+    # truth: the segment x = 0, y in [0, 40]; tracked: its upper half, lying on it
+    truth = curves.sample(np.array([[0.0, 0.0], [0.0, 40.0]]), 4001)[None, None]
+    half = np.array([[0.0, 0.0], [0.0, 20.0]])[None, None]
+    fwd = curve_errors(half, truth)
+    rev = reverse_errors(half, truth)
+    assert np.nanmax(fwd) < 1e-9                        # one-sided: a perfect score
+    # truth -> tracked: 0 on the covered half, y - 20 on the other: mean 20² / 2 / 40 = 5
+    assert np.nanmean(rev) == pytest.approx(5.0, abs=0.01)
+    s = symmetric_summary(fwd, rev)
+    assert s["mean_px"] < 1e-9 and s["mean_px_rev"] == pytest.approx(5.0, abs=0.01)
+    assert s["mean_px_sym"] == pytest.approx(2.5, abs=0.01)
+    assert s["p95_px_sym"] == pytest.approx(s["p95_px_rev"])
+    assert s["p95_px_rev"] == pytest.approx(18.0, abs=0.02)
+    # the full curve and a 1.5 px offset copy: both directions agree
+    full = np.array([[0.0, 0.0], [0.0, 40.0]])[None, None]
+    np.testing.assert_allclose(reverse_errors(full + [1.5, 0.0], truth), 1.5, atol=1e-9)
+    # NaN rows (no estimate) stay NaN
+    assert np.isnan(reverse_errors(np.full((1, 1, 2, 2), np.nan), truth)).all()
+
+
+def test_length_ratio_of_shrunk_and_padded_curves():
+    c = np.full((5, 2, 3, 2), np.nan)
+    seg = np.array([[0.0, 0.0], [0.0, 10.0], [0.0, 20.0]])
+    c[:, 0] = seg
+    c[:, 1, :2] = seg[:2] * 2                                     # a 2-point curve, NaN-padded
+    np.testing.assert_allclose(polygon_lengths(c[0]), [20.0, 20.0])
+    assert length_ratio(c, [0, 4]) == pytest.approx(1.0)
+    c[1:4] = c[1:4] * 0.5
+    assert length_ratio(c, [0, 4]) == pytest.approx(0.5)
+    # frames outside the keyframes are not in-between frames
+    c[0] = np.nan
+    # (keyframe 1 is a shrunk one: keyframe mean 15 px, in-between mean 10 px)
+    assert length_ratio(c, [1, 4]) == pytest.approx(10.0 / 15.0)
 
 
 def test_pck_counts_points_within_the_threshold():

@@ -7,7 +7,10 @@ a simulated user's edits).  The unknowns are the free control points; the
 residual blocks (each multiplied by sqrt(weight)) are
 
 * velocity   c_t(s_i) - c_{t+1}(s_i)                          (px)
-* length     |c_t'(s_i)|² - |c_{t+1}'(s_i)|²                   (px²)
+* length     h (|c_t'(s_i)| - |c_{t+1}'(s_i)|), h = n - 1         (px)
+* length anchor  h (|c_t'(s_i)| - ℓ_{t,i}) in the in-between frames, ℓ the
+             keyframes' |c'(s_i)| blended linearly in t (like κ below),
+             weight w_length · ``length_anchor``                (px)
 * curvature  c_t''(s_i) - c_{t+1}''(s_i)                        (px)
 * edge       D_t(c_t(s_i)), D = lightly smoothed distance to the nearest
              edge line (Canny, closed, thinned), capped (px).  Why this
@@ -24,6 +27,23 @@ residual blocks (each multiplied by sqrt(weight)) are
              between the interval's two keyframes (a palette is constant,
              but what lies on the far side of a limb may differ between
              the two keyframes).
+
+Why the length terms look like this.  Derivatives are per sample step, so
+|c'| ≈ L/(n-1) for a curve of length L.  The squared form of SPEC §1,
+|c_t'|² - |c_{t+1}'|², is then in px² of a sample step: ≈ 0.7 px² for a
+10 px Kenney limb side sampled 12 times, so halving that curve cost less
+than one unit, while the sketch and colour terms (weight 100 on 2K·3
+residuals per sample) gain far more by pulling the samples together onto
+the part of the edge whose ribbon matches best (uniform colour away from the
+joints): tracked curves shrank to 0.53 of their keyframe length.  Scaled by
+h = n - 1 and taken unsquared, the residual is the change of the curve's
+length in px, like the velocity and curvature residuals, and independent
+of the sample count.  Adjacent-frame differences alone still let a curve
+shrink a little per frame and grow back before the next keyframe; the
+anchor ties every in-between speed to the keyframes' (the keyframes are the
+user's statement of the limb's length), as κ ties the ribbon colours.
+Sample positions stay at fixed spline parameters, so the image terms
+themselves neither reward nor punish length; the shape terms must hold it.
 
 Images are sampled bilinearly; the Jacobian uses the exact derivative of
 the bilinear interpolant, and of the unit normal (R90 (I - t̂t̂ᵀ)/|t|).
@@ -198,13 +218,15 @@ class SpaceTimeProblem:
     frame0 : (G,) int, optional: index in ``images`` of each curve's frame
         t = 0, so curves of different keyframe intervals (of equal length)
         can share one problem; default 0 (``images`` holds the interval).
+    length_anchor : weight of the length anchor relative to ``weights.length``
+        (0 drops it: the adjacent-frame length term of Agarwala et al. alone).
 
     The unknown vector ``x`` holds the free entries of P (``P[free]`` order).
     """
 
     def __init__(self, images: LevelImages, P0: np.ndarray, fixed: np.ndarray, weights: Weights,
                  n_samples: int = 12, K: int = 3, use_image_terms: bool = True,
-                 frame0: np.ndarray | None = None):
+                 frame0: np.ndarray | None = None, length_anchor: float = 4.0):
         P0 = np.asarray(P0, dtype=np.float64)
         self.G, self.T, self.C, _ = P0.shape
         self.frame0 = np.zeros(self.G, np.intp) if frame0 is None else \
@@ -228,6 +250,11 @@ class SpaceTimeProblem:
         self.n_unknowns = int(self.free.sum())
         if self.image_terms:
             self.kappa = self._colour_targets()
+        self.length_anchor = float(length_anchor)
+        D1k = np.einsum("nc,gtcd->gtnd", self.B1, self.P0[:, [0, -1]])
+        spk = np.maximum(np.linalg.norm(D1k, axis=-1), 1e-3)               # (G, 2, n)
+        lam = (np.arange(1, self.T - 1) / (self.T - 1.0))[None, :, None]
+        self.ell = (1 - lam) * spk[:, :1] + lam * spk[:, 1:]               # (G, T-2, n)
         self._pattern = None
         # Kn[n, (j, d), (a, d')] = Bs[a, n, j] δ(d, d'): maps a ribbon row's (u, v) to columns
         Bs = np.stack([self.B0, self.B1])                                 # (2, n, C)
@@ -297,14 +324,24 @@ class SpaceTimeProblem:
             r = (s * (V[:, :-1] - V[:, 1:])).reshape(G, T - 1, 2 * n)
             J = lin(M, s) if jacobian else None
             out.append(Block(r, J, 0, None if J is None else -J))
-        # length
-        L = (D1 ** 2).sum(-1)
-        r = sL * (L[:, :-1] - L[:, 1:])
+        # length (see the module notes): (n-1)(|c_t'| - |c_{t+1}'|) between adjacent
+        # frames, and (n-1)(|c_t'| - ℓ_t) against the keyframes' blended speeds
+        h = float(n - 1)
+        tn = np.maximum(np.linalg.norm(D1, axis=-1), 1e-3)                 # (G, T, n)
+        jl = None
         if jacobian:
-            jl = (2 * sL * D1[..., None, :] * B1[None, None, :, :, None]).reshape(G, T, n, C2)
-            out.append(Block(r, jl[:, :-1], 0, -jl[:, 1:]))
-        else:
-            out.append(Block(r, None, 0))
+            jl = (h * (D1 / tn[..., None])[..., None, :] * B1[None, None, :, :, None]
+                  ).reshape(G, T, n, C2)
+        r = sL * h * (tn[:, :-1] - tn[:, 1:])
+        out.append(Block(r, None if jl is None else sL * jl[:, :-1], 0,
+                         None if jl is None else -sL * jl[:, 1:]))
+        if self.length_anchor > 0:
+            sA = np.sqrt(self.w.length * self.length_anchor)
+            # one residual per curve and frame: the whole length (mean speed), weighted
+            # by sqrt(n) so that it counts like n per-sample residuals
+            k = sA * np.sqrt(n)
+            r = k * h * (tn[:, 1:-1] - self.ell).mean(-1, keepdims=True)
+            out.append(Block(r, None if jl is None else k * jl[:, 1:-1].mean(2, keepdims=True), 1))
         # edge, in-between frames
         # e (G, T-2, n, 1), ge (G, T-2, n, 1, 2)
         tt = self._t(np.arange(1, T - 1), 1)
@@ -402,7 +439,7 @@ class SpaceTimeProblem:
         gr = (e.reshape(G, T, n, 1, R) @ U)[..., 0, :]             # (G,T,n,4)
         g += np.einsum("nja,gtna->gtj", Kn, gr)
         # per-frame weight of Jq_tᵀJq_t: sketch pairs touching t, plus colour
-        wt = np.full(T, 2 * wS)
+        wt = np.full(T, 2.0 * wS)
         wt[[0, -1]] = wS
         wt[1:-1] += wP
         Ut = np.swapaxes(U, -1, -2)

@@ -2,6 +2,15 @@
 
 * point-to-curve error: distance (px) of every tracked spline sample to the
   true side curve (a dense polyline), over the in-between frames;
+* its reverse, curve-to-point: distance of every dense true sample to the
+  tracked curve.  The forward direction alone rewards a tracker that shrinks
+  a curve onto the part of the true edge it matches best (every tracked
+  sample is then close to the truth); the reverse direction measures how
+  much of the true curve is left uncovered.  ``*_sym`` figures average the
+  two directions;
+* length ratio: mean control-polygon length of the in-between frames over
+  that of the keyframes (about 1 for limbs that keep their size; well
+  below 1 flags shrinking tracks);
 * key-point PCK at 0.05 × torso length (key points derived from the tracked
   curves by :mod:`nnsf.frames.keypoints`);
 * the simulated user's edit ratio (the paper's Fig. 4a): the user snaps the
@@ -76,6 +85,73 @@ def curve_errors(control: np.ndarray, truth: np.ndarray, n_samples: int = 32,
         if visible is not None:
             vis[sel] = np.take_along_axis(np.asarray(visible)[sel], k, -1)
     return out if visible is None else (out, vis)
+
+
+def reverse_errors(control: np.ndarray, truth: np.ndarray, n_samples: int = 64) -> np.ndarray:
+    """Curve-to-point error: distance (px) of every true sample to the tracked curve.
+
+    control : (T, N, P, 2) tracked control points (NaN-padded as for :func:`curve_errors`).
+    truth   : (T, N, S, 2) dense true side curves, same curve order.
+    The tracked curve is sampled at ``n_samples`` points as a polyline.
+    Returns (T, N, S) distances (NaN where the curve has no estimate).
+    """
+    control = np.asarray(control, np.float64)
+    truth = np.asarray(truth, np.float64)
+    T, N, P, _ = control.shape
+    valid = np.isfinite(control).all(-1)
+    counts = valid.sum(-1)
+    out = np.full((T, N, truth.shape[2]), np.nan)
+    for cnt in np.unique(counts[counts >= 2]):
+        sel = counts == cnt
+        S = curves.sample(control[sel][:, :cnt], n_samples)
+        out[sel] = _project(truth[sel], S)[0]
+    return out
+
+
+def symmetric_summary(forward: np.ndarray, reverse: np.ndarray) -> dict[str, float]:
+    """Both directions of the point-to-curve error and their symmetric combination.
+
+    ``mean_px``/``p95_px``: tracked -> truth (:func:`curve_errors`);
+    ``mean_px_rev``/``p95_px_rev``: truth -> tracked (:func:`reverse_errors`);
+    ``mean_px_sym`` = the mean of the two means, ``p95_px_sym`` = the larger
+    of the two 95th percentiles (a robust Hausdorff distance).
+    """
+    f, r = error_summary(forward), error_summary(reverse)
+    return {**f, "mean_px_rev": r["mean_px"], "p95_px_rev": r["p95_px"],
+            "mean_px_sym": 0.5 * (f["mean_px"] + r["mean_px"]),
+            "p95_px_sym": max(f["p95_px"], r["p95_px"])}
+
+
+def polygon_lengths(control: np.ndarray) -> np.ndarray:
+    """Control-polygon length (px) per row: (..., P, 2) -> (...); NaN-padded points skipped.
+
+    A row with fewer than two finite points has NaN length.
+    """
+    c = np.asarray(control, np.float64)
+    seg = np.linalg.norm(np.diff(c, axis=-2), axis=-1)
+    n_ok = np.isfinite(c).all(-1).sum(-1)
+    return np.where(n_ok >= 2, np.nansum(seg, -1), np.nan)
+
+
+def length_ratio(control: np.ndarray, keyframes) -> float:
+    """Mean control-polygon length of the in-between frames over the keyframes' mean.
+
+    control : (T, N, P, 2) (NaN rows ignored); keyframes : frame indices.
+    Frames outside the first and last keyframe are not in-between frames.
+    """
+    L = polygon_lengths(control)                                    # (T, N)
+    keys = sorted(int(k) for k in keyframes)
+    T = L.shape[0]
+    kf = np.zeros(T, bool)
+    kf[keys] = True
+    inb = ~kf
+    inb[: keys[0]] = False
+    inb[keys[-1] + 1:] = False
+    a, b = L[inb], L[kf]
+    a, b = a[np.isfinite(a)], b[np.isfinite(b)]
+    if a.size == 0 or b.size == 0 or b.mean() <= 0:
+        return float("nan")
+    return float(a.mean() / b.mean())
 
 
 def error_summary(err: np.ndarray) -> dict[str, float]:

@@ -8,6 +8,15 @@ before tracking.  Score: the share of tracked outline samples within
 ``tol`` px of the silhouette boundary (where a limb lies over the body its
 true edge is a colour edge, not the silhouette, so no tracker reaches 1;
 the annotated keyframes' own score is the ceiling to compare with).
+
+The score only looks from the tracked curves to the silhouette, so a curve
+shrunk onto the part of the outline it matches best scores well.  Two
+figures guard against that: the **coverage**, the silhouette length within
+``tol`` px of the tracked curves in an in-between frame over the same
+length for the annotated curves in the keyframes (≈ 1 when the tracks cover
+as much outline as the annotation; lower when they shrink), and the
+**length ratio**, the in-between frames' mean control-polygon length over
+the keyframes' (:func:`nnsf.track.metrics.length_ratio`).
 """
 from __future__ import annotations
 
@@ -62,6 +71,54 @@ def score_silhouette(control: np.ndarray, alpha: np.ndarray, tol: float = 1.5,
     return float(h.mean()) if h.size else float("nan")
 
 
+def covered_boundary(control: np.ndarray, alpha: np.ndarray, tol: float = 1.5,
+                     n_samples: int = 64) -> float:
+    """Silhouette outline length (px) within ``tol`` px of one frame's curves.
+
+    control : (N, P, 2) control points (NaN-padded rows/curves skipped);
+    alpha : (H, W).  Each curve is sampled as a polyline of ``n_samples``
+    points; the boundary points (about 0.25 px apart, see
+    :func:`silhouette_boundary`) closer than ``tol`` to any curve are counted
+    and weighted by their spacing along the traced boundary.
+    """
+    from nnsf.track.metrics import _project
+
+    pts = silhouette_boundary(alpha)
+    if len(pts) < 2:
+        return 0.0
+    # length element of each boundary point: half its two neighbour gaps (contours are
+    # closed; at a jump between contours the gap is capped at the nominal spacing)
+    gap = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    gap = np.where(gap > 2.0 / _UP, 1.0 / _UP, gap)
+    ds = 0.5 * (np.concatenate([gap, [gap[-1]]]) + np.concatenate([[gap[0]], gap]))
+    near = np.zeros(len(pts), bool)
+    for c in np.asarray(control, np.float64):
+        ok = np.isfinite(c).all(-1)
+        if ok.sum() < 2:
+            continue
+        poly = curves.sample(c[: int(ok.sum())], n_samples)
+        lo, hi = poly.min(0) - tol, poly.max(0) + tol
+        box = np.flatnonzero(((pts >= lo) & (pts <= hi)).all(1) & ~near)
+        if box.size:
+            d = _project(pts[box], poly)[0]
+            near[box[d <= tol]] = True
+    return float(ds[near].sum())
+
+
+def coverage(control: np.ndarray, alpha: np.ndarray, keyframes, tol: float = 1.5) -> float:
+    """Covered outline of the in-between frames over that of the annotated keyframes.
+
+    control : (T, N, P, 2) with the keyframes' rows equal to the annotation;
+    alpha : (T, H, W); keyframes : frame indices.  The mean over in-between
+    frames of :func:`covered_boundary` divided by its mean over the keyframes.
+    """
+    kf = np.zeros(len(control), bool)
+    kf[list(keyframes)] = True
+    cov = np.array([covered_boundary(c, a, tol) for c, a in zip(control, alpha)])
+    ref = cov[kf].mean() if kf.any() else float("nan")
+    return float(cov[~kf].mean() / ref) if ref > 0 and (~kf).any() else float("nan")
+
+
 def _hits(control, alpha, tol, n_samples) -> np.ndarray:
     tree = cKDTree(silhouette_boundary(alpha))
     out = []
@@ -98,10 +155,12 @@ def track_kenney(data_root, annotations_dir, methods=("ours", "agarwala", "lk"),
     data_root : the ``kenney-toon`` folder; annotations_dir : folder with
     ``<character>.annotation.json``.  Characters without an annotation are
     skipped.  Returns a table (character, tracker, score over the in-between
-    frames, keyframe score = the annotation's own score) and
+    frames, keyframe score = the annotation's own score, coverage and
+    length ratio, see the module notes) and
     ``{(character, tracker): (T, N, P, 2) control}`` for figures.
     """
     from nnsf.frames.annotation import read_annotation
+    from nnsf.track.metrics import length_ratio
     from nnsf.track.solve import track_clip
 
     rows, tracked = [], {}
@@ -119,6 +178,8 @@ def track_kenney(data_root, annotations_dir, methods=("ours", "agarwala", "lk"),
             rows.append({"character": ch, "tracker": m,
                          "score": score_silhouette(control[inb], alpha[inb], tol),
                          "keyframe_score": score_silhouette(control[~inb], alpha[~inb], tol),
+                         "coverage": coverage(control, alpha, ann.keyframe_indices, tol),
+                         "length_ratio": length_ratio(control, ann.keyframe_indices),
                          "frames": int(inb.sum())})
     return pd.DataFrame(rows), tracked
 
@@ -128,7 +189,8 @@ def kenney_report(data_root, annotations_dir, out_dir, tol: float = 1.5, **optio
 
     Writes ``<out_dir>/tracking_kenney.csv`` (character × tracker scores),
     ``<out_dir>/tracking_kenney.json`` (per tracker: mean score over the
-    characters, and the mean keyframe ceiling) and
+    characters under ``trackers``, mean coverage and length ratio under
+    ``coverage`` and ``length_ratio``, and the mean keyframe ceiling) and
     ``<out_dir>/figures/tracking_kenney.png`` (the tracked outlines of the first
     character on four in-between frames).  Returns the JSON summary.
     """
@@ -148,6 +210,8 @@ def kenney_report(data_root, annotations_dir, out_dir, tol: float = 1.5, **optio
         "tol_px": tol,
         "characters": sorted(table["character"].unique()),
         "trackers": {m: float(g["score"].mean()) for m, g in table.groupby("tracker")},
+        "coverage": {m: float(g["coverage"].mean()) for m, g in table.groupby("tracker")},
+        "length_ratio": {m: float(g["length_ratio"].mean()) for m, g in table.groupby("tracker")},
         "ceiling": float(table.groupby("character")["keyframe_score"].first().mean()),
     }
     write_csv(out_dir / "tracking_kenney.csv", table)

@@ -47,7 +47,11 @@ SOLVERS = ("lm", "scipy")
 class TrackOptions:
     """Every tunable of the trackers (the lead maps them to params.yaml ``track:``).
 
-    Weights multiply squared residuals (see :mod:`nnsf.track.energy`); ``K``
+    Weights multiply squared residuals (see :mod:`nnsf.track.energy`);
+    ``length_anchor`` weighs the anchor of the curve's length to the keyframes
+    relative to ``length`` (not in params.yaml; 4 measured on the Kenney walk
+    cycles: in-between lengths 0.97 of the keyframes', 0 restores the
+    adjacent-frame term alone, 0.84 there); ``K``
     is the ribbon half-width in samples of 1 px (of each pyramid level);
     ``levels`` the pyramid depth (1 = full resolution only).
     """
@@ -73,9 +77,10 @@ class TrackOptions:
     lk_window: int = 21
     lk_levels: int = 3
     lk_end: str = "blend"
+    length_anchor: float = 4.0
 
     def __post_init__(self):
-        for name in ("velocity", "length", "curvature", "edge", "sketch", "colour",
+        for name in ("velocity", "length", "curvature", "edge", "sketch", "colour", "length_anchor",
                      "colour_sigma", "edge_sigma", "edge_cap", "max_step"):
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0:
@@ -219,7 +224,8 @@ def solve_interval(pyramid: list[LevelImages], P: np.ndarray, fixed: np.ndarray,
         L = pyramid[lev]
         Pl = _to_level(P, L.scale)
         prob = SpaceTimeProblem(L, Pl, fixed, w, n_samples=opts.n_samples, K=opts.K,
-                                use_image_terms=use_image_terms, frame0=frame0)
+                                use_image_terms=use_image_terms, frame0=frame0,
+                                length_anchor=opts.length_anchor)
         if opts.solver == "lm":
             x, _ = levenberg_marquardt(prob, prob.x0(), max_iter=opts.max_nfev, ftol=opts.ftol,
                                       max_step=opts.max_step)

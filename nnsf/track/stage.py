@@ -164,7 +164,7 @@ def _evaluate_item(item: dict) -> dict:
     """All metrics of one (clip, tracker) pair (module-level, picklable)."""
     from nnsf.frames.keypoints import fit_keypoint_model, keypoints_from_curves
     from nnsf.skeleton import JOINT_INDEX
-    from nnsf.track.metrics import curve_errors, edit_ratio, pck
+    from nnsf.track.metrics import curve_errors, edit_ratio, length_ratio, pck, reverse_errors
 
     clip, method = item["clip"], item["method"]
     try:
@@ -179,13 +179,15 @@ def _evaluate_item(item: dict) -> dict:
         inb[ann.keyframe_indices] = False
         err, vis = curve_errors(control[inb], truth["sides"][inb][:, idx],
                                 visible=truth["visible"][inb][:, idx])
+        rev = reverse_errors(control[inb], truth["sides"][inb][:, idx])
         model = fit_keypoint_model(ann)
         kp = keypoints_from_curves(control, names, model)
         tk = truth["keypoints"]
         torso = np.linalg.norm(tk[:, JOINT_INDEX["thorax"]] - tk[:, JOINT_INDEX["pelvis"]], axis=-1)
         score = pck(kp[inb], tk[inb], torso[inb], 0.05)
         return {"ok": True, "clip": clip, "method": method, "errors": err[np.isfinite(err)],
-                "errors_visible": err[np.isfinite(err) & vis], "pck": score,
+                "errors_visible": err[np.isfinite(err) & vis], "errors_rev": rev[np.isfinite(rev)],
+                "length_ratio": length_ratio(control, ann.keyframe_indices), "pck": score,
                 "edit_ratio": res["edit_ratio"], "edits": res["edits"],
                 "control_points": res["control_points"], "capped_curves": res["capped_curves"],
                 "control": control if item["keep"] else None, "names": names}
@@ -199,14 +201,18 @@ def evaluate_tracking(params: dict, frames_dir=FRAMES_DIR, reports=REPORTS, mapp
     Reads ``track`` options, ``track.eval_clips`` (how many clips, in index
     order, that have a ``truth.npz``), ``track.edit_tol_px`` and
     ``track.max_edits``.  Writes ``<reports>/tracking.json`` (per tracker:
-    mean_px, p95_px, mean_px_visible, p95_px_visible, pck, edit_ratio, clips),
+    mean_px, p95_px (tracked -> truth), mean_px_rev, p95_px_rev (truth ->
+    tracked), mean_px_sym, p95_px_sym (both; see
+    :func:`nnsf.track.metrics.symmetric_summary`), mean_px_visible,
+    p95_px_visible, length_ratio (in-between over keyframe curve length,
+    mean over clips), pck, edit_ratio, clips),
     ``<reports>/tracking.csv`` (per clip × tracker) and
     ``<reports>/figures/tracking_overlay.png`` (first evaluated clip).
     """
     from nnsf.frames.stage import read_index
     from nnsf.stages import StageResult
     from nnsf.track.figures import tracking_overlay
-    from nnsf.track.metrics import error_summary
+    from nnsf.track.metrics import error_summary, symmetric_summary
 
     src = source_of(params)
     options = track_options(params)
@@ -236,19 +242,23 @@ def evaluate_tracking(params: dict, frames_dir=FRAMES_DIR, reports=REPORTS, mapp
     for m in TRACKERS:
         mine = [r for r in ok if r["method"] == m]
         for r in mine:
-            table.append({"clip": r["clip"], "tracker": m, **error_summary(r["errors"]),
+            table.append({"clip": r["clip"], "tracker": m,
+                          **symmetric_summary(r["errors"], r["errors_rev"]),
                           **{k + "_visible": v for k, v in error_summary(r["errors_visible"]).items()},
-                          "pck": r["pck"], "edit_ratio": r["edit_ratio"], "edits": r["edits"],
+                          "length_ratio": r["length_ratio"], "pck": r["pck"],
+                          "edit_ratio": r["edit_ratio"], "edits": r["edits"],
                           "control_points": r["control_points"],
                           "capped_curves": r["capped_curves"]})
         if not mine:
             continue
         allerr = np.concatenate([r["errors"] for r in mine])
         allvis = np.concatenate([r["errors_visible"] for r in mine])
+        allrev = np.concatenate([r["errors_rev"] for r in mine])
         edits = sum(r["edits"] for r in mine)
         slots = sum(r["control_points"] for r in mine)
-        summary[m] = {**error_summary(allerr),
+        summary[m] = {**symmetric_summary(allerr, allrev),
                       **{k + "_visible": v for k, v in error_summary(allvis).items()},
+                      "length_ratio": float(np.mean([r["length_ratio"] for r in mine])),
                       "pck": float(np.mean([r["pck"] for r in mine])),
                       "edit_ratio": edits / slots if slots else float("nan"),
                       "clips": len(mine)}
