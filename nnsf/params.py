@@ -89,6 +89,7 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "track.method": _choice(TRACKERS),
     "track.w_velocity": _num(0),
     "track.w_length": _num(0),
+    "track.w_length_anchor": _num(0),
     "track.w_curvature": _num(0),
     "track.w_edge": _num(0),
     "track.w_sketch": _num(0),

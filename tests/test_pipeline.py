@@ -62,6 +62,7 @@ track:
   method: ours
   w_velocity: 3.0
   w_length: 1.0
+  w_length_anchor: 4.0
   w_curvature: 1.0
   w_edge: 1.0
   w_sketch: 100.0

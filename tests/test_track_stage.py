@@ -13,7 +13,7 @@ from nnsf.frames.stage import read_tracks, render_frames
 from nnsf.io import read_json
 from nnsf.track.stage import evaluate_tracking, track_clips
 
-TRACK = {"method": "ours", "w_velocity": 3.0, "w_length": 1.0, "w_curvature": 1.0, "w_edge": 1.0,
+TRACK = {"method": "ours", "w_velocity": 3.0, "w_length": 1.0, "w_length_anchor": 4.0, "w_curvature": 1.0, "w_edge": 1.0,
          "w_sketch": 100.0, "w_colour": 100.0, "window": 3, "samples": 12, "levels": 2,
          "max_iter": 15, "init": "linear", "lk_end": "blend", "eval_clips": 1,
          "edit_tol_px": 2.0, "max_edits": 3}

@@ -33,6 +33,7 @@ TRACKERS = ("ours", "agarwala", "lk")
 OPTION_PARAMS: dict[str, tuple[str, str, float]] = {
     "w_velocity": ("velocity", "num", 0.0),
     "w_length": ("length", "num", 0.0),
+    "w_length_anchor": ("length_anchor", "num", 0.0),
     "w_curvature": ("curvature", "num", 0.0),
     "w_edge": ("edge", "num", 0.0),
     "w_sketch": ("sketch", "num", 0.0),
