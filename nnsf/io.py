@@ -11,6 +11,7 @@ import json
 import os
 import shutil
 import tempfile
+from glob import escape as glob_escape
 from pathlib import Path
 from typing import Iterator, Mapping
 
@@ -42,6 +43,20 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+    _drop_stale(path)
+
+
+def _drop_stale(path: Path) -> None:
+    """Remove temporaries of ``path`` left by a writer that was killed (SIGKILL skips cleanup).
+
+    They are named ``.<name>.<random>…`` beside ``path``; one output has one
+    writer at a time (DVC locks the stage), so any such sibling is stale.
+    """
+    for stale in path.parent.glob(f".{glob_escape(path.name)}.*"):
+        if stale.is_dir() and not stale.is_symlink():
+            shutil.rmtree(stale, ignore_errors=True)
+        else:
+            stale.unlink(missing_ok=True)
 
 
 @contextlib.contextmanager
@@ -63,6 +78,7 @@ def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+    _drop_stale(path)
 
 
 def write_json(path, obj: Mapping) -> None:

@@ -49,3 +49,23 @@ def test_read_json_names_file_and_line(tmp_path):
     path.write_text('{"a": 1,\n "b": }\n')
     with pytest.raises(InputError, match=r"bad.json: line 2: expected valid JSON"):
         read_json(path)
+
+
+def test_a_killed_writers_temporary_is_removed_by_the_next_write(tmp_path):
+    """SIGKILL skips cleanup; the next successful write of the same output removes what it left."""
+    from nnsf.io import atomic_dir, write_json
+
+    target = tmp_path / "metrics.json"
+    stale = tmp_path / ".metrics.json.abc123.json"
+    stale.write_text("half")
+    other = tmp_path / ".other.json.abc123.json"      # another output's temporary stays
+    other.write_text("x")
+    write_json(target, {"a": 1})
+    assert not stale.exists() and other.exists() and target.exists()
+
+    stale_dir = tmp_path / ".tracks.xyz"
+    stale_dir.mkdir()
+    (stale_dir / "part.npz").write_bytes(b"half")
+    with atomic_dir(tmp_path / "tracks") as tmp:
+        (tmp / "a.txt").write_text("done")
+    assert not stale_dir.exists() and (tmp_path / "tracks" / "a.txt").read_text() == "done"

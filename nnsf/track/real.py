@@ -222,7 +222,7 @@ def kenney_report(data_root, annotations_dir, out_dir, tol: float = 1.5, **optio
     inb = [t for t in range(len(frames)) if t not in set(ann.keyframe_indices)]
     show = [inb[i] for i in np.unique(np.linspace(0, len(inb) - 1, 4).round().astype(int))]
     tracking_overlay(frames, {m: c for (ch, m), c in tracked.items() if ch == first}, None, show,
-                     out_dir / "figures" / "tracking_kenney.png", crop_margin=4,
+                     out_dir / "figures" / "tracking_kenney.png", crop_margin=200,
                      title=f"{first} (Kenney toon): tracked outlines between keyframes "
                            f"{ann.keyframe_indices}")
     return summary
