@@ -11,8 +11,10 @@ per-cell evaluation) goes through two functions:
 ``NNSF_TASK_RUNNER`` selects the runner:
 
 - ``threads`` (default): :class:`prefect.task_runners.ThreadPoolTaskRunner`.
-  The work is numpy/scipy, which releases the GIL, so threads use the cores
-  without copying the inputs into other processes.
+  Threads start at once and copy nothing.  numpy releases the GIL inside
+  its products, but the default dataset's fits are small (about 9,000 x 34)
+  and hold it between them, so two threads gain little over one there
+  (README, Benchmarks); Dask or processes pay off for larger items.
 - ``processes``: :class:`prefect.task_runners.ProcessPoolTaskRunner`.
 - ``dask``: ``prefect_dask.DaskTaskRunner``.  ``NNSF_DASK_ADDRESS``
   (``tcp://host:8786``) submits to an existing Dask scheduler; without it a

@@ -161,7 +161,9 @@ class Mesh:
     #: Key points pinning each piece, one tuple per name in ``piece_names``.
     piece_keypoints: tuple[tuple[int, ...], ...] | None = None
     #: Texture layer per triangle ``(t,)``: 0 the drawing, 1 the inpainted
-    #: underlay (body triangles under a limb drawn over the body).
+    #: underlay (body triangles under a limb drawn over the body), 2 the
+    #: body's outline only (copies of a limb's triangles on the body's ink rim,
+    #: textured with the body's drawn regions and the ink, see ``render.rim_texture``).
     layer: np.ndarray | None = None
     #: For a collar copy (:func:`layer_pieces`) the part id of the parent it
     #: overlaps, else −1, ``(t,)``; a renderer draws a collar just before its
@@ -630,7 +632,7 @@ def build_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int = 800, s
     vertices, triangles, h = triangulate_mask(mask, n_vertices=n_vertices, cuts=cut_segments(cuts),
                                               **kwargs)
     parts = label_parts(vertices, triangles, kp)
-    region_body = None
+    region_body = body_rim = None
     if layered:
         capsule = label_parts(vertices, triangles, kp, limb_radii(mask, kp) + 0.5 * h)
         # A limb the capsules leave without triangles (thin, on a coarse mesh)
@@ -639,12 +641,13 @@ def build_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int = 800, s
         parts = np.where(np.isin(parts, empty), parts, capsule)
         if texture is not None:
             region_body = body_region_triangles(vertices, triangles, kp, texture, mask)
+            body_rim = ink_rim_triangles(vertices, triangles, region_body, kp, texture, mask)
             parts = np.where(region_body & (parts >= 2), label_parts(vertices, triangles, kp, np.zeros(8) - 1),
                              parts)
     mesh = Mesh(vertices=vertices, triangles=triangles, parts=parts, spacing=h)
     if layered:
         return layer_pieces(mesh, kp, mask, collar=collar, cuts=cuts, whole_limbs=split == "limbs",
-                            body_triangles=region_body)
+                            body_triangles=region_body, body_rim=body_rim)
     return split_pieces(mesh, kp) if split in (True, "split") else mesh
 
 
@@ -679,7 +682,7 @@ def drawn_regions(texture: np.ndarray, mask: np.ndarray, ink: float = 0.55, min_
     return out
 
 
-def body_region_triangles(vertices, triangles, keypoints, texture, mask) -> np.ndarray:
+def body_region_triangles(vertices, triangles, keypoints, texture, mask, pixels: bool = False) -> np.ndarray:
     """Triangles ``(t,)`` that lie in a region of the drawing (:func:`drawn_regions`) that is the body's only.
 
     A region is the body's when it holds a point of the spine or neck
@@ -687,6 +690,7 @@ def body_region_triangles(vertices, triangles, keypoints, texture, mask) -> np.n
     the limb's outer bone (upper segment λ ∈ [0.6, 0.95], lower segment
     λ ∈ [0.1, 0.9]).  A region that is both (a limb not separated from the
     body by a line, as in many sketches) says nothing and is not returned.
+    ``pixels``: return the pixels ``(H, W)`` of those regions instead.
     """
     kp = np.asarray(keypoints, dtype=np.float64)
     lab = drawn_regions(texture, mask)
@@ -706,8 +710,57 @@ def body_region_triangles(vertices, triangles, keypoints, texture, mask) -> np.n
         upper = "upper" in name or "thigh" in name
         limb |= regions_along(a, b, *((0.6, 0.95) if upper else (0.1, 0.9)))
     only_body = np.array(sorted(body - limb), dtype=np.int64)
+    if pixels:
+        return np.isin(lab, only_body)
     c = np.asarray(vertices)[np.asarray(triangles)].mean(axis=1)
     return np.isin(_lookup(lab, c), only_body)
+
+
+def ink_pixels(texture, mask, ink: float = 0.55) -> np.ndarray:
+    """Ink of a drawing ``(H, W)`` bool: mask pixels darker than ``ink`` × the mask's median luminance."""
+    m = np.asarray(mask, dtype=bool)
+    lum = np.asarray(texture)[..., :3].astype(np.float64) @ np.array([0.299, 0.587, 0.114])
+    return m & (lum < ink * np.median(lum[m])) if m.any() else m.copy()
+
+
+def body_line(keypoints, texture, mask, ink: float = 0.55) -> np.ndarray:
+    """The body's drawing with its own outline, ``(H, W)`` bool.
+
+    The body's drawn regions (:func:`body_region_triangles`) plus the ink
+    within one line width of them; the width is twice the ink's typical
+    (90th percentile) medial distance, plus a pixel.  :func:`drawn_regions`
+    splits a line between the body and a limb down its middle, so without
+    this the limb would take the outer half of the body's outline.
+    """
+    m = np.asarray(mask, dtype=bool)
+    body = body_region_triangles(None, None, keypoints, texture, m, pixels=True)
+    dark = ink_pixels(texture, m, ink)
+    if not dark.any() or not body.any():
+        return body
+    dist = cv2.distanceTransform(np.pad(dark.astype(np.uint8), 1), cv2.DIST_L2, 3)[1:-1, 1:-1]
+    width = 2.0 * float(np.percentile(dist[dark], 90)) + 1.0
+    near = cv2.distanceTransform((~body).astype(np.uint8), cv2.DIST_L2, 3) <= width
+    return body | (dark & near)
+
+
+def ink_rim_triangles(vertices, triangles, body_triangles, keypoints, texture, mask) -> np.ndarray:
+    """Triangles ``(t,)`` not in ``body_triangles`` that cover a pixel of the body's outline (:func:`body_line`).
+
+    :func:`layer_pieces` gives the body a copy of those a limb owns, textured
+    with :func:`body_line` only (``Mesh.layer`` 2), so a limb swung away
+    leaves the body outlined instead of notched.
+    """
+    tri = np.asarray(triangles)
+    bt = np.asarray(body_triangles, dtype=bool)
+    line = body_line(keypoints, texture, mask)
+    owner = np.full(line.shape, -1, np.int32)
+    V = np.rint(np.asarray(vertices)).astype(np.int32)
+    for k in np.flatnonzero(~bt):
+        cv2.fillPoly(owner, [V[tri[k]]], int(k))
+    hit = np.unique(owner[line & (owner >= 0)])
+    out = np.zeros(len(tri), dtype=bool)
+    out[hit] = True
+    return out & ~bt
 
 
 def _limb_half_width(mask: np.ndarray, keypoints: np.ndarray, a: int, b: int) -> float:
@@ -805,7 +858,7 @@ def _relabel_at_cuts(triangles, vertices, pieces, cuts) -> np.ndarray:
 
 def layer_pieces(mesh: Mesh, keypoints: np.ndarray, mask: np.ndarray, collar: float = 1.0,
                  cuts=None, underlay_shrink: float = 0.85, whole_limbs: bool = False,
-                 body_triangles=None) -> Mesh:
+                 body_triangles=None, body_rim=None) -> Mesh:
     """Cut a connected mesh into :data:`SEGMENTS` that overlap, so limbs neither fold nor tear.
 
     * every limb segment (upper arm, forearm, thigh, shin) and the body
@@ -829,7 +882,13 @@ def layer_pieces(mesh: Mesh, keypoints: np.ndarray, mask: np.ndarray, collar: fl
       body with ``layer`` 1; a
       renderer textures them from an inpainted drawing (the body as it would
       look without the limb), so a limb drawn across the chest leaves no
-      hole when it moves away.
+      hole when it moves away;
+    * **rim**: limb triangles covering the body's own outline
+      (``body_rim``, from :func:`ink_rim_triangles`) are copied into the
+      body with ``layer`` 2 (textured with :func:`body_line` only, drawn
+      before every part), so a limb swung away leaves the body outlined.
+      Shoulder and hip collars leave out ``body_triangles``: a cap cut from
+      the torso's own drawing would carry torso fill out with the limb.
 
     Vertices are then duplicated per piece as in :func:`split_pieces`.
 
@@ -867,6 +926,12 @@ def layer_pieces(mesh: Mesh, keypoints: np.ndarray, mask: np.ndarray, collar: fl
         u, v = rel @ dh, -(rel @ cut["normal"])
         depth_ = collar * cut.get("collar", 1.0) * R
         near = (seg == parent) & (v >= 0) & ((u / max(R, 1e-12)) ** 2 + (v / max(depth_, 1e-12)) ** 2 < 1)
+        if body_triangles is not None and parent == 0 and child != len(SEGMENTS) - 1:
+            # Where the drawing outlines the limb apart from the body, a cap
+            # cut from the body's drawing would carry torso fill and ink out
+            # with the limb (loose fragments beside a raised arm): the limb's
+            # own drawn end is its cap.
+            near &= ~np.asarray(body_triangles, dtype=bool)
         if not near.any():
             continue
         # Keep only collar triangles connected (through the collar) to the child.
@@ -899,6 +964,21 @@ def layer_pieces(mesh: Mesh, keypoints: np.ndarray, mask: np.ndarray, collar: fl
     # an underlay would show as an inkless bump once the limb moves away.
     edge = cv2.distanceTransform(np.pad(mask.astype(np.uint8), 1), cv2.DIST_L2, 5)[1:-1, 1:-1]
     inside &= _lookup(edge, centroids) > 2.0 * mesh.spacing
+    if body_rim is not None:
+        # The body's outline where it meets a limb (:func:`ink_rim_triangles`)
+        # belongs to both: the limb keeps it, the body gets a copy, so a limb
+        # swung away leaves the body's silhouette outlined, not notched.
+        rim = np.asarray(body_rim, dtype=bool) & (seg != 0) & (seg != len(SEGMENTS) - 1)
+        if rim.any():
+            use = rim | (seg == 0)
+            ok = use[a] & use[b]
+            labels = _components(len(tri0), a[ok], b[ok])
+            rim &= np.isin(labels, np.unique(labels[seg == 0]))
+            idx = np.flatnonzero(rim)
+            extra_tri.append(tri0[idx])
+            extra_piece.append(np.zeros(len(idx), np.int64))
+            extra_part.append(np.full(len(idx), PART_INDEX["torso"]))
+            extra_layer.append(np.full(len(idx), 2, np.int64))
     under = inside & (seg != 0)
     if under.any():
         # Keep underlay triangles connected to the body's own triangles.

@@ -50,7 +50,7 @@ class MeshRenderer:
     """
 
     def __init__(self, rest_vertices, triangles, parts, texture, mask=None, size=None,
-                 layer=None, underlay=None, behind=None):
+                 layer=None, underlay=None, behind=None, rim=None):
         self.uv = np.asarray(rest_vertices, dtype=np.float64)
         self.triangles = np.asarray(triangles, dtype=np.int64)
         self.parts = np.asarray(parts, dtype=np.int64)
@@ -65,15 +65,23 @@ class MeshRenderer:
             # does not bleed the drawing's background colour into the result.
             return np.dstack([t[..., :3].astype(np.float32) * alpha[..., None], alpha])
 
-        # Layer-1 triangles (a layered mesh's underlay) sample a second
-        # texture placed to the right of the first in one atlas: one remap.
+        # Layer-k triangles (a layered mesh's underlay, k = 1, and body rim,
+        # k = 2) sample the k-th texture of one atlas, placed side by side: one
+        # remap.  A layer without its texture samples the drawing.
         self.layer = (np.zeros(len(self.triangles), np.int64) if layer is None
-                      else np.asarray(layer, dtype=np.int64))
-        if underlay is not None and self.layer.any():
-            self._tex = np.hstack([premultiplied(tex), premultiplied(np.asarray(underlay))])
-        else:
-            self._tex = premultiplied(tex)
-            self.layer = np.zeros(len(self.triangles), np.int64)
+                      else np.asarray(layer, dtype=np.int64).copy())
+        # Rim copies (layer 2) are drawn before every part: they show only
+        # where nothing else is drawn (where a limb has moved away), and their
+        # transparent texels never hide a limb.
+        rim_first = self.layer == 2
+        extra = {1: underlay, 2: rim}
+        for k in range(1, 3):
+            if extra[k] is None:
+                self.layer[self.layer == k] = 0
+        n_layers = int(self.layer.max()) + 1 if len(self.layer) else 1
+        base = premultiplied(tex)
+        self._tex = np.hstack([base] + [premultiplied(np.asarray(extra[k])) if extra[k] is not None else base
+                                        for k in range(1, n_layers)]) if n_layers > 1 else base
         self._shift = self.layer.astype(np.float64) * W
         self._tex8 = np.clip(np.rint(self._tex * np.array([1, 1, 1, 255], np.float32)), 0, 255).astype(np.uint8)
         self.size = tuple(size) if size is not None else (H, W)
@@ -83,17 +91,21 @@ class MeshRenderer:
         behind = (np.full(len(self.triangles), -1, np.int64) if behind is None
                   else np.asarray(behind, dtype=np.int64))
         P = len(PARTS)
-        self._order = [np.concatenate([np.flatnonzero(behind == p), np.flatnonzero((self.parts == p) & (behind < 0))])
+        own = (behind < 0) & ~rim_first
+        self._order = [np.concatenate([np.flatnonzero(behind == p), np.flatnonzero((self.parts == p) & own)])
                        for p in range(P)]
-        # Draw groups: collars before part p get group 2p, part p's own 2p + 1.
-        self._group = np.where(behind >= 0, 2 * behind, 2 * self.parts + 1)
+        self._first = [np.flatnonzero((self.parts == p) & (behind < 0) & rim_first) for p in range(P)]
+        # Draw groups: rim copies −1, collars before part p 2p, part p's own 2p + 1.
+        self._group = np.where(behind >= 0, 2 * behind, np.where(rim_first, -1, 2 * self.parts + 1))
 
     @classmethod
     def for_mesh(cls, mesh, character, size=None) -> "MeshRenderer":
         """A renderer for ``mesh`` (:class:`~nnsf.reshape.mesh.Mesh`) of ``character``, with its underlay."""
-        underlay = underlay_texture(character.texture, character.mask, mesh) if mesh.layer.any() else None
+        underlay = underlay_texture(character.texture, character.mask, mesh) if (mesh.layer == 1).any() else None
+        rim = (rim_texture(character.texture, character.mask, character.keypoints)
+               if (mesh.layer == 2).any() else None)
         return cls(mesh.vertices, mesh.triangles, mesh.parts, character.texture, character.mask,
-                   size=size, layer=mesh.layer, underlay=underlay, behind=mesh.collar)
+                   size=size, layer=mesh.layer, underlay=underlay, behind=mesh.collar, rim=rim)
 
     def _raster(self, V: np.ndarray, order):
         """Covered pixel runs ``(y, x_first, length, triangle)``, each ``(r,)``, nearest part last.
@@ -104,7 +116,8 @@ class MeshRenderer:
         only the runs are expanded into pixels.
         """
         H, W = self.size
-        sel = np.concatenate([np.zeros(0, np.int64)] + [self._order[p] for p in order])
+        sel = np.concatenate([np.zeros(0, np.int64)] + [self._first[p] for p in order]
+                             + [self._order[p] for p in order])
         P = V[self.triangles[sel]]  # (s, 3, 2)
         y0 = np.clip(np.ceil(P[..., 1].min(axis=1) - 1e-9), 0, H).astype(np.int64)
         y1 = np.clip(np.floor(P[..., 1].max(axis=1) + 1e-9), -1, H - 1).astype(np.int64)
@@ -274,6 +287,20 @@ def underlay_texture(texture: np.ndarray, mask: np.ndarray, mesh, radius: float 
         rgb[~m] = rgb[m].mean(axis=0).astype(np.uint8)
     filled = cv2.inpaint(rgb, region, radius, cv2.INPAINT_TELEA)
     return np.dstack([filled, texture[..., 3]])
+
+
+def rim_texture(texture: np.ndarray, mask: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
+    """The body's drawn regions and the drawing's ink, everything else transparent, ``(H, W, 4)`` uint8 RGBA.
+
+    Texture of a layered mesh's rim copies (``Mesh.layer`` 2): the body
+    keeps its outline where a limb met it, without bits of the limb's fill.
+    """
+    from nnsf.reshape.mesh import body_line
+
+    keep = body_line(keypoints, texture, mask)
+    out = np.array(texture, dtype=np.uint8, copy=True)
+    out[..., 3] = np.where(keep, out[..., 3], 0)
+    return out
 
 
 # --------------------------------------------------------------------------- files
