@@ -663,12 +663,10 @@ def drawn_regions(texture: np.ndarray, mask: np.ndarray, ink: float = 0.55, min_
     from scipy.ndimage import distance_transform_edt
 
     m = np.asarray(mask, dtype=bool)
-    rgb = np.asarray(texture)[..., :3].astype(np.float64)
-    lum = rgb @ np.array([0.299, 0.587, 0.114])
     out = np.full(m.shape, -1, np.int64)
     if not m.any():
         return out
-    fill = m & (lum >= ink * np.median(lum[m]))
+    fill = m & ~ink_pixels(texture, m, ink)
     n, lab = cv2.connectedComponents(fill.astype(np.uint8), connectivity=4)
     area = np.bincount(lab.ravel(), minlength=n)
     big = np.flatnonzero(area >= max(min_area * m.sum(), 1))
