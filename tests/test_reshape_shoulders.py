@@ -5,6 +5,7 @@ import cv2
 import numpy as np
 import pytest
 
+from nnsf.frames import render
 from nnsf.reshape import depth
 from nnsf.reshape.mesh import PART_INDEX, drawn_regions
 from nnsf.reshape.render import MeshRenderer, underlay_texture
@@ -21,7 +22,6 @@ def _rot(p, c, deg):
 
 @pytest.fixture(scope="module")
 def rex():
-    render = pytest.importorskip("nnsf.frames.render")
     rgba, mask, kp = render.render_character("rex", 512)
     return Character(name="rex", texture=rgba, mask=mask, keypoints=kp, source="<rendered rex>")
 

@@ -755,10 +755,9 @@ def ink_rim_triangles(vertices, triangles, body_triangles, keypoints, texture, m
     V = np.rint(np.asarray(vertices)).astype(np.int32)
     for k in np.flatnonzero(~bt):
         cv2.fillPoly(owner, [V[tri[k]]], int(k))
-    hit = np.unique(owner[line & (owner >= 0)])
     out = np.zeros(len(tri), dtype=bool)
-    out[hit] = True
-    return out & ~bt
+    out[owner[line & (owner >= 0)]] = True  # owners are non-body triangles only
+    return out
 
 
 def _limb_half_width(mask: np.ndarray, keypoints: np.ndarray, a: int, b: int) -> float:
