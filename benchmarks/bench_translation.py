@@ -1,4 +1,4 @@
-"""Time the held-out translation stage (SPEC §6.3): one cell, and the whole grid.
+"""Time the held-out translation stage (docs/method.md §15.5): one cell, and the whole grid.
 
 Builds the features the pipeline would (Bandai-Namco BVH -> key points at
 ``--fps`` -> template unification, or the embedded synthetic set), then

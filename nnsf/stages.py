@@ -113,7 +113,7 @@ def track(params: dict, frames_dir=FRAMES_DIR, tracks_dir=TRACKS_DIR, tracked_di
 
 
 def tracking(params: dict, frames_dir=FRAMES_DIR, reports=REPORTS, mapper=None) -> StageResult:
-    """Score ours, Agarwala's and Lucas-Kanade tracking against the rendered ground truth (SPEC §6.4).
+    """Score ours, Agarwala's and Lucas-Kanade tracking against the rendered ground truth (docs/method.md §15.6).
 
     See :func:`nnsf.track.stage.evaluate_tracking`: ``reports/tracking.json``,
     ``reports/tracking.csv``, ``reports/figures/tracking_overlay.png``.
@@ -124,7 +124,7 @@ def tracking(params: dict, frames_dir=FRAMES_DIR, reports=REPORTS, mapper=None) 
 
 
 def heldout(params: dict, features_csv=FEATURES_CSV, reports=REPORTS, mapper=None) -> StageResult:
-    """Leave-one-cell-out style translation against the hidden real clips (SPEC §6.3).
+    """Leave-one-cell-out style translation against the hidden real clips (docs/method.md §15.5).
 
     See :func:`nnsf.evaluate.translation.heldout`; ``mapper`` fans out over cells.
     """
@@ -139,7 +139,7 @@ TRANSLATION_DIR = REPORTS / "translation"
 
 def translate(params: dict, features_csv=FEATURES_CSV, out_dir=TRANSLATION_DIR,
               content_clip=None, style=None) -> StageResult:
-    """One clip's motion performed in another style (SPEC §3), to ``out_dir``.
+    """One clip's motion performed in another style (docs/method.md §8), to ``out_dir``.
 
     ``content_clip`` and ``style`` default to ``translation.content_clip`` and
     ``translation.style``; ``auto`` picks the first clip (sorted by name) and
@@ -171,7 +171,7 @@ def translate(params: dict, features_csv=FEATURES_CSV, out_dir=TRANSLATION_DIR,
 
 def reshape(params: dict, motion_csv=TRANSLATION_DIR / "translated_features.csv",
             out_dir=REPORTS / "reshape", character_path=None) -> StageResult:
-    """A drawn character performing one clip of ``motion_csv`` (SPEC §4), to ``out_dir``.
+    """A drawn character performing one clip of ``motion_csv`` (docs/method.md §10-§14), to ``out_dir``.
 
     By default the translate stage's output, on ``reshape.character``.  See
     :func:`nnsf.reshape.stage.reshape`: PNG frames, GIF, MP4, a contact sheet
@@ -311,7 +311,7 @@ def _data_frames(params: dict, out_dir) -> StageResult:
 
 
 def features(params: dict, raw_dir=RAW_DIR, out_dir=FEATURES_DIR) -> StageResult:
-    """Unify raw key points to the template (SPEC §1, Eq. 4).
+    """Unify raw key points to the template (Eq. 4, docs/method.md §4).
 
     Writes ``features.csv`` (the contract in template units, every value ≥
     ``unify.margin``) and ``unifier.json`` (per-character bone ratios, root

@@ -113,7 +113,7 @@ def test_nmf_classifier_separates_block_classes_on_held_out_frames():
 
 
 def test_nmf_classifier_alpha_is_nnsf_l1_weight():
-    # NNSF's α ΣV corresponds to sklearn's alpha_W = α / d with l1_ratio = 1 (SPEC §2).
+    # NNSF's α ΣV corresponds to sklearn's alpha_W = α / d with l1_ratio = 1 (docs/method.md §6.4).
     X, y = separable()
     model = NMFClassifier(n_components=3, alpha=0.5, max_iter=50, solver="mu").fit(X, y)
     assert model.nmf_.alpha_W == pytest.approx(0.5 / X.shape[1])

@@ -1,4 +1,4 @@
-"""Annotation format v1: round trip and every validation rule (ANNOTATION.md)."""
+"""Annotation format v1: round trip and every validation rule (docs/formats.md §2.2)."""
 from __future__ import annotations
 
 import copy

@@ -25,7 +25,7 @@ def _random_basis(rng, k, d):
 @pytest.mark.parametrize("alpha", [0.0, 0.05, 0.7])
 @pytest.mark.parametrize("k", [1, 7, 34])
 def test_weight_update_equals_sklearn_mu(alpha, k):
-    """SPEC §2's oracle: the same weights as non_negative_factorization, bit for bit."""
+    """docs/method.md §6.4's oracle: the same weights as non_negative_factorization, bit for bit."""
     rng = np.random.default_rng(k)
     X = rng.random((800, 34)) * 3
     U = _random_basis(rng, k, 34)

@@ -1,4 +1,4 @@
-"""The 17-point layout and template unification (SPEC §1, Eq. 4)."""
+"""The 17-point layout and template unification (docs/method.md §4, Eq. 4)."""
 from __future__ import annotations
 
 import numpy as np

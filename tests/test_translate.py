@@ -1,4 +1,4 @@
-"""Style translation (SPEC §3, D5) and its held-out evaluation (SPEC §6.3)."""
+"""Style translation (docs/method.md §8, D5) and its held-out evaluation (docs/method.md §15.5)."""
 from __future__ import annotations
 
 from pathlib import Path

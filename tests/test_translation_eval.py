@@ -1,4 +1,4 @@
-"""The held-out translation stage and the translate stage (SPEC §3, §6.3): outputs, no leakage,
+"""The held-out translation stage and the translate stage (docs/method.md §8, §15.5): outputs, no leakage,
 bad input, stick figures."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The feature-matrix contract between stages (DESIGN.md).
+"""The feature-matrix contract between stages (docs/formats.md §3.1).
 
 One row per frame with columns ``clip, frame, character, motion, x1, y1 …
 x17, y17``.  Raw (pixel) tables and unified feature tables share the layout;

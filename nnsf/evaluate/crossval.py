@@ -1,4 +1,4 @@
-"""Held-out precision and reconstruction error versus rank (SPEC §5, §6.1-6.2).
+"""Held-out precision and reconstruction error versus rank (docs/method.md §15.1).
 
 The paper's Fig. 7 made objective: for every method and rank, fit on the
 training folds, encode the held-out frames with the basis fixed, and score
@@ -84,7 +84,7 @@ def folds(y, groups, n_splits: int = 10, seed: int = 0) -> list[tuple[np.ndarray
 def max_rank(method: str, n_features: int, n_styles: int, n_classes: int) -> int:
     """Largest rank ``method`` supports on data of this size.
 
-    The factorisations need ``k ≤ d`` (NNDSVD initialisation, and SPEC's
+    The factorisations need ``k ≤ d`` (NNDSVD initialisation, and docs/method.md §15.1's
     ``k = 1..34``); the bilinear model's content vectors live in at most
     ``min(S·d, C)`` dimensions.
     """

@@ -1,4 +1,4 @@
-"""ISOMAP diagnostics of the weights V (SPEC §5; the paper's Fig. 6).
+"""ISOMAP diagnostics of the weights V (docs/method.md §15.3; the paper's Fig. 6).
 
 Residual variance (Tenenbaum, de Silva & Langford 2000) measures how much of
 the geodesic-distance structure a ``d``-dimensional ISOMAP embedding misses:

@@ -1,4 +1,4 @@
-"""Held-out evaluation of style translation: leave one (style, content) cell out (SPEC §6.3).
+"""Held-out evaluation of style translation: leave one (style, content) cell out (docs/method.md §15.5).
 
 For every cell of the style × content grid, the cell's real clips are hidden
 and the cell is synthesised from the rest of the data: the *content* from
@@ -26,7 +26,7 @@ classifiers) is fitted on the remaining data only, inside :func:`evaluate_cell`,
 a pure function of its arguments so that a task runner can fan the cells out;
 :func:`leave_one_cell_out` runs them one after another.
 
-The classifiers (our choice, stated in SPEC §6.3's spirit): one feature
+The classifiers (our choice; docs/method.md §15.5): one feature
 vector per clip (:func:`clip_features`: mean, standard deviation, mean
 absolute velocity and the signed area swept by each key point -- 119
 numbers), standardised, then linear discriminant analysis with Ledoit-Wolf
@@ -683,7 +683,7 @@ def skipped_styles(table: pd.DataFrame) -> list[str]:
 
 def heldout(params: dict, features_csv=Path("data/features/features.csv"), reports=Path("reports"),
             mapper=None, unifier_json=None):
-    """Stage: leave-one-cell-out translation over the style × content grid (SPEC §6.3).
+    """Stage: leave-one-cell-out translation over the style × content grid (docs/method.md §15.5).
 
     Reads the unified features (``character`` = style, ``motion`` = content),
     holds out every cell of :func:`grid_cells` (or ``translation.max_cells``
@@ -824,7 +824,7 @@ def _target_check(per_method: dict) -> dict:
 def translate(params: dict, features_csv=Path("data/features/features.csv"),
               unifier_json=Path("data/features/unifier.json"), content_clip: str = "", style: str = "",
               out_dir=Path("reports/translation")):
-    """Stage/CLI: the motion of one clip performed in another style (SPEC §3).
+    """Stage/CLI: the motion of one clip performed in another style (docs/method.md §8).
 
     Fits a :class:`~nnsf.factor.translate.StyleTranslator` (``translation.*``)
     on every clip of ``features_csv`` and synthesises the content of

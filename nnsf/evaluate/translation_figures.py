@@ -1,4 +1,4 @@
-"""Figures of the held-out translation evaluation (SPEC §6.3).
+"""Figures of the held-out translation evaluation (docs/method.md §15.5).
 
 * :func:`per_style_figure` -- per target style, bars per method of the DTW
   error (% of torso length), the style accuracy and the content accuracy;

@@ -1,13 +1,13 @@
-"""Baselines for NNSF, behind the same estimator interface (SPEC §5).
+"""Baselines for NNSF, behind the same estimator interface (docs/method.md §9).
 
 * :func:`class_map` -- the closed-form class map ``W = (VᵀV + εI)⁻¹ VᵀY``
-  (SPEC §2, Eq. 8 transposed), shared by every factorisation here and by NNSF.
+  (docs/method.md §6.3, Eq. 8 transposed), shared by every factorisation here and by NNSF.
 * :class:`NMFClassifier` -- plain scikit-learn NMF followed by that class map.
 * :func:`make_nnsc` -- Hoyer's non-negative sparse coding, i.e. NNSF with β = 0.
 * :class:`BilinearModel` -- the asymmetric bilinear model of Tenenbaum &
   Freeman (2000), ``y^{sc} = A^s b^c``, fitted by SVD of the stacked cell means.
 
-Shapes follow SPEC §2 (row form): ``X`` is ``(n, d)`` with one frame per row,
+Shapes follow docs/method.md §5 (row form): ``X`` is ``(n, d)`` with one frame per row,
 ``V`` is ``(n, k)``, ``U`` is ``(k, d)``, ``Y`` is ``(n, r)`` one-hot and ``W``
 is ``(k, r)``.
 """
@@ -29,7 +29,7 @@ __all__ = ["class_map", "one_hot", "NMFClassifier", "make_nnsc", "BilinearModel"
 # The class map shared by all factorisations
 # --------------------------------------------------------------------------- #
 def class_map(V, Y, eps: float = 1e-10) -> np.ndarray:
-    """Ridge least-squares map from weights to one-hot labels (SPEC §2, Eq. 8).
+    """Ridge least-squares map from weights to one-hot labels (Eq. 8, docs/method.md §6.3).
 
     ``W = (VᵀV + λI)⁻¹ VᵀY`` with ``λ = eps · trace(VᵀV) / k``, which
     minimises ``‖VW − Y‖²_F + λ‖W‖²_F``.  The ridge keeps the solve well posed
@@ -120,7 +120,7 @@ class NMFClassifier(ClassifierMixin, TransformerMixin, BaseEstimator):
     alpha : float >= 0
         L1 weight on ``V`` in NNSF's units (``α Σ V_ij`` next to
         ``½‖X − VU‖²``); passed to scikit-learn as ``alpha_W = α / d``,
-        ``alpha_H = 0``, ``l1_ratio = 1`` (SPEC §2 oracle).
+        ``alpha_H = 0``, ``l1_ratio = 1`` (the oracle of docs/method.md §6.4).
     max_iter, tol, init, random_state, solver
         As in :class:`sklearn.decomposition.NMF`.
     eps : float >= 0
@@ -375,7 +375,7 @@ class BilinearModel(BaseEstimator):
         """Add (or replace) style ``style_name`` from its frames ``X`` (n, d) with contents ``y``.
 
         ``A^s`` solves ``min Σ_c ‖m^{sc} − A^s b^c‖²`` over the observed contents
-        ``c`` by least squares (SPEC §5), with the content vectors fixed.  With
+        ``c`` by least squares (docs/method.md §9), with the content vectors fixed.  With
         fewer observed contents than ``J`` the system is underdetermined and
         the minimum-norm solution is taken.  Contents unknown to the model are
         an error.

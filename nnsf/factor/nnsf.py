@@ -1,4 +1,4 @@
-"""Non-negative style factorization (NNSF), the paper's §4 in the row form of SPEC §2.
+"""Non-negative style factorization (NNSF), the paper's §4 in the row form of docs/method.md §5.
 
 The model factorises non-negative features X (n frames × d) as X ≈ V U with
 weights V ≥ 0 (n × k) and a style basis U ≥ 0 (k × d) whose rows have unit
@@ -44,7 +44,7 @@ class NNSF(TransformerMixin, BaseEstimator):
         Weight of the class-separability term (β/2)‖VW − Y‖².  Used only when
         ``fit`` receives labels and ``class_in_loop`` is true.
     class_in_loop : bool, default=True
-        Refit the class map W every iteration (SPEC D3).  False reproduces the
+        Refit the class map W every iteration (D3, docs/method.md §6.3).  False reproduces the
         paper's Algorithm 1 as printed: W is computed once, after convergence,
         so β has no effect on U and V.
     max_iter : int, default=200
@@ -54,7 +54,7 @@ class NNSF(TransformerMixin, BaseEstimator):
     init : {"random", "nndsvd", "nndsvda", "nndsvdar"}, default="nndsvda"
         Initialisation of U and V (scikit-learn's NMF initialisations).
     v_update : {"auto", "split", "ssl"}, default="auto"
-        Weight update when β > 0.  "split" is SPEC §2's multiplicative update
+        Weight update when β > 0.  "split" is docs/method.md §6.4's multiplicative update
         with WWᵀ and W split into positive and negative parts (a heuristic);
         "ssl" is the multiplicative update of Sha, Saul & Lee (2007) for
         non-negative quadratic programs, which never raises C; "auto" starts
@@ -97,13 +97,13 @@ class NNSF(TransformerMixin, BaseEstimator):
 
     Notes
     -----
-    One iteration (SPEC §2): a projected-gradient basis step with
+    One iteration (Algorithm 1, docs/method.md §6): a projected-gradient basis step with
     backtracking on the unit-norm candidate; the class map
     W = (VᵀV + εI)⁻¹ VᵀY; a multiplicative weight update.  The basis step is
     accepted only if C does not rise after the rows are normalised, so with
     β = 0 the objective never increases (the weight update is Hoyer's, which
     is monotone for fixed U).  The weight update with U fixed and β = 0 is
-    exactly scikit-learn's ``mu`` update of NMF's W (see SPEC §2 for the
+    exactly scikit-learn's ``mu`` update of NMF's W (see docs/method.md §6.4 for the
     equivalent ``non_negative_factorization`` call).
     """
 
@@ -547,7 +547,7 @@ def weight_step(X, V, U, alpha, work=None, XUt=None):
     """Hoyer's multiplicative update of V in place, for fixed U and β = 0.
 
     V ← V ⊙ (X Uᵀ) ⊘ max(V UUᵀ + α, ε).  The operations are those of
-    scikit-learn's ``mu`` update of NMF's W (SPEC §2), except that a
+    scikit-learn's ``mu`` update of NMF's W (docs/method.md §6.4), except that a
     denominator below ε is raised to ε where scikit-learn replaces only exact
     zeros; the two agree whenever α ≥ ε.  ``work`` is a pair of ``(n, k)``
     buffers; ``XUt`` a precomputed X Uᵀ when U does not change between calls.
@@ -569,7 +569,7 @@ def weight_step(X, V, U, alpha, work=None, XUt=None):
 def _class_weight_step(X, V, U, blocks, alpha, beta, W, mode, work):
     """Multiplicative update of V in place with the class term (β > 0).
 
-    "split" (SPEC §2):
+    "split" (docs/method.md §6.4):
         num = XUᵀ + β[V(WWᵀ)⁻ + Y(W⁺)ᵀ],  den = V(UUᵀ) + α + β[V(WWᵀ)⁺ + Y(W⁻)ᵀ].
     "ssl" (Sha, Saul & Lee 2007), per row the quadratic ½vAvᵀ + bvᵀ with
     A = UUᵀ + βWWᵀ and b = α − XUᵀ − βYWᵀ:

@@ -1,8 +1,8 @@
-"""Style translation by non-negative style factorization (SPEC §3, D5; the paper's §4, end).
+"""Style translation by non-negative style factorization (docs/method.md §8, D5; the paper's §4, end).
 
 The paper synthesises "jump in Wukong Sun's style" by recombining a basis and
 weights that come from different characters.  That only works if atom ``i``
-means the same thing in both, so (SPEC D5):
+means the same thing in both, so (D5, docs/method.md §8.1):
 
 * fit NNSF once on all characters pooled, giving U₀ and V;
 * give every character (style) ``s`` its own basis U_s by basis steps only,
@@ -14,7 +14,7 @@ means the same thing in both, so (SPEC D5):
 Translation of a clip of content ``c`` performed in style ``a`` into style
 ``b`` (row form, X is ``(n, 34)``):
 
-* ``reading="style_basis"`` (SPEC §3, the default): X̂ = V_clip U_b + b_b.
+* ``reading="style_basis"`` (docs/method.md §8.2, the default): X̂ = V_clip U_b + b_b.
   The weights of the clip, V_clip = argmin_V≥0 ½‖X_clip − b_a − V U_a‖² + αΣV,
   carry the content and its timing; the target's basis (and offset) carry
   the style.  With ``keep_residual`` (default) the clip's own residual
@@ -28,7 +28,7 @@ Translation of a clip of content ``c`` performed in style ``a`` into style
 
 How the per-style bases are learned (``basis``):
 
-* ``"refit"`` -- SPEC D5 as written: the pooled fit's weights fixed, basis
+* ``"refit"`` -- D5 as written (docs/method.md §8.1): the pooled fit's weights fixed, basis
   steps per style from U₀.
 * ``"separate"`` -- an independent NNSF per style, atoms matched to U₀ by
   :func:`match_atoms` (the fallback of D5).
@@ -79,7 +79,7 @@ __all__ = [
     "to_character_points",
 ]
 
-#: Which factor carries the style: the basis (SPEC §3) or the weights (the paper's example).
+#: Which factor carries the style: the basis (docs/method.md §8) or the weights (the paper's example).
 READINGS: tuple[str, ...] = ("style_basis", "content_basis")
 #: How per-style bases with corresponding atoms are obtained.
 BASES: tuple[str, ...] = ("aligned", "refit", "separate")
@@ -110,7 +110,7 @@ def refit_basis(X, V, U0, *, max_iter: int = 100, tol: float = 1e-6, ridge: floa
     ridge : float >= 0
         Adds ``λ‖U − U0‖²_F`` with ``λ = ridge · trace(VᵀV) / k`` (relative,
         so it does not depend on the scale of V).  Atoms the data use little
-        then stay near ``U0`` instead of drifting; 0 is SPEC D5 as written.
+        then stay near ``U0`` instead of drifting; 0 is D5 as written (docs/method.md §8.1).
 
     Returns
     -------
@@ -403,7 +403,7 @@ class StyleTranslator(BaseEstimator):
     label : {"content", "style"}, default="content"
         The labels of the pooled fit's class term.
     class_in_loop : bool, default=True
-        NNSF's SPEC D3 flag.
+        NNSF's D3 flag (docs/method.md §6.3).
     reading : {"style_basis", "content_basis"}, default="style_basis"
         Which factor carries the style (see the module docstring).
     basis : {"aligned", "refit", "separate"}, default="aligned"

@@ -7,7 +7,7 @@ every control point, two points give a straight segment, and its samples are
 a fixed linear map of the control points (:func:`catmull_rom_matrix`), which
 keeps a tracker's least-squares problem sparse and its Jacobian constant.
 
-Curve groups (ANNOTATION.md): the eight limbs of :data:`nnsf.skeleton.LIMBS`,
+Curve groups (docs/formats.md §2.2): the eight limbs of :data:`nnsf.skeleton.LIMBS`,
 then ``torso`` (thorax → pelvis) and ``head`` (neck → head top); each has two
 side curves ``<group>.a`` (on the +R90·d side of the bone d = end − start)
 and ``<group>.b`` (on the −R90·d side), both running from the start joint to

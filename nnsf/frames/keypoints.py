@@ -1,4 +1,4 @@
-"""Key points from tracked side curves (paper Eq. 2-3, SPEC §1).
+"""Key points from tracked side curves (paper Eq. 2-3, docs/method.md §3).
 
 The calibration points of a curve group are the ends of its two side curves:
 p¹ = a[0], p² = b[0] at the start joint and p³ = a[-1], p⁴ = b[-1] at the end

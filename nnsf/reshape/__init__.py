@@ -1,4 +1,4 @@
-"""Reshaping drawn characters (SPEC §4, the paper's §5).
+"""Reshaping drawn characters (docs/method.md §10-§14, the paper's §5).
 
 A drawn character (:class:`Character`: texture, mask, 17 key points) is
 triangulated (:func:`build_mesh`), given a quadratic Bézier curve per limb
@@ -6,14 +6,14 @@ triangulated (:func:`build_mesh`), given a quadratic Bézier curve per limb
 (:mod:`~nnsf.reshape.subkeys`, Eq. 11-14), and deformed frame by frame with
 the two-step ARAP of Igarashi et al. 2005 (:class:`TwoStepARAP`), factorised
 once per character and handle set.  :class:`Rig` assembles all of it;
-:mod:`~nnsf.reshape.metrics` scores the result (SPEC §6.5).
+:mod:`~nnsf.reshape.metrics` scores the result (docs/method.md §15.7).
 
 Around the rig: :mod:`~nnsf.reshape.drive` maps any 17-point motion onto a
 drawing (bone directions from the motion, lengths from the drawing),
 :mod:`~nnsf.reshape.depth` orders the parts back to front from the source's
 depth, :mod:`~nnsf.reshape.render` rasterises the textured mesh and writes
 PNG/GIF/MP4, :mod:`~nnsf.reshape.stage` is the ``reshape`` stage,
-:mod:`~nnsf.reshape.evaluation` the SPEC §6.5-6.6 evaluation and
+:mod:`~nnsf.reshape.evaluation` the docs/method.md §15.7 evaluation and
 :mod:`~nnsf.reshape.kenney` the real-frame check.  The default mesh is
 **layered** (:func:`~nnsf.reshape.mesh.layer_pieces`): every limb segment a
 piece with a straight cut and a joint cap, so no joint folds.

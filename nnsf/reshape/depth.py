@@ -1,4 +1,4 @@
-"""Depth order of a character's parts, stable over time (SPEC §4, the paper's Fig. 10).
+"""Depth order of a character's parts, stable over time (docs/method.md §14, the paper's Fig. 10).
 
 Parts are :data:`nnsf.reshape.mesh.PARTS` (torso, head, the eight limb
 segments).  A frame's order lists part ids **back to front**; the renderer
@@ -166,7 +166,7 @@ def order_ranks(orders: np.ndarray) -> np.ndarray:
 
 
 def depth_metric(orders: np.ndarray, part_z: np.ndarray, margin: float, pairs=None) -> dict[str, float]:
-    """SPEC §6.6: agreement of the drawn pairwise order with the source depth, and order flips.
+    """docs/method.md §15.7: agreement of the drawn pairwise order with the source depth, and order flips.
 
     orders ``(T, 10)``; part_z ``(T, 10)``; a pair counts in a frame when the
     source separates it by more than ``margin`` (source units).  ``pairs``:

@@ -1,4 +1,4 @@
-"""Driving a drawn character from a motion (SPEC §1 inverse unification, §4).
+"""Driving a drawn character from a motion (docs/method.md §12; inverse unification §4).
 
 A motion is any 17-point clip ``(T, 17, 2)``: unified template features
 (``data/features/features.csv``), pixel key points, a translated clip, or a
@@ -84,7 +84,7 @@ def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", fr
       ``L_b(t) / median_t L_b`` clipped to ``foreshortening``, chained from
       its parent.  Without clipping this is exactly the inverse unification
       ``W_char⁻¹ W_motion`` (module docstring).  The default (1, 1) keeps
-      the drawn lengths exactly (SPEC §1: "bone lengths from the drawing"):
+      the drawn lengths exactly (docs/method.md §12: bone lengths from the drawing):
       a drawn limb cannot shrink without squashing, and with (0.6, 1.2) a
       foreshortened shin squeezed its handle triangles to σ1/σ2 ≈ 18.
 

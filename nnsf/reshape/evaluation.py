@@ -1,4 +1,4 @@
-"""Evaluation of the reshaping (SPEC §6.5-6.6): subkey driving vs key-points-only ARAP.
+"""Evaluation of the reshaping (docs/method.md §15.7): subkey driving vs key-points-only ARAP.
 
 Every supported AnimatedDrawings character (char5, with several shoulders
 per side, and the quadruped char6 are refused by the loader) is driven by several Bandai-Namco motions

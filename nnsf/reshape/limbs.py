@@ -1,4 +1,4 @@
-"""The limb model (SPEC §4, paper Eq. 9-10): one quadratic Bézier curve per limb.
+"""The limb model (docs/method.md §10, paper Eq. 9-10): one quadratic Bézier curve per limb.
 
 Limb i runs from key point p_j to p_{j+1} (:data:`nnsf.skeleton.LIMBS`,
 in that order; limb arrays below have 8 rows in the same order).  Its curve is

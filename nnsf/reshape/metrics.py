@@ -1,4 +1,4 @@
-"""Deformation metrics (SPEC §6.5), vectorised over frames and triangles.
+"""Deformation metrics (docs/method.md §15.7), vectorised over frames and triangles.
 
 Every triangle's rest→deformed map is affine; its linear part J ``(2, 2)``
 solves J [e₁ e₂]_rest = [e₁ e₂]_deformed for two edges.  Its singular values

@@ -19,7 +19,7 @@
 
 and writes, atomically as one folder ``out_dir``: ``frames/frame_0000.png``…,
 ``<name>.gif``, ``<name>.mp4``, ``<name>_sheet.png`` (a contact sheet) and
-``metrics.json`` (SPEC §6.5; no wall times, so reruns are byte-identical).
+``metrics.json`` (docs/method.md §15.7; no wall times, so reruns are byte-identical).
 
 :func:`animate` is the shared pipeline (also used by the evaluation):
 character + motion -> key points -> rig -> deformed vertices -> depth orders.
@@ -128,7 +128,7 @@ def animate(rig: Rig, motion: np.ndarray, joint_depth: np.ndarray | None = None,
 
 
 def report(anim: Animation, depth_margin: float | None = None) -> dict:
-    """SPEC §6.5-6.6 numbers for an animation (flat dict; see :func:`metrics.deformation_report`)."""
+    """docs/method.md §15.7 numbers for an animation (flat dict; see :func:`metrics.deformation_report`)."""
     rig, V = anim.rig, anim.frames
     m = rig.mesh
     om = np.broadcast_to(rig.rest_omega, (len(V),) + rig.rest_omega.shape)

@@ -1,4 +1,4 @@
-"""Subkey points (SPEC §4, paper Eq. 11-14): extra handles along each limb's curve.
+"""Subkey points (docs/method.md §11, paper Eq. 11-14): extra handles along each limb's curve.
 
 * Eq. 11: the initial subkey q⁰ of sample λ_j on limb i is the mesh vertex
   nearest B_i(λ_j) (``scipy.spatial.cKDTree``).

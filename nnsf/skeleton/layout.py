@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-#: Key-point names in feature order (SPEC §0).
+#: Key-point names in feature order (docs/method.md §1).
 JOINTS: tuple[str, ...] = (
     "pelvis", "r_hip", "r_knee", "r_ankle", "l_hip", "l_knee", "l_ankle",
     "spine", "thorax", "neck", "head_top",

@@ -1,4 +1,4 @@
-"""Template unification (SPEC §1, the paper's Eq. 4) and its inverse.
+"""Template unification (docs/method.md §4, the paper's Eq. 4) and its inverse.
 
 A character's points P (pixels, ``(n, 17, 2)``) map to features
 X = W_char P + o, with W_char = D⁻¹ R D acting on the 17 points of a frame:

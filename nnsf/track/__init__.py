@@ -1,4 +1,4 @@
-"""Keyframe-based contour tracking (rotoscoping, SPEC §1) and its evaluation (SPEC §6.4).
+"""Keyframe-based contour tracking (rotoscoping, docs/method.md §2) and its evaluation (§15.6).
 
 * :mod:`nnsf.track.curves`  — the Catmull-Rom curve model as constant linear maps;
 * :mod:`nnsf.track.energy`  — the space-time energy, its Jacobian and the LM solver;

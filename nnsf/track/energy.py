@@ -1,4 +1,4 @@
-"""The space-time energy of SPEC §1 as least-squares residuals with an analytic sparse Jacobian.
+"""The space-time energy of docs/method.md §2.2 as least-squares residuals with an analytic sparse Jacobian.
 
 One :class:`SpaceTimeProblem` holds G independent curves (same number of
 control points C) over one keyframe interval of T frames (keyframes at
@@ -29,7 +29,7 @@ residual blocks (each multiplied by sqrt(weight)) are
              the two keyframes).
 
 Why the length terms look like this.  Derivatives are per sample step, so
-|c'| ≈ L/(n-1) for a curve of length L.  The squared form of SPEC §1,
+|c'| ≈ L/(n-1) for a curve of length L.  The squared form (Agarwala et al.; docs/method.md §2.2),
 |c_t'|² - |c_{t+1}'|², is then in px² of a sample step: ≈ 0.7 px² for a
 10 px Kenney limb side sampled 12 times, so halving that curve cost less
 than one unit, while the sketch and colour terms (weight 100 on 2K·3

@@ -1,4 +1,4 @@
-"""Tracking metrics against ground truth (SPEC §6.4).
+"""Tracking metrics against ground truth (docs/method.md §15.6).
 
 * point-to-curve error: distance (px) of every tracked spline sample to the
   true side curve (a dense polyline), over the in-between frames;

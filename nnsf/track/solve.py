@@ -4,7 +4,7 @@
 pair of consecutive keyframes.  Three methods:
 
 * ``"ours"``      — the space-time energy with sketch term and colour penalty
-                    (SPEC §1), coarse to fine;
+                    (docs/method.md §2.2), coarse to fine;
 * ``"agarwala"``  — the same solver without sketch term and colour penalty;
 * ``"lk"``        — per-frame pyramidal Lucas-Kanade (``cv2.calcOpticalFlowPyrLK``)
                     on the control points, started from the first keyframe of
@@ -241,7 +241,7 @@ def solve_interval(pyramid: list[LevelImages], P: np.ndarray, fixed: np.ndarray,
 def keyframe_curves(annotation) -> tuple[list[str], dict[int, dict[str, np.ndarray]]]:
     """Curve names (first-seen order) and ``{frame: {curve: (C, 2) array}}`` of an annotation.
 
-    Accepts the format-v1 dict (ANNOTATION.md) or any object with a
+    Accepts the format-v1 dict (docs/formats.md §2.2) or any object with a
     ``keyframes`` attribute holding such entries (``frame`` and ``curves``,
     as mappings or attributes).
     """

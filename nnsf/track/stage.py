@@ -197,7 +197,7 @@ def _evaluate_item(item: dict) -> dict:
 
 
 def evaluate_tracking(params: dict, frames_dir=FRAMES_DIR, reports=REPORTS, mapper=None):
-    """Compare the three trackers on the rendered clips with ground truth (SPEC §6.4).
+    """Compare the three trackers on the rendered clips with ground truth (docs/method.md §15.6).
 
     Reads ``track`` options, ``track.eval_clips`` (how many clips, in index
     order, that have a ``truth.npz``), ``track.edit_tol_px`` and
