@@ -217,6 +217,7 @@ class NNSF(TransformerMixin, BaseEstimator):
         else:
             V, U = _initialize_nmf(X, k, init=self.init, random_state=self.random_state)
         V, U = V.astype(X.dtype, copy=False), U.astype(X.dtype, copy=False)
+        # Algorithm 1, initialisation (docs/method.md §6.1): unit rows of U, V scaled so VU is kept.
         norms = np.linalg.norm(U, axis=1)
         dead = norms <= 0
         U[dead] = 1.0 / np.sqrt(d)  # a zero row has no direction to keep
@@ -357,6 +358,9 @@ def _initialize_nndsvd_lean(X, k, fill):
 
 
 # ---------------------------------------------------------------- the solver
+# Algorithm 1 (docs/method.md §6).  The paper's Eq. 6 (re-modelling V on the
+# eigenvectors of a correlation matrix) is not implemented; docs/method.md §7
+# gives the reasons.
 def _one_hot(labels, r, dtype):
     """Y as a sparse one-hot ``(n, r)`` matrix."""
     n = len(labels)
@@ -376,6 +380,7 @@ def class_map_from_grams(VtV, VtY, eps):
     on the units of V; it keeps the solve posed when an atom is unused.
     """
     k = VtV.shape[0]
+    # Eq. 8 in row form (docs/method.md §6.3).
     ridge = eps * max(float(np.trace(VtV)) / k, np.finfo(VtV.dtype).tiny)
     return np.linalg.solve(VtV + ridge * np.eye(k, dtype=VtV.dtype), VtY)
 
@@ -385,6 +390,7 @@ def _objective(XX, VtV, VtX, U, v_sum, alpha, beta, W=None, VtY=None, n=0):
 
     ½(‖X‖² − 2⟨VᵀX, U⟩ + ⟨VᵀV, UUᵀ⟩) + αΣV + (β/2)(⟨WᵀVᵀV, Wᵀ⟩ − 2⟨VᵀY, W⟩ + n).
     """
+    # Eq. 7 (docs/method.md §5); with beta = 0 it is Eq. 5, Hoyer's NNSC objective.
     fit = 0.5 * (XX - 2.0 * np.vdot(VtX, U) + np.vdot(VtV, U @ U.T))
     value = max(fit, 0.0) + alpha * v_sum
     if beta > 0:
@@ -406,14 +412,14 @@ def _basis_step(U, VtV, VtX, step):
     grad = VtV @ U - VtX
     current = fit(U)
     for _ in range(_MAX_HALVINGS):
-        cand = U - step * grad
-        np.maximum(cand, 0, out=cand)
+        cand = U - step * grad                      # Algorithm 1, line 1 (docs/method.md §6.2)
+        np.maximum(cand, 0, out=cand)               # line 2: negative entries to 0
         norms = np.linalg.norm(cand, axis=1)
         dead = norms <= 0
         if dead.any():
             cand[dead] = U[dead]
             norms[dead] = 1.0
-        cand /= norms[:, None]
+        cand /= norms[:, None]                      # line 3: rows to unit norm
         if fit(cand) <= current:
             return cand, step * _STEP_GROW
         step *= 0.5
@@ -452,8 +458,11 @@ def _solve(X, V, U, labels, *, alpha, beta, max_iter, tol, v_update, eps):
     step = 1.0 / max(float(np.linalg.eigvalsh(VtV)[-1]), np.finfo(float).tiny)
 
     for _ in range(max_iter):
+        # Algorithm 1, lines 1-3 (docs/method.md §6.2): the basis step.
         U, step = _basis_step(U, VtV, VtX, step)
         if use_class:
+            # Eq. 8 refitted every iteration (D3, docs/method.md §6.3), then
+            # Algorithm 1, line 4 with the class term (docs/method.md §6.4).
             W = class_map_from_grams(VtV, VtY, eps)
             _class_weight_step(X, V, U, blocks, alpha, beta, W, mode, work)
             VtY = _block_sums(V, blocks)
@@ -461,7 +470,9 @@ def _solve(X, V, U, labels, *, alpha, beta, max_iter, tol, v_update, eps):
             VtX = V.T @ X
             v_sum = float(V.sum())
         else:
+            # Algorithm 1, line 4 (docs/method.md §6.4): Hoyer's update, beta = 0.
             VtV, VtX, v_sum = _weight_pass(X, V, U, alpha)
+        # Algorithm 1, line 5 (docs/method.md §6.5): iterate until C settles.
         history.append(_objective(XX, VtV, VtX, U, v_sum, alpha, beta, W, VtY, n))
         prev, cur = history[-2], history[-1]
         if use_class and v_update == "auto" and mode == "split" and cur > prev * (1 + 1e-9):

@@ -194,8 +194,8 @@ def keypoints_from_curves(control: np.ndarray, curve_names, model: KeypointModel
         p1, p2, p3, p4 = _ends(control, n_points, index[f"{g}.a"], index[f"{g}.b"])
         s, e = GROUP_JOINTS[g]
         ws, we = model.omega[(g, "start")], model.omega[(g, "end")]
-        estimates[s].append(ws * p1 + (1 - ws) * p2)
-        estimates[e].append(we * p3 + (1 - we) * p4)
+        estimates[s].append(ws * p1 + (1 - ws) * p2)                  # Eq. 2 (docs/method.md §3)
+        estimates[e].append(we * p3 + (1 - we) * p4)                  # Eq. 3
     out = np.full((T, N_JOINTS, 2), np.nan)
     for j, ests in estimates.items():
         if ests:

@@ -126,6 +126,7 @@ class Unifier:
         unknown = sorted(set(np.unique(characters)) - set(self.scales))
         if unknown:
             raise ValueError(f"unknown character(s) {unknown}; fitted on {sorted(self.scales)}")
+        # Eq. 4 (docs/method.md §4): X = W_char P + o.
         X = to_features(self._linear(points, characters) + self.offset)
         if X.size and X.min() < 0:
             raise ValueError(

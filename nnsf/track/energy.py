@@ -369,9 +369,11 @@ class SpaceTimeProblem:
                 Jq = (B0[None, None, :, None, None, :, None] * gI[..., None, :]
                       + off * B1[None, None, :, None, None, :, None] * gN[..., None, :])
                 Jq = Jq.reshape(G, T, R, C2)
+            # Eq. 1, the sketch term (docs/method.md §2.2): ribbon colours of adjacent frames.
             r = (sS * (I[:, :-1] - I[:, 1:])).reshape(G, T - 1, R)
             out.append(Block(r, None if Jq is None else sS * Jq[:, :-1], 0,
                              None if Jq is None else -sS * Jq[:, 1:]))
+            # The colour penalty (docs/method.md §2.2): ribbon colours against the keyframes' κ.
             r = (sP * (I[:, 1:-1] - self.kappa)).reshape(G, T - 2, R)
             out.append(Block(r, None if Jq is None else sP * Jq[:, 1:-1], 1))
         return out
@@ -424,6 +426,7 @@ class SpaceTimeProblem:
         Nmat = R90 @ ((eye - that[..., :, None] * that[..., None, :]) / tn[..., None])
         v = (u @ Nmat[:, :, :, None]) * self.offsets[:, None, None]    # (G,T,n,2K,3,2)
         wS, wP = self.w.sketch, self.w.colour
+        # Eq. 1 (sketch term) and the colour penalty, docs/method.md §2.2.
         dI = I[:, :-1] - I[:, 1:]                                  # (G,T-1,n,2K,3)
         dP = I[:, 1:-1] - self.kappa                               # (G,T-2,n,2K,3)
         cost = 0.5 * (wS * (dI ** 2).reshape(G, -1).sum(1) + wP * (dP ** 2).reshape(G, -1).sum(1))
