@@ -25,6 +25,7 @@ from nnsf.datasets import contract
 from nnsf.errors import InputError
 from nnsf.io import atomic_dir, read_json, read_npz, write_csv, write_json, write_npz
 from nnsf.params import require, source_of
+from nnsf.publish import publishing
 from nnsf.skeleton import N_FEATURES, Unifier, to_points
 
 # Default locations, mirrored exactly by dvc.yaml.
@@ -79,6 +80,20 @@ def _read_features(path) -> pd.DataFrame:
 
 def _label_column(params: dict) -> str:
     return require(params, "nnsf.label")
+
+
+def _need_several(table: pd.DataFrame, column: str, source, purpose: str, at_least: int = 2) -> None:
+    """InputError unless ``table[column]`` holds at least ``at_least`` distinct values.
+
+    A cross-validated precision over one class is 1.0 whatever the model
+    does, and a grouped CV over one clip has nothing to hold out: such data
+    is refused, naming the column and what it holds, instead of giving a
+    perfect score.
+    """
+    values = pd.unique(table[column])
+    if len(values) < at_least:
+        raise InputError(source, column, f"at least {at_least} distinct {column} values {purpose}",
+                         f"{len(values)} ({', '.join(map(str, values[:3]))})")
 
 
 # ---------------------------------------------------------------- stages
@@ -424,6 +439,9 @@ def evaluate(params: dict, features_csv=FEATURES_CSV, reports=REPORTS, mapper=No
     kw = _nnsf_params(params)
     nnsf_rank = int(require(params, "nnsf.rank"))
     table = _read_features(features_csv)
+    _need_several(table, label, features_csv, f"(nnsf.label: {label}): precision over one class is "
+                  "1.0 for any model")
+    _need_several(table, "clip", features_csv, "to hold out in cross-validation grouped by clip")
     X = contract.features(table)
     y = table[label].to_numpy()
     groups = table["clip"].to_numpy()
@@ -443,19 +461,24 @@ def evaluate(params: dict, features_csv=FEATURES_CSV, reports=REPORTS, mapper=No
     # Wall times vary from run to run; they go to MLflow, not into the
     # versioned tables (whose hashes must depend on the inputs only).
     fit_seconds = float(folds_table["seconds"].sum())
-    write_csv(reports / "cv_folds.csv", folds_table.drop(columns=["seconds"]))
-    write_csv(reports / "precision_vs_rank.csv", summary.drop(columns=["seconds_mean"], errors="ignore"))
-    write_csv(reports / "plots" / "precision_vs_rank.csv", wide(summary, "precision_mean"))
-    write_csv(reports / "plots" / "recon_error_vs_rank.csv", wide(summary, "recon_error_mean"))
     chance = 1.0 / len(np.unique(y))
-    figs = [
-        precision_vs_rank_figure(
-            summary, reports / "figures" / "precision_vs_rank.png", chance=chance,
-            title=f"Held-out precision vs rank ({label} classes, {n_splits}-fold CV grouped by clip)"),
-        reconstruction_figure(summary, reports / "figures" / "reconstruction_vs_rank.png"),
-    ]
     metrics = _evaluate_metrics(summary, nnsf_rank, label, n_splits, chance)
-    write_json(reports / "metrics.json", metrics)
+    # The files are published as one set (nnsf.publish: staged, committed,
+    # moved, manifest reports/evaluate.manifest.json last): a killed run
+    # never leaves some new files beside old ones.
+    with publishing(reports, "evaluate") as out:
+        write_csv(out / "cv_folds.csv", folds_table.drop(columns=["seconds"]))
+        write_csv(out / "precision_vs_rank.csv", summary.drop(columns=["seconds_mean"], errors="ignore"))
+        write_csv(out / "plots" / "precision_vs_rank.csv", wide(summary, "precision_mean"))
+        write_csv(out / "plots" / "recon_error_vs_rank.csv", wide(summary, "recon_error_mean"))
+        staged = [
+            precision_vs_rank_figure(
+                summary, out / "figures" / "precision_vs_rank.png", chance=chance,
+                title=f"Held-out precision vs rank ({label} classes, {n_splits}-fold CV grouped by clip)"),
+            reconstruction_figure(summary, out / "figures" / "reconstruction_vs_rank.png"),
+        ]
+        write_json(out / "metrics.json", metrics)
+    figs = [reports / Path(f).relative_to(out) for f in staged]
     flat = {f"{m}_{k}": v for m, d in metrics["methods"].items() for k, v in d.items()
             if isinstance(v, (int, float))}
     flat["cv_fit_seconds"] = round(fit_seconds, 3)
@@ -569,6 +592,9 @@ def sweep_point(params: dict, point: dict, features_csv=FEATURES_CSV, figure_dir
     max_iter = int(require(params, "sweep.max_iter"))
     label = _label_column(params)
     table = _read_features(features_csv)
+    _need_several(table, label, features_csv, f"(nnsf.label: {label}): precision over one class is "
+                  "1.0 for any model")
+    _need_several(table, "clip", features_csv, "to hold out in cross-validation grouped by clip")
     X = contract.features(table)
     y = table[label].to_numpy()
     folds_table = precision_vs_rank(
