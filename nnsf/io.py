@@ -20,6 +20,7 @@ import numpy as np
 import pandas as pd
 
 from nnsf.errors import InputError
+from nnsf.files import read_bytes, read_text  # noqa: F401  (the readers live with the writers here)
 
 
 class WriteError(InputError):
@@ -37,6 +38,18 @@ def _write_error(path: Path, exc: OSError) -> WriteError:
             "EPERM": "permission to write it", "EROFS": "a writable file system"}.get(
         code, "a writable location")
     return WriteError(path, "write", what, reason=f"{exc.strerror or exc}{f' [{code}]' if code else ''}")
+
+
+def renamed_write_error(exc: "WriteError", tmp: Path, final: Path) -> "WriteError":
+    """``exc`` naming the file under ``final`` instead of the temporary folder ``tmp``.
+
+    Outputs written inside a staging folder would otherwise be reported by
+    their temporary name, which the user never sees.
+    """
+    src = exc.source
+    if src == str(tmp) or src.startswith(str(tmp) + os.sep):
+        src = str(final) + src[len(str(tmp)):]
+    return WriteError(src, exc.field, exc.expected, exc.got, reason=exc.reason)
 
 
 @contextlib.contextmanager
@@ -96,7 +109,10 @@ def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
     except OSError as exc:
         raise _write_error(path, exc) from None
     try:
-        yield tmp
+        try:
+            yield tmp
+        except WriteError as exc:
+            raise renamed_write_error(exc, tmp, path) from None
         try:
             if path.exists():
                 old = Path(tempfile.mkdtemp(prefix=f".{path.name}.old.", dir=path.parent))
@@ -152,43 +168,11 @@ def read_npz(path) -> dict[str, np.ndarray]:
         with np.load(path, allow_pickle=False) as z:
             return {k: z[k] for k in z.files}
     except (ValueError, OSError) as exc:
-        raise InputError(path, "file", "a readable .npz archive without pickled objects", str(exc)) from None
+        raise InputError(path, "file", "a readable .npz archive without pickled objects", reason=str(exc)) from None
 
 
 #: Largest JSON file read (bytes): annotations, labels and reports are far smaller.
 MAX_JSON_BYTES = 64_000_000
-
-
-def read_bytes(path, max_bytes: int, what: str = "a readable file") -> bytes:
-    """The bytes of ``path``; an :class:`InputError` naming it if missing, unreadable or too large.
-
-    ``max_bytes`` bounds what is read into memory (the size is checked before
-    reading).  Permissions and other ``OSError`` are reported with the
-    system's reason.
-    """
-    path = Path(path)
-    try:
-        size = path.stat().st_size
-        if size > max_bytes:
-            raise InputError(path, "file size", f"{what} of at most {max_bytes} bytes", f"{size} bytes")
-        with open(path, "rb") as fh:
-            data = fh.read(max_bytes + 1)
-    except OSError as exc:
-        raise InputError(path, "file", what, reason=exc.strerror or str(exc)) from None
-    if len(data) > max_bytes:  # grew while read (a pipe or a file being written)
-        raise InputError(path, "file size", f"{what} of at most {max_bytes} bytes", f"more than {max_bytes} bytes")
-    return data
-
-
-def read_text(path, max_bytes: int, what: str = "a text file", encoding: str = "utf-8") -> str:
-    """:func:`read_bytes` decoded with ``encoding``; an undecodable byte names file, line and column."""
-    data = read_bytes(path, max_bytes, what)
-    try:
-        return data.decode(encoding)
-    except UnicodeDecodeError as exc:
-        line = data.count(b"\n", 0, exc.start) + 1
-        raise InputError(path, f"line {line}", f"{what} in {encoding.upper()}",
-                         reason=f"byte 0x{data[exc.start]:02x} at offset {exc.start} cannot be decoded") from None
 
 
 def read_json(path) -> dict:

@@ -395,7 +395,7 @@ def load(path="params.yaml") -> dict:
     unreadable (permissions), larger than :data:`MAX_PARAMS_BYTES`, not
     UTF-8, not YAML, nested too deep, or not matching :data:`SCHEMA`.
     """
-    from nnsf.io import read_text
+    from nnsf.files import read_text
 
     path = Path(path)
     if not path.is_file():

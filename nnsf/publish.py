@@ -36,7 +36,7 @@ from pathlib import Path
 from typing import Iterator
 
 from nnsf.errors import InputError
-from nnsf.io import write_json
+from nnsf.io import WriteError, _write_error, renamed_write_error, write_json
 
 JOURNAL = ".commit.json"
 
@@ -76,8 +76,11 @@ def _roll_forward(root: Path, stage: str, journal: dict) -> None:
     for rel in journal["files"]:
         src, dst = staging / rel, root / rel
         if src.exists():
-            dst.parent.mkdir(parents=True, exist_ok=True)
-            os.replace(src, dst)
+            try:
+                dst.parent.mkdir(parents=True, exist_ok=True)
+                os.replace(src, dst)
+            except OSError as exc:
+                raise _write_error(dst, exc) from None
     write_json(manifest_path(root, stage), journal)
     shutil.rmtree(staging, ignore_errors=True)
 
@@ -114,7 +117,10 @@ def publishing(root, stage: str) -> Iterator[Path]:
     staging = staging_path(root, stage)
     staging.mkdir(parents=True, exist_ok=True)
     try:
-        yield staging
+        try:
+            yield staging
+        except WriteError as exc:  # name the file the user will look for, not its staged copy
+            raise renamed_write_error(exc, staging, root) from None
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise

@@ -93,7 +93,7 @@ def _need_several(table: pd.DataFrame, column: str, source, purpose: str, at_lea
     values = pd.unique(table[column])
     if len(values) < at_least:
         raise InputError(source, column, f"at least {at_least} distinct {column} values {purpose}",
-                         f"{len(values)} ({', '.join(map(str, values[:3]))})")
+                         reason=f"found {len(values)}: {', '.join(map(str, values[:3]))}")
 
 
 # ---------------------------------------------------------------- stages
@@ -339,7 +339,7 @@ def features(params: dict, raw_dir=RAW_DIR, out_dir=FEATURES_DIR) -> StageResult
         unifier = Unifier(margin=margin).fit(points, raw["character"].to_numpy())
     except ValueError as exc:
         raise InputError(Path(raw_dir) / "keypoints.csv", "x1..y17", "a skeleton with non-zero bones",
-                         str(exc)) from None
+                         reason=str(exc)) from None
     X = unifier.transform(points, raw["character"].to_numpy())
     table = raw.copy()
     table.loc[:, list(contract.COLUMNS[4:])] = X
@@ -439,9 +439,9 @@ def evaluate(params: dict, features_csv=FEATURES_CSV, reports=REPORTS, mapper=No
     kw = _nnsf_params(params)
     nnsf_rank = int(require(params, "nnsf.rank"))
     table = _read_features(features_csv)
+    _need_several(table, "clip", features_csv, "to hold out in cross-validation grouped by clip")
     _need_several(table, label, features_csv, f"(nnsf.label: {label}): precision over one class is "
                   "1.0 for any model")
-    _need_several(table, "clip", features_csv, "to hold out in cross-validation grouped by clip")
     X = contract.features(table)
     y = table[label].to_numpy()
     groups = table["clip"].to_numpy()
@@ -454,7 +454,7 @@ def evaluate(params: dict, features_csv=FEATURES_CSV, reports=REPORTS, mapper=No
     except ValueError as exc:
         if "fold" in str(exc) or "clips" in str(exc):
             raise InputError(source_of(params), "evaluate.folds", "at most the number of clips per class",
-                             str(exc)) from None
+                             reason=str(exc)) from None
         raise
     summary = summarise(folds_table)
     reports = Path(reports)
@@ -592,9 +592,9 @@ def sweep_point(params: dict, point: dict, features_csv=FEATURES_CSV, figure_dir
     max_iter = int(require(params, "sweep.max_iter"))
     label = _label_column(params)
     table = _read_features(features_csv)
+    _need_several(table, "clip", features_csv, "to hold out in cross-validation grouped by clip")
     _need_several(table, label, features_csv, f"(nnsf.label: {label}): precision over one class is "
                   "1.0 for any model")
-    _need_several(table, "clip", features_csv, "to hold out in cross-validation grouped by clip")
     X = contract.features(table)
     y = table[label].to_numpy()
     folds_table = precision_vs_rank(
@@ -631,4 +631,4 @@ def read_unifier(features_dir=FEATURES_DIR) -> Unifier:
     try:
         return Unifier.from_dict(d)
     except (KeyError, TypeError, ValueError) as exc:
-        raise InputError(path, "characters", "a unifier written by the features stage", str(exc)) from None
+        raise InputError(path, "characters", "a unifier written by the features stage", reason=str(exc)) from None

@@ -112,7 +112,7 @@ def read_cvat_video(path, clip: str | None = None, character: str = "unknown",
     try:
         root = ET.fromstring(data)
     except ET.ParseError as exc:
-        raise InputError(path, f"line {exc.position[0]}", "well-formed XML", str(exc)) from None
+        raise InputError(path, f"line {exc.position[0]}", "well-formed XML", reason=str(exc)) from None
     if root.tag != "annotations":
         raise InputError(path, "root element", "<annotations> (a CVAT XML export)", root.tag)
     version = (root.findtext("version") or "").strip()

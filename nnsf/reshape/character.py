@@ -226,7 +226,7 @@ def load_animated_drawings(path, name: str | None = None) -> Character:
     try:
         cfg = yaml.safe_load(read_text(cfg_path, 10_000_000, "an AnimatedDrawings char_cfg.yaml"))
     except yaml.YAMLError as exc:
-        raise InputError(cfg_path, "file", "valid YAML", str(exc).splitlines()[0]) from None
+        raise InputError(cfg_path, "file", "valid YAML", reason=str(exc)) from None
     except RecursionError:
         raise InputError(cfg_path, "file", "YAML nested at most a few hundred levels deep") from None
     if not isinstance(cfg, dict) or not isinstance(cfg.get("skeleton"), list):

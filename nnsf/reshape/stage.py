@@ -57,7 +57,7 @@ def synthetic_character(name: str, size: int = 512, source="params.yaml") -> Cha
         rgba, mask, kp = render_character(name, size)
     except ValueError as exc:
         raise InputError(source, "reshape.character", "a built-in character name or a character "
-                         "file/folder", str(exc)) from None
+                         "file/folder", reason=str(exc)) from None
     return Character(name=name, texture=rgba, mask=mask, keypoints=kp, source=f"<rendered {name}>")
 
 

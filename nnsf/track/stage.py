@@ -97,7 +97,7 @@ def _track_item(item: dict) -> dict:
             control = track_clip(frames, ann, item["method"], **item["options"])
         except ValueError as exc:     # e.g. control-point counts differing between keyframes
             raise InputError(ann.source, "keyframes", "curves trackable between keyframes",
-                             str(exc)) from None
+                             reason=str(exc)) from None
         n_points = np.array([max(len(k.curves[n]) for k in ann.keyframes if n in k.curves)
                              for n in names], np.int64)
         out.mkdir(parents=True, exist_ok=True)
