@@ -144,7 +144,7 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "frames.characters": _int(1, 12),
     "frames.motions": _motions(),
     "frames.clips_per_cell": _int(1, 100),
-    "frames.frames": _size(2, 2000, 256 * 256 * TRACK_PIXEL_BYTES, "frames of 256x256 px in one clip"),
+    "frames.frames": _size(2, 1000, 256 * 256 * TRACK_PIXEL_BYTES, "frames of 256x256 px in one clip"),
     "frames.size": _int(64, 4096),
     "frames.keyframe_every": _int(0, 10000),
     "frames.control_points": _int(2, 32),
