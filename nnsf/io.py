@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 
 from nnsf.errors import InputError
-from nnsf.files import read_bytes, read_text  # noqa: F401  (the readers live with the writers here)
+from nnsf.errors import read_bytes, read_text  # noqa: F401  (re-exported: readers beside the writers)
 
 
 class WriteError(InputError):

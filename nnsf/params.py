@@ -100,16 +100,18 @@ def _list(item, max_items: int = 100):
 
 
 def _motions():
-    """``frames.motions``: a count of the built-in motions, or a list of their names."""
-    from nnsf.datasets.synthetic_motions import MOTIONS
+    """``frames.motions``: a count, or a list of distinct motion names.
 
+    The names (and a count above the built-in motions) are checked against
+    the generator's list by the frames stage (:func:`nnsf.frames.stage.frames_params`):
+    importing the generator here would make every stage depend on it.
+    """
     def check(v):
         if isinstance(v, numbers.Integral) and not isinstance(v, bool):
-            return 1 <= v <= len(MOTIONS)
-        return (isinstance(v, list) and 0 < len(v) <= len(MOTIONS) and all(isinstance(m, str) for m in v)
-                and len(set(v)) == len(v) and all(m in MOTIONS for m in v))
-    return check, (f"a count in [1, {len(MOTIONS)}] or a list of distinct motion names from "
-                   + ", ".join(MOTIONS))
+            return 1 <= v <= 100
+        return (isinstance(v, list) and 0 < len(v) <= 100 and all(isinstance(m, str) and m for m in v)
+                and len(set(v)) == len(v))
+    return check, "a count in [1, 100] or a non-empty list of distinct motion names"
 
 
 #: Bytes of memory per key-point row of the feature table while the stages
@@ -395,7 +397,7 @@ def load(path="params.yaml") -> dict:
     unreadable (permissions), larger than :data:`MAX_PARAMS_BYTES`, not
     UTF-8, not YAML, nested too deep, or not matching :data:`SCHEMA`.
     """
-    from nnsf.files import read_text
+    from nnsf.errors import read_text
 
     path = Path(path)
     if not path.is_file():

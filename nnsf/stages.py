@@ -25,7 +25,6 @@ from nnsf.datasets import contract
 from nnsf.errors import InputError
 from nnsf.io import atomic_dir, read_json, read_npz, write_csv, write_json, write_npz
 from nnsf.params import require, source_of
-from nnsf.publish import publishing
 from nnsf.skeleton import N_FEATURES, Unifier, to_points
 
 # Default locations, mirrored exactly by dvc.yaml.
@@ -427,6 +426,7 @@ def evaluate(params: dict, features_csv=FEATURES_CSV, reports=REPORTS, mapper=No
     """
     from nnsf.evaluate.crossval import precision_vs_rank, summarise, wide
     from nnsf.evaluate.figures import precision_vs_rank_figure, reconstruction_figure
+    from nnsf.publish import publishing
 
     ranks = [int(r) for r in require(params, "evaluate.ranks")]
     for r in ranks:

@@ -134,14 +134,23 @@ def test_the_project_params_pass_and_every_key_is_in_the_schema(tmp_path):
 
 
 @pytest.mark.parametrize("key, value", [
-    ("frames.motions", ["walk", "moonwalk"]),     # a name the generator does not have
-    ("frames.motions", 99),                        # a count past the 15 motions
+    ("frames.motions", ["walk", "walk"]),          # names, each once
+    ("frames.motions", 0),                         # or a count >= 1
+    ("frames.motions", ["walk", 3]),
     ("reshape_eval.characters", ["char1", 5]),     # names must be strings
     ("reshape.formats", ["gif", "gif", "png", "mp4"]),
 ])
 def test_free_form_fields_are_still_validated(key, value):
     with pytest.raises(InputError, match=key.replace(".", r"\.")):
         validate(with_value(key, value))
+
+
+def test_motion_names_are_checked_against_the_generator_by_the_frames_stage():
+    from nnsf.frames.stage import frames_params
+
+    for value in (["walk", "moonwalk"], 99):
+        with pytest.raises(InputError, match=r"frames\.motions: expected a count"):
+            frames_params(Params(with_value("frames.motions", value)))
 
 
 def test_a_section_that_is_not_a_mapping_is_named():
