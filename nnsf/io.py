@@ -7,6 +7,7 @@ go to ``.npz`` and are read back with ``allow_pickle=False``; tables go to CSV.
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import shutil
@@ -19,6 +20,36 @@ import numpy as np
 import pandas as pd
 
 from nnsf.errors import InputError
+from nnsf.errors import read_bytes, read_text  # noqa: F401  (re-exported: readers beside the writers)
+
+
+class WriteError(InputError):
+    """An output could not be written (disk full, no permission, ...): names the file.
+
+    An :class:`InputError` so that the CLI reports it as one line with exit
+    code 2 and per-clip stages keep their other clips.
+    """
+
+
+def _write_error(path: Path, exc: OSError) -> WriteError:
+    code = errno.errorcode.get(exc.errno, "") if exc.errno else ""
+    what = {"ENOSPC": "free space on its disk", "EDQUOT": "free space in the disk quota",
+            "EFBIG": "a file size the system allows", "EACCES": "permission to write it",
+            "EPERM": "permission to write it", "EROFS": "a writable file system"}.get(
+        code, "a writable location")
+    return WriteError(path, "write", what, reason=f"{exc.strerror or exc}{f' [{code}]' if code else ''}")
+
+
+def renamed_write_error(exc: "WriteError", tmp: Path, final: Path) -> "WriteError":
+    """``exc`` naming the file under ``final`` instead of the temporary folder ``tmp``.
+
+    Outputs written inside a staging folder would otherwise be reported by
+    their temporary name, which the user never sees.
+    """
+    src = exc.source
+    if src == str(tmp) or src.startswith(str(tmp) + os.sep):
+        src = str(final) + src[len(str(tmp)):]
+    return WriteError(src, exc.field, exc.expected, exc.got, reason=exc.reason)
 
 
 @contextlib.contextmanager
@@ -28,18 +59,26 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     On any exception the temporary file is removed and ``path`` is untouched.
     ``suffix`` defaults to ``path``'s own suffix so that libraries that pick a
     format from the file name (matplotlib, OpenCV) still do the right thing.
+    An ``OSError`` while writing (disk full, file too large, no permission)
+    becomes a :class:`WriteError` naming ``path``.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(
-        prefix=f".{path.name}.", suffix=path.suffix if suffix is None else suffix, dir=path.parent
-    )
-    os.close(fd)
-    tmp = Path(tmp)
-    os.chmod(tmp, 0o644)  # mkstemp's 0600 would make the finished file private
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(
+            prefix=f".{path.name}.", suffix=path.suffix if suffix is None else suffix, dir=path.parent
+        )
+        os.close(fd)
+        tmp = Path(tmp)
+        os.chmod(tmp, 0o644)  # mkstemp's 0600 would make the finished file private
+    except OSError as exc:
+        raise _write_error(path, exc) from None
     try:
         yield tmp
         os.replace(tmp, path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise _write_error(path, exc) from None
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
@@ -63,18 +102,27 @@ def _drop_stale(path: Path) -> None:
 def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary folder beside ``path``; swap it in for ``path`` on success."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
-    os.chmod(tmp, 0o755)  # mkdtemp's 0700 would make the finished folder private
     try:
-        yield tmp
-        if path.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.old.", dir=path.parent))
-            os.replace(path, old / "x")
-            os.replace(tmp, path)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+        os.chmod(tmp, 0o755)  # mkdtemp's 0700 would make the finished folder private
+    except OSError as exc:
+        raise _write_error(path, exc) from None
+    try:
+        try:
+            yield tmp
+        except WriteError as exc:
+            raise renamed_write_error(exc, tmp, path) from None
+        try:
+            if path.exists():
+                old = Path(tempfile.mkdtemp(prefix=f".{path.name}.old.", dir=path.parent))
+                os.replace(path, old / "x")
+                os.replace(tmp, path)
+                shutil.rmtree(old, ignore_errors=True)
+            else:
+                os.replace(tmp, path)
+        except OSError as exc:
+            raise _write_error(path, exc) from None
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -120,18 +168,30 @@ def read_npz(path) -> dict[str, np.ndarray]:
         with np.load(path, allow_pickle=False) as z:
             return {k: z[k] for k in z.files}
     except (ValueError, OSError) as exc:
-        raise InputError(path, "file", "a readable .npz archive without pickled objects", str(exc)) from None
+        raise InputError(path, "file", "a readable .npz archive without pickled objects", reason=str(exc)) from None
+
+
+#: Largest JSON file read (bytes): annotations, labels and reports are far smaller.
+MAX_JSON_BYTES = 64_000_000
 
 
 def read_json(path) -> dict:
-    """Read a JSON object, naming the file on failure."""
+    """Read a JSON object, naming the file on failure.
+
+    Every failure is an :class:`InputError` naming ``path``: missing or
+    unreadable file, more than :data:`MAX_JSON_BYTES`, not UTF-8, not JSON,
+    nested deeper than Python's parser allows, or not an object at the top.
+    """
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "file", "an existing JSON file")
+    text = read_text(path, MAX_JSON_BYTES, "a JSON file")
     try:
-        obj = json.loads(path.read_text())
+        obj = json.loads(text)
     except json.JSONDecodeError as exc:
-        raise InputError(path, f"line {exc.lineno}", "valid JSON", exc.msg) from None
+        raise InputError(path, f"line {exc.lineno}", "valid JSON", reason=exc.msg) from None
+    except RecursionError:
+        raise InputError(path, "file", "JSON nested at most a few hundred levels deep") from None
     if not isinstance(obj, dict):
         raise InputError(path, "top level", "a JSON object", type(obj).__name__)
     return obj

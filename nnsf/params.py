@@ -6,13 +6,15 @@ unknown choice fails with one line naming the field.
 """
 from __future__ import annotations
 
+import difflib
+import math
 import numbers
 from pathlib import Path
 from typing import Any, Callable
 
 import yaml
 
-from nnsf.errors import InputError
+from nnsf.errors import InputError, summarize
 
 DATASETS = ("synthetic", "bvh", "frames")
 FACINGS = ("normalise", "none")
@@ -27,13 +29,16 @@ def _optional_str():
     return (lambda v: v is None or (isinstance(v, str) and v != "")), "a non-empty string or null"
 
 
-def _int(lo=None, hi=None):
+def _g(x) -> str:
+    """A bound as people write it: 1000000 -> 1e+06, 0.5 -> 0.5, 12 -> 12."""
+    return f"{x:g}" if isinstance(x, float) or abs(x) >= 1e6 else str(x)
+
+
+def _int(lo: int, hi: int):
+    """An integer in ``[lo, hi]`` (booleans are not integers here)."""
     def check(v):
-        ok = isinstance(v, numbers.Integral) and not isinstance(v, bool)
-        ok = ok and (lo is None or v >= lo) and (hi is None or v <= hi)
-        return ok
-    rng = f" in [{lo}, {hi}]" if hi is not None else (f" >= {lo}" if lo is not None else "")
-    return check, f"an integer{rng}"
+        return isinstance(v, numbers.Integral) and not isinstance(v, bool) and lo <= v <= hi
+    return check, f"an integer in [{_g(lo)}, {_g(hi)}]"
 
 
 def _rank():
@@ -41,105 +46,165 @@ def _rank():
     return check, "an integer from 1 to 34 (a rank cannot exceed the 34 features)"
 
 
-def _num(lo=None, strict=False):
+def _num(lo: float, hi: float, strict: bool = False):
+    """A finite number in ``[lo, hi]`` (``(lo, hi]`` when ``strict``); no NaN, no infinity."""
     def check(v):
-        ok = isinstance(v, numbers.Real) and not isinstance(v, bool)
-        return ok and (lo is None or (v > lo if strict else v >= lo))
-    return check, f"a number {'>' if strict else '>='} {lo}" if lo is not None else "a number"
+        ok = isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
+        return ok and (v > lo if strict else v >= lo) and v <= hi
+    return check, f"a finite number in {'(' if strict else '['}{_g(lo)}, {_g(hi)}]"
+
+
+def _human_bytes(n: float) -> str:
+    for unit in ("bytes", "KB", "MB", "GB", "TB", "PB"):
+        if n < 1000 or unit == "PB":
+            return f"{n:.0f} {unit}" if unit == "bytes" else f"{n:.1f} {unit}"
+        n /= 1000.0
+    return f"{n:.1f} PB"  # pragma: no cover
+
+
+def _size(lo: int, hi: int, bytes_each, what: str):
+    """An integer count in ``[lo, hi]`` whose memory is about ``bytes_each`` per unit.
+
+    ``bytes_each`` may instead be a function of the count giving its bytes.
+    The description states the estimate at ``hi``; :func:`validate` adds the
+    estimate of the value found (``check.explain``).
+    """
+    check, _ = _int(lo, hi)
+    size = bytes_each if callable(bytes_each) else (lambda n: n * bytes_each)
+
+    def explain(v):
+        if isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v) and v > 0:
+            return f"{_g(v)} {what} would need about {_human_bytes(size(float(v)))} of memory"
+        return None
+    check.explain = explain
+    return check, (f"an integer in [{_g(lo)}, {_g(hi)}] ({_g(hi)} {what} need about "
+                   f"{_human_bytes(size(hi))} of memory)")
 
 
 def _choice(options):
-    return (lambda v: v in options), "one of " + ", ".join(options)
+    return (lambda v: isinstance(v, str) and v in options), "one of " + ", ".join(options)
 
 
 def _bool():
     return (lambda v: isinstance(v, bool)), "true or false"
 
 
-def _str():
-    return (lambda v: isinstance(v, str) and v != ""), "a non-empty string"
+def _str(max_len: int = 500):
+    return (lambda v: isinstance(v, str) and 0 < len(v) <= max_len), "a non-empty string"
 
 
-def _list(item):
+def _list(item, max_items: int = 100):
     check, what = item
-    return (lambda v: isinstance(v, list) and len(v) > 0 and all(check(x) for x in v)), \
-        f"a non-empty list, each item {what}"
+    return (lambda v: isinstance(v, list) and 0 < len(v) <= max_items and all(check(x) for x in v)), \
+        f"a non-empty list of at most {max_items} items, each item {what}"
 
 
+def _motions():
+    """``frames.motions``: a count, or a list of distinct motion names.
+
+    The names (and a count above the built-in motions) are checked against
+    the generator's list by the frames stage (:func:`nnsf.frames.stage.frames_params`):
+    importing the generator here would make every stage depend on it.
+    """
+    def check(v):
+        if isinstance(v, numbers.Integral) and not isinstance(v, bool):
+            return 1 <= v <= 100
+        return (isinstance(v, list) and 0 < len(v) <= 100 and all(isinstance(m, str) and m for m in v)
+                and len(set(v)) == len(v))
+    return check, "a count in [1, 100] or a non-empty list of distinct motion names"
+
+
+#: Bytes of memory per key-point row of the feature table while the stages
+#: run (34 float64 coordinates, 4 label strings, copies made by validation,
+#: unification and the fits), measured coarsely; used in size messages.
+ROW_BYTES = 1000
+#: Bytes per pixel of a clip held by the tracker: RGB uint8 frames plus
+#: float64 grey levels, gradients and their pyramid (about 4 planes).
+TRACK_PIXEL_BYTES = 3 + 8 * 4
+#: Memory budget of one stage for the size checks.
+MEMORY_BUDGET = 4e9
+
+# One entry per dotted key: (check, description).  Add new parameters here:
+# every key of params.yaml must be listed, and the stages read values with
+# :func:`require`, which applies the same check (one definition of each range).
 SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
-    "seed": _int(0),
+    "seed": _int(0, 2**32 - 1),
     "dataset.name": _choice(DATASETS),
     "dataset.path": _str(),
     "dataset.synthetic.characters": _int(2, 12),
-    "dataset.synthetic.clips_per_cell": _int(1),
-    "dataset.synthetic.frames": _int(4),
-    "dataset.synthetic.noise_px": _num(0),
-    "dataset.bvh.fps": _num(0, strict=True),
-    "dataset.bvh.azimuth": _num(),
-    "dataset.bvh.elevation": _num(),
+    "dataset.synthetic.clips_per_cell": _size(1, 1000, 15 * 12 * 24 * ROW_BYTES,
+                                              "clips per cell (12 characters x 15 motions x 24 frames)"),
+    "dataset.synthetic.frames": _size(4, 10000, 12 * 15 * ROW_BYTES,
+                                      "frames per clip (12 characters x 15 motions, one clip each)"),
+    "dataset.synthetic.noise_px": _num(0, 100),
+    "dataset.bvh.fps": _num(0, 1000, strict=True),
+    "dataset.bvh.azimuth": _num(-360, 360),
+    "dataset.bvh.elevation": _num(-90, 90),
     "dataset.bvh.facing": _choice(FACINGS),
     "dataset.bvh.center": _bool(),
     "dataset.bvh.complete_grid": _bool(),
     "frames.characters": _int(1, 12),
-    "frames.clips_per_cell": _int(1),
-    "frames.frames": _int(2),
+    "frames.motions": _motions(),
+    "frames.clips_per_cell": _int(1, 100),
+    "frames.frames": _size(2, 1000, 256 * 256 * TRACK_PIXEL_BYTES, "frames of 256x256 px in one clip"),
     "frames.size": _int(64, 4096),
-    "frames.keyframe_every": _int(0),
+    "frames.keyframe_every": _int(0, 10000),
     "frames.control_points": _int(2, 32),
     "track.method": _choice(TRACKERS),
-    "track.w_velocity": _num(0),
-    "track.w_length": _num(0),
-    "track.w_length_anchor": _num(0),
-    "track.w_curvature": _num(0),
-    "track.w_edge": _num(0),
-    "track.w_sketch": _num(0),
-    "track.w_colour": _num(0),
-    "track.window": _int(1),
-    "track.samples": _int(3),
-    "track.levels": _int(1),
-    "track.max_iter": _int(1),
+    "track.w_velocity": _num(0, 1e6),
+    "track.w_length": _num(0, 1e6),
+    "track.w_length_anchor": _num(0, 1e6),
+    "track.w_curvature": _num(0, 1e6),
+    "track.w_edge": _num(0, 1e6),
+    "track.w_sketch": _num(0, 1e6),
+    "track.w_colour": _num(0, 1e6),
+    "track.window": _int(1, 32),
+    "track.samples": _int(3, 200),
+    "track.levels": _int(1, 8),
+    "track.max_iter": _int(1, 10000),
     "track.init": _choice(("linear", "lk")),
     "track.lk_end": _choice(("blend", "none")),
-    "track.eval_clips": _int(1),
-    "track.edit_tol_px": _num(0, strict=True),
-    "track.max_edits": _int(0),
-    "unify.margin": _num(0, strict=True),
+    "track.eval_clips": _int(1, 1000),
+    "track.edit_tol_px": _num(0, 1000, strict=True),
+    "track.max_edits": _int(0, 10000),
+    "unify.margin": _num(0, 1000, strict=True),
     "nnsf.label": _choice(LABELS),
     "nnsf.rank": _rank(),
-    "nnsf.alpha": _num(0),
-    "nnsf.beta": _num(0),
+    "nnsf.alpha": _num(0, 1e6),
+    "nnsf.beta": _num(0, 1e9),
     "nnsf.class_in_loop": _bool(),
-    "nnsf.max_iter": _int(1),
-    "nnsf.tol": _num(0),
+    "nnsf.max_iter": _int(1, 100000),
+    "nnsf.tol": _num(0, 1),
     "nnsf.init": _choice(INITS),
-    "evaluate.folds": _int(2),
-    "evaluate.ranks": _list(_rank()),
-    "evaluate.methods": _list(_choice(METHODS)),
-    "evaluate.max_iter": _int(1),
-    "isomap.samples": _int(20),
-    "isomap.neighbors": _int(2),
-    "isomap.max_dim": _int(1),
-    "sweep.folds": _int(2),
-    "sweep.alpha": _list(_num(0)),
-    "sweep.beta": _list(_num(0)),
-    "sweep.rank": _list(_rank()),
-    "sweep.max_iter": _int(1),
+    "evaluate.folds": _int(2, 100),
+    "evaluate.ranks": _list(_rank(), 34),
+    "evaluate.methods": _list(_choice(METHODS), 20),
+    "evaluate.max_iter": _int(1, 100000),
+    "isomap.samples": _size(20, 10000, lambda n: 3 * 8 * n * n,
+                            "frames embedded (ISOMAP holds about three n x n float64 matrices)"),
+    "isomap.neighbors": _int(2, 1000),
+    "isomap.max_dim": _int(1, 200),
+    "sweep.folds": _int(2, 100),
+    "sweep.alpha": _list(_num(0, 1e6), 50),
+    "sweep.beta": _list(_num(0, 1e9), 50),
+    "sweep.rank": _list(_rank(), 34),
+    "sweep.max_iter": _int(1, 100000),
     "translation.rank": _rank(),
-    "translation.alpha": _num(0),
-    "translation.beta": _num(0),
+    "translation.alpha": _num(0, 1e6),
+    "translation.beta": _num(0, 1e9),
     "translation.label": _choice(LABELS),
     "translation.basis": _choice(("aligned", "refit", "separate")),
     "translation.synthesis": _choice(("consensus", "source")),
     "translation.amplitude": _choice(("restore", "none")),
     "translation.tempo": _bool(),
-    "translation.ridge": _num(0),
-    "translation.max_iter": _int(1),
-    "translation.align_iter": _int(1),
-    "translation.bilinear_rank": _int(1),
-    "translation.max_sources": _int(0),
-    "translation.max_cells": _int(0),
-    "translation.examples": _int(0),
-    "translation.methods": _list(_choice(TRANSLATION_METHODS)),
+    "translation.ridge": _num(0, 1e6),
+    "translation.max_iter": _int(1, 100000),
+    "translation.align_iter": _int(1, 100000),
+    "translation.bilinear_rank": _int(1, 34),
+    "translation.max_sources": _int(0, 100000),
+    "translation.max_cells": _int(0, 100000),
+    "translation.examples": _int(0, 100),
+    "translation.methods": _list(_choice(TRANSLATION_METHODS), 20),
     "translation.content_clip": _str(),
     "translation.style": _str(),
     "reshape.clip": _optional_str(),
@@ -150,16 +215,100 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "reshape.method": _choice(("ours", "keypoints")),
     "reshape.mesh": _choice(("layered", "limbs", "split", "connected")),
     "reshape.propagation": _choice(("limb-frame", "eq12")),
-    "reshape.fps": _num(1),
-    "reshape.max_frames": _int(1, 5000),
-    "reshape.formats": _list(_choice(("png", "gif", "mp4"))),
-    "reshape_eval.characters": _list(_str()),
-    "reshape_eval.motions": _list(_str()),
+    "reshape.fps": _num(1, 120),
+    "reshape.max_frames": _size(1, 5000, 512 * 512 * 3, "rendered frames of 512x512 px"),
+    "reshape.formats": _list(_choice(("png", "gif", "mp4")), 3),
+    "reshape_eval.characters": _list(_str(), 100),
+    "reshape_eval.motions": _list(_str(), 100),
     "reshape_eval.n_vertices": _int(100, 6000),
     "reshape_eval.max_frames": _int(3, 5000),
     "reshape_eval.subkeys_per_limb": _int(1, 12),
     "mlflow.experiment": _str(),
 }
+
+
+def _products(params: dict) -> list[tuple[str, str, float, float, str]]:
+    """Sizes that depend on several fields: (fields, what, estimate, budget, formula).
+
+    Each is checked only when all its fields are present and individually valid.
+    """
+    out = []
+
+    def have(*keys):
+        try:
+            vals = [get(params, k) for k in keys]
+        except KeyError:
+            return None
+        return vals if all(SCHEMA[k][0](v) for k, v in zip(keys, vals)) else None
+
+    v = have("dataset.synthetic.characters", "dataset.synthetic.clips_per_cell", "dataset.synthetic.frames")
+    if v:
+        rows = v[0] * 15 * v[1] * v[2]
+        out.append(("dataset.synthetic", "rows", rows * ROW_BYTES, MEMORY_BUDGET,
+                    f"characters x 15 motions x clips_per_cell x frames = {v[0]} x 15 x {v[1]} x {v[2]} "
+                    f"= {rows} key-point rows"))
+    v = have("frames.frames", "frames.size")
+    if v:
+        px = v[0] * v[1] * v[1]
+        out.append(("frames.frames, frames.size", "clip", px * TRACK_PIXEL_BYTES, MEMORY_BUDGET,
+                    f"frames x size^2 = {v[0]} x {v[1]}^2 = {px} pixels per clip"))
+    v = have("reshape.max_frames", "reshape.character_size")
+    if v:
+        px = v[0] * v[1] * v[1]
+        out.append(("reshape.max_frames, reshape.character_size", "frames", px * 3.0, MEMORY_BUDGET,
+                    f"max_frames x character_size^2 = {v[0]} x {v[1]}^2 = {px} RGB pixels held"))
+    return out
+
+
+def _sections() -> set[str]:
+    """Every proper prefix of a schema key: the keys whose value is a mapping of further keys."""
+    out = set()
+    for key in SCHEMA:
+        parts = key.split(".")
+        out.update(".".join(parts[:i]) for i in range(1, len(parts)))
+    return out
+
+
+#: Unknown keys named in one message, at most.
+UNKNOWN_SHOWN = 10
+
+
+def unknown_keys(params: dict) -> list[str]:
+    """Dotted keys of ``params`` that the schema does not know (in file order).
+
+    Only the schema's sections are entered, so the walk is bounded by the
+    schema, not by the file (an alias bomb under an unknown key is never
+    visited).  Non-string keys are shown as their summary.
+    """
+    sections = _sections()
+    found: list[str] = []
+
+    def walk(node: dict, prefix: str):
+        for k in node:
+            name = k if isinstance(k, str) else summarize(k, 30)
+            dotted = f"{prefix}{name}"
+            if isinstance(k, str) and dotted in SCHEMA:
+                continue
+            if isinstance(k, str) and dotted in sections:
+                child = node[k]
+                if isinstance(child, dict):
+                    walk(child, dotted + ".")
+                continue
+            found.append(dotted)
+    walk(params, "")
+    return found
+
+
+def _suggest(key: str) -> str | None:
+    """The nearest known key to ``key`` (difflib), or None."""
+    known = list(SCHEMA) + sorted(_sections())
+    best = difflib.get_close_matches(key, known, n=1, cutoff=0.6)
+    if not best:  # a misspelt last part under a right section: compare the last parts
+        head, _, tail = key.rpartition(".")
+        peers = [k.rpartition(".")[2] for k in known if k.rpartition(".")[0] == head]
+        near = difflib.get_close_matches(tail, peers, n=1, cutoff=0.6)
+        best = [f"{head}.{near[0]}" if head else near[0]] if near else []
+    return best[0] if best else None
 
 
 class Params(dict):
@@ -183,44 +332,112 @@ def get(params: dict, key: str):
     return node
 
 
-def validate(params: dict, source="params.yaml") -> dict:
-    """Check every known field present in ``params``; return ``params``.
+def _check_field(source, key: str, value) -> None:
+    check, what = SCHEMA[key]
+    if not check(value):
+        explain = getattr(check, "explain", None)
+        raise InputError(source, key, what, value, reason=explain(value) if explain else None)
 
-    A field the schema knows but the file lacks is reported only when a stage
-    asks for it (:func:`require`), so partial files for tests stay usable.
+
+def _check_sections(params: dict, source) -> None:
+    """Every schema section present must be a mapping (or empty)."""
+    for section in sorted(_sections(), key=lambda k: k.count(".")):
+        try:
+            node = get(params, section)
+        except KeyError:
+            continue
+        if node is not None and not isinstance(node, dict):
+            raise InputError(source, section, f"a mapping of {section}.* keys", node)
+
+
+def validate(params: dict, source="params.yaml") -> dict:
+    """Check ``params`` against :data:`SCHEMA`; return ``params``.
+
+    Raises :class:`InputError` for keys the schema does not know (all of
+    them in one line, each with the nearest known key), for a section that is
+    not a mapping, for a field outside its type or range, and for sizes
+    whose memory estimate exceeds :data:`MEMORY_BUDGET`.  A field the schema
+    knows but the file lacks is reported only when a stage asks for it
+    (:func:`require`), so partial files for tests stay usable.
     """
     if not isinstance(params, dict):
-        raise InputError(source, "top level", "a mapping of sections")
-    for key, (check, what) in SCHEMA.items():
+        raise InputError(source, "top level", "a mapping of sections", params)
+    unknown = unknown_keys(params)
+    if unknown:
+        shown = []
+        for key in unknown[:UNKNOWN_SHOWN]:
+            near = _suggest(key)
+            shown.append(f"{key} (did you mean {near}?)" if near else key)
+        more = f" and {len(unknown) - UNKNOWN_SHOWN} more" if len(unknown) > UNKNOWN_SHOWN else ""
+        noun = "unknown key" if len(unknown) == 1 else f"{len(unknown)} unknown keys"
+        raise InputError(source, f"{noun} " + ", ".join(shown) + more,
+                         "only the parameters listed in nnsf/params.py SCHEMA")
+    _check_sections(params, source)
+    for key in SCHEMA:
         try:
             value = get(params, key)
         except KeyError:
             continue
-        if not check(value):
-            raise InputError(source, key, what, value)
+        _check_field(source, key, value)
+    for fields, _, estimate, budget, formula in _products(params):
+        if estimate > budget:
+            raise InputError(source, fields, f"sizes that fit in {_human_bytes(budget)} of memory",
+                             reason=f"{formula}, about {_human_bytes(estimate)}")
     return params
 
 
+#: Largest params file read (bytes); a parameters file is a few KB.
+MAX_PARAMS_BYTES = 1_000_000
+
+
 def load(path="params.yaml") -> dict:
-    """Read and validate a params file (``yaml.safe_load``)."""
+    """Read and validate a params file (``yaml.safe_load``).
+
+    Every failure is an :class:`InputError` naming the file: missing,
+    unreadable (permissions), larger than :data:`MAX_PARAMS_BYTES`, not
+    UTF-8, not YAML, nested too deep, or not matching :data:`SCHEMA`.
+    """
+    from nnsf.errors import read_text
+
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "file", "an existing params.yaml")
+    text = read_text(path, max_bytes=MAX_PARAMS_BYTES, what="a params file")
     try:
-        params = yaml.safe_load(path.read_text())
+        params = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}" if mark else "file"
-        raise InputError(path, where, "valid YAML", getattr(exc, "problem", str(exc))) from None
-    out = Params(validate(params or {}, path))
+        raise InputError(path, where, "valid YAML", reason=getattr(exc, "problem", None) or str(exc)) from None
+    except RecursionError:
+        raise InputError(path, "file", "YAML nested at most a few hundred levels deep") from None
+    out = Params(validate(params if params is not None else {}, path))
     out.source = str(path)
     return out
 
 
 def require(params: dict, key: str):
-    """Value at ``key``, or an :class:`InputError` saying it is missing."""
+    """Value at ``key``, checked against :data:`SCHEMA`; else an :class:`InputError`.
+
+    The error names the params file, the key and the expectation: the key is
+    missing, or its value is outside the schema's type or range (the same
+    definition ``nnsf check`` applies, so a stage never accepts what the check
+    refuses or the other way round).
+    """
     try:
-        return get(params, key)
+        value = get(params, key)
     except KeyError:
         what = SCHEMA.get(key, (None, "a value"))[1]
         raise InputError(source_of(params), key, what + " (the field is missing)") from None
+    if key in SCHEMA:
+        _check_field(source_of(params), key, value)
+    return value
+
+
+def checked(params: dict, key: str, default):
+    """Like :func:`require`, but ``default`` when ``key`` is absent."""
+    try:
+        get(params, key)
+    except KeyError:
+        return default
+    return require(params, key)

@@ -81,6 +81,20 @@ def _label_column(params: dict) -> str:
     return require(params, "nnsf.label")
 
 
+def _need_several(table: pd.DataFrame, column: str, source, purpose: str, at_least: int = 2) -> None:
+    """InputError unless ``table[column]`` holds at least ``at_least`` distinct values.
+
+    A cross-validated precision over one class is 1.0 whatever the model
+    does, and a grouped CV over one clip has nothing to hold out: such data
+    is refused, naming the column and what it holds, instead of giving a
+    perfect score.
+    """
+    values = pd.unique(table[column])
+    if len(values) < at_least:
+        raise InputError(source, column, f"at least {at_least} distinct {column} values {purpose}",
+                         reason=f"found {len(values)}: {', '.join(map(str, values[:3]))}")
+
+
 # ---------------------------------------------------------------- stages
 def frames(params: dict, out_dir=FRAMES_DIR, mapper=None) -> StageResult:
     """Render the ``frames`` section's clips as cartoon frames with ground truth.
@@ -324,7 +338,7 @@ def features(params: dict, raw_dir=RAW_DIR, out_dir=FEATURES_DIR) -> StageResult
         unifier = Unifier(margin=margin).fit(points, raw["character"].to_numpy())
     except ValueError as exc:
         raise InputError(Path(raw_dir) / "keypoints.csv", "x1..y17", "a skeleton with non-zero bones",
-                         str(exc)) from None
+                         reason=str(exc)) from None
     X = unifier.transform(points, raw["character"].to_numpy())
     table = raw.copy()
     table.loc[:, list(contract.COLUMNS[4:])] = X
@@ -412,6 +426,7 @@ def evaluate(params: dict, features_csv=FEATURES_CSV, reports=REPORTS, mapper=No
     """
     from nnsf.evaluate.crossval import precision_vs_rank, summarise, wide
     from nnsf.evaluate.figures import precision_vs_rank_figure, reconstruction_figure
+    from nnsf.publish import publishing
 
     ranks = [int(r) for r in require(params, "evaluate.ranks")]
     for r in ranks:
@@ -424,6 +439,9 @@ def evaluate(params: dict, features_csv=FEATURES_CSV, reports=REPORTS, mapper=No
     kw = _nnsf_params(params)
     nnsf_rank = int(require(params, "nnsf.rank"))
     table = _read_features(features_csv)
+    _need_several(table, "clip", features_csv, "to hold out in cross-validation grouped by clip")
+    _need_several(table, label, features_csv, f"(nnsf.label: {label}): precision over one class is "
+                  "1.0 for any model")
     X = contract.features(table)
     y = table[label].to_numpy()
     groups = table["clip"].to_numpy()
@@ -436,26 +454,31 @@ def evaluate(params: dict, features_csv=FEATURES_CSV, reports=REPORTS, mapper=No
     except ValueError as exc:
         if "fold" in str(exc) or "clips" in str(exc):
             raise InputError(source_of(params), "evaluate.folds", "at most the number of clips per class",
-                             str(exc)) from None
+                             reason=str(exc)) from None
         raise
     summary = summarise(folds_table)
     reports = Path(reports)
     # Wall times vary from run to run; they go to MLflow, not into the
     # versioned tables (whose hashes must depend on the inputs only).
     fit_seconds = float(folds_table["seconds"].sum())
-    write_csv(reports / "cv_folds.csv", folds_table.drop(columns=["seconds"]))
-    write_csv(reports / "precision_vs_rank.csv", summary.drop(columns=["seconds_mean"], errors="ignore"))
-    write_csv(reports / "plots" / "precision_vs_rank.csv", wide(summary, "precision_mean"))
-    write_csv(reports / "plots" / "recon_error_vs_rank.csv", wide(summary, "recon_error_mean"))
     chance = 1.0 / len(np.unique(y))
-    figs = [
-        precision_vs_rank_figure(
-            summary, reports / "figures" / "precision_vs_rank.png", chance=chance,
-            title=f"Held-out precision vs rank ({label} classes, {n_splits}-fold CV grouped by clip)"),
-        reconstruction_figure(summary, reports / "figures" / "reconstruction_vs_rank.png"),
-    ]
     metrics = _evaluate_metrics(summary, nnsf_rank, label, n_splits, chance)
-    write_json(reports / "metrics.json", metrics)
+    # The files are published as one set (nnsf.publish: staged, committed,
+    # moved, manifest reports/evaluate.manifest.json last): a killed run
+    # never leaves some new files beside old ones.
+    with publishing(reports, "evaluate") as out:
+        write_csv(out / "cv_folds.csv", folds_table.drop(columns=["seconds"]))
+        write_csv(out / "precision_vs_rank.csv", summary.drop(columns=["seconds_mean"], errors="ignore"))
+        write_csv(out / "plots" / "precision_vs_rank.csv", wide(summary, "precision_mean"))
+        write_csv(out / "plots" / "recon_error_vs_rank.csv", wide(summary, "recon_error_mean"))
+        staged = [
+            precision_vs_rank_figure(
+                summary, out / "figures" / "precision_vs_rank.png", chance=chance,
+                title=f"Held-out precision vs rank ({label} classes, {n_splits}-fold CV grouped by clip)"),
+            reconstruction_figure(summary, out / "figures" / "reconstruction_vs_rank.png"),
+        ]
+        write_json(out / "metrics.json", metrics)
+    figs = [reports / Path(f).relative_to(out) for f in staged]
     flat = {f"{m}_{k}": v for m, d in metrics["methods"].items() for k, v in d.items()
             if isinstance(v, (int, float))}
     flat["cv_fit_seconds"] = round(fit_seconds, 3)
@@ -569,6 +592,9 @@ def sweep_point(params: dict, point: dict, features_csv=FEATURES_CSV, figure_dir
     max_iter = int(require(params, "sweep.max_iter"))
     label = _label_column(params)
     table = _read_features(features_csv)
+    _need_several(table, "clip", features_csv, "to hold out in cross-validation grouped by clip")
+    _need_several(table, label, features_csv, f"(nnsf.label: {label}): precision over one class is "
+                  "1.0 for any model")
     X = contract.features(table)
     y = table[label].to_numpy()
     folds_table = precision_vs_rank(
@@ -605,4 +631,4 @@ def read_unifier(features_dir=FEATURES_DIR) -> Unifier:
     try:
         return Unifier.from_dict(d)
     except (KeyError, TypeError, ValueError) as exc:
-        raise InputError(path, "characters", "a unifier written by the features stage", str(exc)) from None
+        raise InputError(path, "characters", "a unifier written by the features stage", reason=str(exc)) from None

@@ -132,15 +132,22 @@ class BVH:
 
 # --------------------------------------------------------------------------- reading
 
+#: Largest .bvh file read (bytes); an hour of 60 fps capture is about 200 MB.
+MAX_BVH_BYTES = 512_000_000
+
+
 def read_bvh(path) -> BVH:
     """Read a BVH file; bad content raises :class:`InputError` naming file and line."""
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "file", "an existing .bvh file")
+    from nnsf.io import read_bytes
+
+    data = read_bytes(path, MAX_BVH_BYTES, "a readable .bvh file")
     try:
-        text = path.read_text(encoding="utf-8", errors="strict")
+        text = data.decode("utf-8", errors="strict")
     except UnicodeDecodeError:
-        text = path.read_text(encoding="latin-1")
+        text = data.decode("latin-1")  # every byte decodes: old exporters write Latin-1 names
     return parse_bvh(text, source=path)
 
 

@@ -39,6 +39,7 @@ from nnsf.datasets.bvh import (
 from nnsf.datasets.bvh_skeletons import FAMILIES, SkeletonFamily, detect_family, keypoints_3d
 from nnsf.datasets.contract import validate
 from nnsf.errors import InputError
+from nnsf.io import read_text
 from nnsf.skeleton.layout import FEATURE_COLUMNS, JOINT_INDEX, N_JOINTS
 
 __all__ = [
@@ -110,7 +111,8 @@ def label_lists(folder) -> LabelLists | None:
     for base in (folder, folder.parent):
         c, s = base / "cfg" / "content_label.txt", base / "cfg" / "style_label.txt"
         if c.is_file() and s.is_file():
-            read = lambda p: [_strip_dataset(l.strip()) for l in p.read_text().splitlines() if l.strip()]
+            read = lambda p: [_strip_dataset(l.strip())
+                              for l in read_text(p, 10_000_000, "a label list").splitlines() if l.strip()]
             return LabelLists(read(c), read(s), str(base / "cfg"))
     return None
 
@@ -140,10 +142,15 @@ def labels_from_json(path, root, lists: LabelLists | None) -> tuple[ClipLabels, 
     else ``<stem>.bvh``; it must lie inside ``root``.
     """
     path = Path(path)
+    if not _inside(root, path):
+        raise InputError(path, "file", f"a label file inside the dataset folder {root} "
+                         "(symbolic links included)")
     try:
-        obj = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(path, f"line {getattr(exc, 'lineno', 1)}", "a JSON label object") from None
+        obj = json.loads(read_text(path, 10_000_000, "a JSON label file"))
+    except json.JSONDecodeError as exc:
+        raise InputError(path, f"line {exc.lineno}", "a JSON label object", reason=exc.msg) from None
+    except RecursionError:
+        raise InputError(path, "file", "JSON nested at most a few hundred levels deep") from None
     if not isinstance(obj, dict):
         raise InputError(path, "top level", "a JSON object", type(obj).__name__)
 
@@ -284,6 +291,11 @@ def read_folder(path, fps: float | None = 30, azimuth: float = 0.0, elevation: f
     for key in sorted(clips, key=lambda p: p.stem):
         p = clips[key]
         try:
+            if not _inside(folder, key):
+                # The frame folders' rule: a file, or what a link in it points
+                # to, must stay inside the folder given.
+                raise InputError(p, "file", f"a .bvh file inside the dataset folder {folder} "
+                                 "(symbolic links included)", f"a link to {key}")
             labels = labelled.get(key)
             by_name = None
             try:
@@ -306,8 +318,8 @@ def read_folder(path, fps: float | None = 30, azimuth: float = 0.0, elevation: f
         meta.append((clip.name, len(clip.points), labels.style, labels.motion))
     if not meta:
         raise InputError(folder, "clips", "at least one readable, labelled .bvh clip",
-                         f"none of {len(clips)} ({len(report)} problem(s): "
-                         f"{report[0] if report else 'no .bvh files'})")
+                         reason=f"none of {len(clips)} could be read; {len(report)} problem(s), "
+                         f"the first: {report[0] if report else 'no .bvh files'}")
 
     # 3) a style seen in one motion only cannot be told apart from that motion
     styles: dict[str, set[str]] = {}

@@ -66,8 +66,8 @@ def read_table(path, non_negative: bool = False) -> pd.DataFrame:
         raise InputError(path, "file", "an existing feature-matrix CSV")
     try:
         table = pd.read_csv(path, dtype={"clip": str, "character": str, "motion": str})
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
-        raise InputError(path, "file", "a CSV table", str(exc).splitlines()[0]) from None
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, OSError) as exc:
+        raise InputError(path, "file", "a readable CSV table", reason=str(exc)) from None
     return validate(table, path, non_negative=non_negative)
 
 

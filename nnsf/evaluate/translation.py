@@ -663,7 +663,7 @@ def _check_translator(params, tp):
     try:
         StyleTranslator(**tp)._check_params()
     except ValueError as exc:
-        raise InputError(source_of(params), "translation", "valid StyleTranslator settings", str(exc)) from None
+        raise InputError(source_of(params), "translation", "valid StyleTranslator settings", reason=str(exc)) from None
 
 
 def _pick(cells, n):

@@ -20,7 +20,7 @@ def _decode(path: Path, source, field_name: str) -> np.ndarray:
     try:
         data = path.read_bytes()
     except OSError as exc:
-        raise InputError(path, field_name, "a readable image file", str(exc)) from None
+        raise InputError(path, field_name, "a readable image file", reason=str(exc)) from None
     if data.startswith(PNG_SIGNATURE) and not data.rstrip(b"\x00").endswith(PNG_IEND):
         # libpng may decode a cut-off file into a partly grey picture without
         # complaint; a PNG is complete only when it ends with its IEND chunk.

@@ -103,14 +103,16 @@ def read_cvat_video(path, clip: str | None = None, character: str = "unknown",
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "file", "an existing CVAT XML export")
-    data = path.read_bytes()
+    from nnsf.io import read_bytes
+
+    data = read_bytes(path, 256_000_000, "a readable CVAT XML export")
     if b"<!DOCTYPE" in data or b"<!ENTITY" in data:
         # CVAT never writes these; refusing them rules out entity-expansion tricks.
         raise InputError(path, "file", "CVAT XML without DOCTYPE or ENTITY declarations")
     try:
         root = ET.fromstring(data)
     except ET.ParseError as exc:
-        raise InputError(path, f"line {exc.position[0]}", "well-formed XML", str(exc)) from None
+        raise InputError(path, f"line {exc.position[0]}", "well-formed XML", reason=str(exc)) from None
     if root.tag != "annotations":
         raise InputError(path, "root element", "<annotations> (a CVAT XML export)", root.tag)
     version = (root.findtext("version") or "").strip()

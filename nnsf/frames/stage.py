@@ -143,8 +143,8 @@ def read_index(frames_dir) -> pd.DataFrame:
         raise InputError(path, "file", "the frame-set index written by the render_frames stage")
     try:
         index = pd.read_csv(path, dtype=str, keep_default_na=False)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
-        raise InputError(path, "file", "a CSV table", str(exc).splitlines()[0]) from None
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, OSError) as exc:
+        raise InputError(path, "file", "a readable CSV table", reason=str(exc)) from None
     missing = [c for c in ("clip", "folder") if c not in index.columns]
     if missing:
         raise InputError(path, missing[0], "columns " + ", ".join(INDEX_COLUMNS))

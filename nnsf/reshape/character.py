@@ -221,10 +221,14 @@ def load_animated_drawings(path, name: str | None = None) -> Character:
     folder = cfg_path.parent
     if not cfg_path.is_file():
         raise InputError(cfg_path, "file", "an AnimatedDrawings char_cfg.yaml")
+    from nnsf.io import read_text
+
     try:
-        cfg = yaml.safe_load(cfg_path.read_text())
+        cfg = yaml.safe_load(read_text(cfg_path, 10_000_000, "an AnimatedDrawings char_cfg.yaml"))
     except yaml.YAMLError as exc:
-        raise InputError(cfg_path, "file", "valid YAML", str(exc).splitlines()[0]) from None
+        raise InputError(cfg_path, "file", "valid YAML", reason=str(exc)) from None
+    except RecursionError:
+        raise InputError(cfg_path, "file", "YAML nested at most a few hundred levels deep") from None
     if not isinstance(cfg, dict) or not isinstance(cfg.get("skeleton"), list):
         raise InputError(cfg_path, "skeleton", "a list of joints with name, loc and parent")
     joints: dict[str, np.ndarray] = {}

@@ -97,7 +97,7 @@ def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", fr
         mot = character_scale(P)
         drawn = character_scale(rest[None])
     except ValueError as exc:
-        raise InputError(source, "bones", "bones of non-zero length", str(exc)) from None
+        raise InputError(source, "bones", "bones of non-zero length", reason=str(exc)) from None
     lo, hi = foreshortening
     T = len(P)
     out = np.empty_like(P)
@@ -150,7 +150,7 @@ def read_motion(path, clip: str | None = None) -> tuple[str, np.ndarray, np.ndar
     try:
         table = pd.read_csv(path, dtype={"clip": str, "character": str, "motion": str})
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
-        raise InputError(path, "file", "a CSV table", str(exc).splitlines()[0]) from None
+        raise InputError(path, "file", "a CSV table", reason=str(exc)) from None
     missing = [c for c in contract.COLUMNS if c not in table.columns]
     if missing:
         raise InputError(path, missing[0], "a column of the feature-matrix contract (clip, frame, "

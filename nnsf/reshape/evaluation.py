@@ -269,14 +269,11 @@ def reshape_eval(params: dict, data_root=Path("../shared/data"), out_dir=Path("r
     """Stage wrapper of :func:`run`; reads ``reshape_eval.{characters, motions, n_vertices, max_frames,
     subkeys_per_limb}`` (defaults: the module's constants, 800, 240, 4).  Raises one
     :class:`InputError` naming the failed items after writing the others' results."""
-    from nnsf.params import require
+    from nnsf.params import checked, source_of
     from nnsf.stages import StageResult
 
-    def get(key, default):
-        try:
-            return require(params, f"reshape_eval.{key}")
-        except InputError:
-            return default
+    def get(key, default):  # the schema's check when present (nnsf.params.SCHEMA)
+        return checked(params, f"reshape_eval.{key}", default)
 
     chars = tuple(get("characters", list(CHARACTERS)))
     motions = tuple(get("motions", list(MOTIONS)))
@@ -290,7 +287,7 @@ def reshape_eval(params: dict, data_root=Path("../shared/data"), out_dir=Path("r
             ("characters", chars, len(chars) > 0 and all(isinstance(c, str) for c in chars), "a list of names"),
             ("motions", motions, len(motions) > 0 and all(isinstance(c, str) for c in motions), "a list of names")):
         if not ok:
-            raise InputError("params.yaml", f"reshape_eval.{key}", what, val)
+            raise InputError(source_of(params), f"reshape_eval.{key}", what, val)
     s = run(data_root, out_dir, chars, motions, n_vertices, max_frames, per_limb, kenney_annotations, mapper)
     metrics = {}
     for v, m in s["means"].items():

@@ -47,7 +47,7 @@ BACKGROUND = (255, 255, 255)
 
 # --------------------------------------------------------------------------- characters
 
-def synthetic_character(name: str, size: int = 512) -> Character:
+def synthetic_character(name: str, size: int = 512, source="params.yaml") -> Character:
     """A built-in synthetic character drawn at rest (``nnsf.frames.render``); the stick figure if absent."""
     try:
         from nnsf.frames.render import render_character
@@ -56,8 +56,8 @@ def synthetic_character(name: str, size: int = 512) -> Character:
     try:
         rgba, mask, kp = render_character(name, size)
     except ValueError as exc:
-        raise InputError("params.yaml", "reshape.character", "a built-in character name or a character "
-                         "file/folder", str(exc)) from None
+        raise InputError(source, "reshape.character", "a built-in character name or a character "
+                         "file/folder", reason=str(exc)) from None
     return Character(name=name, texture=rgba, mask=mask, keypoints=kp, source=f"<rendered {name}>")
 
 
@@ -73,7 +73,7 @@ def resolve_character(spec, size: int = 512, root=Path("."), source="params.yaml
     text = str(spec)
     looks_like_path = ("/" in text or "\\" in text or text.endswith((".json", ".yaml", ".yml")))
     if not looks_like_path:
-        return synthetic_character(text, size)
+        return synthetic_character(text, size, source=source)
     p = Path(text)
     if p.is_absolute() or ".." in p.parts:
         raise InputError(source, "reshape.character", "a relative path inside the project", text)
@@ -97,12 +97,16 @@ class Animation:
 
 
 def build_rig(character: Character, method: str = "ours", mesh: str = "layered", n_vertices: int = 800,
-              subkeys_per_limb: int = 4, propagation: str = "limb-frame", base_mesh=None) -> Rig:
-    """The rig of one method (``ours`` | ``keypoints``) and mesh kind (``layered`` | ``limbs`` | ``split`` | ``connected``)."""
+              subkeys_per_limb: int = 4, propagation: str = "limb-frame", base_mesh=None,
+              source="params.yaml") -> Rig:
+    """The rig of one method (``ours`` | ``keypoints``) and mesh kind (``layered`` | ``limbs`` | ``split`` | ``connected``).
+
+    ``source``: the params file named in errors.
+    """
     if method not in METHODS:
-        raise InputError("params.yaml", "reshape.method", "ours or keypoints", method)
+        raise InputError(source, "reshape.method", "ours or keypoints", method)
     if mesh not in MESHES:
-        raise InputError("params.yaml", "reshape.mesh", "layered, limbs, split or connected", mesh)
+        raise InputError(source, "reshape.mesh", "layered, limbs, split or connected", mesh)
     return Rig.build(character, n_vertices=n_vertices, handle_set=METHODS[method], split=MESHES[mesh],
                      subkeys_per_limb=subkeys_per_limb, propagation=propagation, mesh=base_mesh)
 
@@ -171,48 +175,19 @@ def canvas(character: Character, frames: np.ndarray, margin: int = 16) -> tuple[
 # --------------------------------------------------------------------------- the stage
 
 def _params(params: dict) -> dict:
-    from nnsf.params import require
+    """The ``reshape`` section, each field checked by the params schema (defaults when absent).
 
-    def get(key, default):
-        try:
-            return require(params, f"reshape.{key}")
-        except InputError:
-            return default
+    The ranges are :data:`nnsf.params.SCHEMA`'s, the ones ``nnsf check``
+    applies; errors name the params file the section came from.
+    """
+    from nnsf.params import checked, source_of
 
-    p = {
-        "clip": get("clip", None),
-        "character": get("character", "bruno"),
-        "character_size": get("character_size", 512),
-        "n_vertices": get("n_vertices", 800),
-        "subkeys_per_limb": get("subkeys_per_limb", 4),
-        "method": get("method", "ours"),
-        "mesh": get("mesh", "layered"),
-        "propagation": get("propagation", "limb-frame"),
-        "fps": get("fps", 24),
-        "max_frames": get("max_frames", 240),
-        "formats": get("formats", list(FORMATS)),
-    }
-    checks = [
-        ("character_size", isinstance(p["character_size"], int) and 64 <= p["character_size"] <= 4096,
-         "an integer 64..4096"),
-        ("n_vertices", isinstance(p["n_vertices"], int) and 100 <= p["n_vertices"] <= 6000, "an integer 100..6000"),
-        ("subkeys_per_limb", isinstance(p["subkeys_per_limb"], int) and 0 <= p["subkeys_per_limb"] <= 12,
-         "an integer 0..12"),
-        ("method", p["method"] in METHODS, "ours or keypoints"),
-        ("mesh", p["mesh"] in MESHES, "layered, limbs, split or connected"),
-        ("propagation", p["propagation"] in ("limb-frame", "eq12"), "limb-frame or eq12"),
-        ("fps", isinstance(p["fps"], (int, float)) and not isinstance(p["fps"], bool) and 1 <= p["fps"] <= 120,
-         "a number 1..120"),
-        ("max_frames", isinstance(p["max_frames"], int) and 1 <= p["max_frames"] <= 5000, "an integer 1..5000"),
-        ("formats", isinstance(p["formats"], list) and p["formats"] and set(p["formats"]) <= set(FORMATS),
-         "a non-empty list of png, gif, mp4"),
-        ("clip", p["clip"] is None or isinstance(p["clip"], str), "a clip name or null"),
-    ]
-    for key, ok, what in checks:
-        if not ok:
-            raise InputError("params.yaml", f"reshape.{key}", what, p[key])
+    defaults = {"clip": None, "character": "bruno", "character_size": 512, "n_vertices": 800,
+                "subkeys_per_limb": 4, "method": "ours", "mesh": "layered", "propagation": "limb-frame",
+                "fps": 24, "max_frames": 240, "formats": list(FORMATS)}
+    p = {key: checked(params, f"reshape.{key}", default) for key, default in defaults.items()}
     if p["method"] == "ours" and p["subkeys_per_limb"] == 0:
-        raise InputError("params.yaml", "reshape.subkeys_per_limb", "at least 1 for method ours", 0)
+        raise InputError(source_of(params), "reshape.subkeys_per_limb", "at least 1 for method ours", 0)
     return p
 
 
@@ -226,12 +201,16 @@ def reshape(params: dict, motion_csv=Path("data/features/features.csv"), charact
     from nnsf.stages import StageResult
     from nnsf.io import atomic_dir, write_json
 
+    from nnsf.params import source_of
+
     p = _params(params)
+    source = source_of(params)
     character = (load_character(character_path) if character_path is not None
-                 else resolve_character(p["character"], p["character_size"]))
+                 else resolve_character(p["character"], p["character_size"], source=source))
     clip, frame_ids, points = read_motion(motion_csv, p["clip"])
     points, frame_ids = points[: p["max_frames"]], frame_ids[: p["max_frames"]]
-    rig = build_rig(character, p["method"], p["mesh"], p["n_vertices"], p["subkeys_per_limb"], p["propagation"])
+    rig = build_rig(character, p["method"], p["mesh"], p["n_vertices"], p["subkeys_per_limb"], p["propagation"],
+                    source=source)
     anim = animate(rig, points, source=f"{motion_csv} (clip {clip})", frames=frame_ids)
     offset, size = canvas(character, anim.frames)
     renderer = MeshRenderer.for_mesh(rig.mesh, character, size=size)

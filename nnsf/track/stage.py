@@ -22,7 +22,7 @@ import pandas as pd
 
 from nnsf.errors import InputError
 from nnsf.io import atomic_dir, read_npz, write_csv, write_json, write_npz
-from nnsf.params import require, source_of
+from nnsf.params import require
 
 FRAMES_DIR = Path("data/frames")
 TRACKS_DIR = Path("data/tracks")
@@ -50,34 +50,19 @@ def _map(mapper, fn, items) -> list:
 
 
 def track_options(params: dict) -> dict:
-    """TrackOptions keyword arguments from the ``track`` section (InputError naming the field)."""
-    src = source_of(params)
-    out = {}
-    for key, (name, kind, lo) in OPTION_PARAMS.items():
-        v = require(params, f"track.{key}")
-        ok = isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) and v >= lo
-        if kind == "int":
-            ok = ok and isinstance(v, int)
-        if not ok:
-            what = "an integer" if kind == "int" else "a number"
-            raise InputError(src, f"track.{key}", f"{what} >= {lo:g}", v)
-        out[name] = v
-    init = require(params, "track.init")
-    if init not in ("linear", "lk"):
-        raise InputError(src, "track.init", "one of linear, lk", init)
-    out["init"] = init
-    end = require(params, "track.lk_end")
-    if end not in ("blend", "none"):
-        raise InputError(src, "track.lk_end", "one of blend, none", end)
-    out["lk_end"] = end
+    """TrackOptions keyword arguments from the ``track`` section (InputError naming the field).
+
+    Each value is checked by :func:`nnsf.params.require` against the params
+    schema, the ranges ``nnsf check`` applies.
+    """
+    out = {name: require(params, f"track.{key}") for key, (name, _, _) in OPTION_PARAMS.items()}
+    out["init"] = require(params, "track.init")
+    out["lk_end"] = require(params, "track.lk_end")
     return out
 
 
 def _method(params: dict) -> str:
-    m = require(params, "track.method")
-    if m not in TRACKERS:
-        raise InputError(source_of(params), "track.method", "one of " + ", ".join(TRACKERS), m)
-    return m
+    return require(params, "track.method")  # one of TRACKERS (the params schema)
 
 
 def _failures(failed: dict) -> str:
@@ -112,7 +97,7 @@ def _track_item(item: dict) -> dict:
             control = track_clip(frames, ann, item["method"], **item["options"])
         except ValueError as exc:     # e.g. control-point counts differing between keyframes
             raise InputError(ann.source, "keyframes", "curves trackable between keyframes",
-                             str(exc)) from None
+                             reason=str(exc)) from None
         n_points = np.array([max(len(k.curves[n]) for k in ann.keyframes if n in k.curves)
                              for n in names], np.int64)
         out.mkdir(parents=True, exist_ok=True)
@@ -215,17 +200,10 @@ def evaluate_tracking(params: dict, frames_dir=FRAMES_DIR, reports=REPORTS, mapp
     from nnsf.track.figures import tracking_overlay
     from nnsf.track.metrics import error_summary, symmetric_summary
 
-    src = source_of(params)
     options = track_options(params)
-    n_clips = require(params, "track.eval_clips")
-    if not isinstance(n_clips, int) or isinstance(n_clips, bool) or n_clips < 1:
-        raise InputError(src, "track.eval_clips", "an integer >= 1", n_clips)
+    n_clips = require(params, "track.eval_clips")      # each checked by the params schema
     tol = require(params, "track.edit_tol_px")
-    if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not tol > 0:
-        raise InputError(src, "track.edit_tol_px", "a number > 0", tol)
     max_edits = require(params, "track.max_edits")
-    if not isinstance(max_edits, int) or isinstance(max_edits, bool) or max_edits < 0:
-        raise InputError(src, "track.max_edits", "an integer >= 0", max_edits)
     frames_dir, reports = Path(frames_dir), Path(reports)
     index = read_index(frames_dir)
     rows = [r for r in index.itertuples() if (frames_dir / r.folder / "truth.npz").is_file()]
