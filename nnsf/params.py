@@ -17,7 +17,7 @@ from nnsf.errors import InputError
 DATASETS = ("synthetic", "bvh", "frames")
 FACINGS = ("normalise", "none")
 INITS = ("random", "nndsvd", "nndsvda", "nndsvdar")
-METHODS = ("nnsf", "nnsc", "nmf", "bilinear")
+METHODS = ("nnsf", "nnsc", "nmf", "bilinear", "mgpm", "cbgpm")
 LABELS = ("motion", "character")
 TRACKERS = ("ours", "agarwala", "lk")
 TRANSLATION_METHODS = ("nnsf", "nnsf_swapped", "nnsf_beta0", "nnsf_refit", "bilinear", "identity", "real")
@@ -116,6 +116,13 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "evaluate.ranks": _list(_rank()),
     "evaluate.methods": _list(_choice(METHODS)),
     "evaluate.max_iter": _int(1),
+    "evaluate.gp.phase_bins": _int(1),
+    "evaluate.gp.max_iter": _int(1),
+    # The GP baselines in the held-out translation (nnsf.evaluate.gp_translation);
+    # the rank is also checked against the data (at most max(styles, contents)).
+    "translation.gp_rank": _rank(),
+    "translation.gp_phase_bins": _int(1),
+    "translation.gp_max_iter": _int(1),
     "isomap.samples": _int(20),
     "isomap.neighbors": _int(2),
     "isomap.max_dim": _int(1),
