@@ -205,7 +205,7 @@ class CBGPM(BaseEstimator):
                 raise ValueError("CBGPM.fit needs phase (n,) or groups (the clip of each row)")
             phase = phase_from_groups(_labels(groups, n, "groups"))
         phase = check_phase(phase, n)
-        styles, contents, means, observed = phase_bins(X, style, y, phase, self.phase_bins)
+        styles, contents, means, observed, _ = phase_bins(X, style, y, phase, self.phase_bins)
 
         self.pca_ = PCA(n_components=self.n_components, svd_solver="full").fit(X)
         Z = np.where(observed[..., None], means, 0.0)

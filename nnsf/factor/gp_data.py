@@ -81,6 +81,9 @@ def phase_bins(X, style, content, phase, n_bins: int, field: str = "phase_bins")
     contents : ndarray (C,), sorted content labels
     means : ndarray (S, C, B, d), NaN where a bin is empty or a cell missing
     observed : ndarray of bool (S, C, B)
+    mean_phase : ndarray (S, C, B)
+        Mean phase of the frames in each bin (NaN where empty): the state a
+        bin mean stands for (near, but at the ends not at, the bin centre).
 
     Raises
     ------
@@ -108,7 +111,11 @@ def phase_bins(X, style, content, phase, n_bins: int, field: str = "phase_bins")
     with np.errstate(invalid="ignore", divide="ignore"):
         means = sums / counts[:, None]
     means[counts == 0] = np.nan
-    return styles, contents, means.reshape(S, C, n_bins, d), (counts > 0).reshape(S, C, n_bins)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean_phase = np.bincount(flat, weights=np.asarray(phase, dtype=float), minlength=S * C * n_bins) / counts
+    shape = (S, C, n_bins)
+    return (styles, contents, means.reshape(*shape, d), (counts > 0).reshape(shape),
+            mean_phase.reshape(shape))
 
 
 def interpolate_bins(values, phase) -> np.ndarray:

@@ -5,14 +5,16 @@ content ``c`` (a motion class) and state ``φ`` (the phase of the motion, 0 at
 a clip's first frame and 1 at its last) is a draw of a Gaussian process whose
 kernel is the product of one kernel per factor:
 
-    k((s, c, φ), (s', c', φ')) = (sᵀs') · (cᵀc') · exp(−γ/2 (φ − φ')²) + β⁻¹ δ,
+    k((s, c, φ), (s', c', φ')) = (sᵀs') · (cᵀc') · exp(−γ/2 (φ − φ')²) + b + β⁻¹ δ,
 
 with a latent *style vector* ``s`` per style and a latent *content vector*
 ``c`` per content (linear kernels: the multilinear model with its weights
-integrated out) and an RBF on the state.  Each of the ``d`` standardised
-feature columns is an independent draw with this kernel.  The latent vectors
-and the hyperparameters ``γ`` (inverse squared phase length-scale) and ``β``
-(noise precision) maximise the log posterior
+integrated out) and an RBF on the state; ``b`` is a bias term (a constant
+mean per feature with a N(0, b) prior, integrated out: the features are
+centred on their sample mean, which is not the model's mean).  Each of the
+``d`` standardised feature columns is an independent draw with this kernel.
+The latent vectors and the hyperparameters ``γ`` (inverse squared phase
+length-scale), ``b`` and ``β`` (noise precision) maximise the log posterior
 
     −L = −d/2 ln|K| − ½ tr(K⁻¹ Y Yᵀ) − ½ Σ‖s‖² − ½ Σ‖c‖² + const
 
@@ -58,7 +60,8 @@ __all__ = ["MGPM", "neg_log_posterior", "max_rank"]
 # (unit) variance of a standardised feature.
 _LOG_GAMMA_BOUNDS = (np.log(0.5), np.log(1e4))
 _LOG_BETA_BOUNDS = (0.0, np.log(1e5))
-_GAMMA0, _BETA0 = 16.0, 100.0        # phase length-scale 0.25; noise 1 % of the variance
+_LOG_BIAS_BOUNDS = (np.log(1e-6), np.log(1e2))
+_GAMMA0, _BIAS0, _BETA0 = 16.0, 0.1, 100.0   # phase length-scale 0.25; noise 1 % of the variance
 
 
 def max_rank(n_styles: int, n_contents: int) -> int:
@@ -69,8 +72,8 @@ def max_rank(n_styles: int, n_contents: int) -> int:
 def _unpack(theta, S, C, q_s, q_c):
     Sv = theta[:S * q_s].reshape(S, q_s)
     Cv = theta[S * q_s:S * q_s + C * q_c].reshape(C, q_c)
-    log_gamma, log_beta = theta[-2], theta[-1]
-    return Sv, Cv, log_gamma, log_beta
+    log_gamma, log_bias, log_beta = theta[-3], theta[-2], theta[-1]
+    return Sv, Cv, log_gamma, log_bias, log_beta
 
 
 def neg_log_posterior(theta, Y, s_idx, c_idx, phi, S, C, q_s, q_c, return_parts=False):
@@ -78,9 +81,9 @@ def neg_log_posterior(theta, Y, s_idx, c_idx, phi, S, C, q_s, q_c, return_parts=
 
     Parameters
     ----------
-    theta : array, shape (S·q_s + C·q_c + 2,)
+    theta : array, shape (S·q_s + C·q_c + 3,)
         Style vectors (S, q_s) and content vectors (C, q_c), row-major, then
-        ``ln γ`` and ``ln β``.
+        ``ln γ``, ``ln b`` and ``ln β``.
     Y : array, shape (n, d)
         Standardised training points.
     s_idx, c_idx : int arrays, shape (n,)
@@ -99,15 +102,15 @@ def neg_log_posterior(theta, Y, s_idx, c_idx, phi, S, C, q_s, q_c, return_parts=
     grad : ndarray, same shape as ``theta``
     """
     n, d = Y.shape
-    Sv, Cv, log_gamma, log_beta = _unpack(theta, S, C, q_s, q_c)
-    gamma, beta = np.exp(log_gamma), np.exp(log_beta)
+    Sv, Cv, log_gamma, log_bias, log_beta = _unpack(theta, S, C, q_s, q_c)
+    gamma, bias, beta = np.exp(log_gamma), np.exp(log_bias), np.exp(log_beta)
     Sa, Ca = Sv[s_idx], Cv[c_idx]                          # (n, q_s), (n, q_c)
     A = Sa @ Sa.T                                          # style kernel
     B = Ca @ Ca.T                                          # content kernel
     D2 = (phi[:, None] - phi[None, :]) ** 2
     R = np.exp(-0.5 * gamma * D2)                          # state kernel
     Kf = A * B * R
-    K = Kf.copy()
+    K = Kf + bias
     K[np.diag_indices(n)] += 1.0 / beta
     # K⁻¹ itself is needed (the gradient contracts all of dL/dK); LAPACK's
     # potri computes it from the Cholesky factor in a third of the time of
@@ -132,8 +135,9 @@ def neg_log_posterior(theta, Y, s_idx, c_idx, phi, S, C, q_s, q_c, return_parts=
     gS += Sv
     gC += Cv
     g_log_gamma = float(np.sum(G * Kf * (-0.5 * gamma * D2)))
+    g_log_bias = float(bias * np.sum(G))
     g_log_beta = float(-np.trace(G) / beta)
-    grad = np.concatenate([gS.ravel(), gC.ravel(), [g_log_gamma, g_log_beta]])
+    grad = np.concatenate([gS.ravel(), gC.ravel(), [g_log_gamma, g_log_bias, g_log_beta]])
     if return_parts:
         return value, grad, (L, alpha, Kinv)
     return value, grad
@@ -181,9 +185,9 @@ class MGPM(BaseEstimator):
     content_vectors_ : ndarray (C, q_c)
     n_components_ : int
         ``max(q_s, q_c)``, the rank used.
-    gamma_, beta_ : float
-        RBF inverse squared length-scale (per unit phase²) and noise
-        precision (per unit standardised variance).
+    gamma_, bias_, beta_ : float
+        RBF inverse squared length-scale (per unit phase²), bias variance
+        and noise precision (per unit standardised variance).
     mean_, scale_ : ndarray (d,)
         Feature standardisation (the GP models ``(x − mean_) / scale_``).
     n_train_points_ : int
@@ -224,7 +228,7 @@ class MGPM(BaseEstimator):
             phase = phase_from_groups(_labels(groups, n, "groups"))
         phase = check_phase(phase, n)
 
-        styles, contents, means, observed = phase_bins(X, style, y, phase, self.phase_bins)
+        styles, contents, means, observed, mean_phase = phase_bins(X, style, y, phase, self.phase_bins)
         S, C, Bn = observed.shape
         top = max_rank(S, C)
         if self.n_components > top:
@@ -233,19 +237,20 @@ class MGPM(BaseEstimator):
         q_s, q_c = min(self.n_components, S), min(self.n_components, C)
         s_idx, c_idx, b_idx = np.nonzero(observed)
         P = means[observed]                                 # (n_points, d)
-        phi = bin_centres(Bn)[b_idx]
+        phi = mean_phase[observed]
         self.mean_ = P.mean(axis=0)
         scale = P.std(axis=0)
         self.scale_ = np.where(scale > 1e-12 * max(scale.max(), 1e-300), scale, 1.0)
         Y = (P - self.mean_) / self.scale_
 
         theta0 = self._initial(Y, s_idx, c_idx, S, C, q_s, q_c)
-        bounds = [(None, None)] * (S * q_s + C * q_c) + [_LOG_GAMMA_BOUNDS, _LOG_BETA_BOUNDS]
+        bounds = [(None, None)] * (S * q_s + C * q_c) + [_LOG_GAMMA_BOUNDS, _LOG_BIAS_BOUNDS,
+                                                          _LOG_BETA_BOUNDS]
         args = (Y, s_idx, c_idx, phi, S, C, q_s, q_c)
         res = minimize(neg_log_posterior, theta0, args=args, jac=True, method="L-BFGS-B",
                        bounds=bounds, options={"maxiter": int(self.max_iter), "ftol": float(self.tol)})
         value, _, (_, alpha, Kinv) = neg_log_posterior(res.x, *args, return_parts=True)
-        Sv, Cv, log_gamma, log_beta = _unpack(res.x, S, C, q_s, q_c)
+        Sv, Cv, log_gamma, log_bias, log_beta = _unpack(res.x, S, C, q_s, q_c)
 
         self.n_features_in_ = d
         self.classes_ = contents
@@ -255,6 +260,7 @@ class MGPM(BaseEstimator):
         self.n_components_ = max(q_s, q_c)
         self.gamma_ = float(np.exp(log_gamma))
         self.beta_ = float(np.exp(log_beta))
+        self.bias_ = float(np.exp(log_bias))
         self.n_train_points_ = int(len(Y))
         self.objective_ = float(value)
         self.n_iter_ = int(res.nit)
@@ -264,7 +270,7 @@ class MGPM(BaseEstimator):
         return self
 
     def _initial(self, Y, s_idx, c_idx, S, C, q_s, q_c):
-        """Latent vectors from SVDs of the cell means (the bilinear model's start), ln γ₀, ln β₀."""
+        """Latent vectors from SVDs of the cell means (the bilinear model's start), ln γ₀, ln b₀, ln β₀."""
         d = Y.shape[1]
         sums = np.zeros((S, C, d))
         np.add.at(sums, (s_idx, c_idx), Y)
@@ -289,7 +295,7 @@ class MGPM(BaseEstimator):
         rng = np.random.default_rng(self.random_state)
         Sv = Sv + 1e-3 * rng.standard_normal(Sv.shape)
         Cv = Cv + 1e-3 * rng.standard_normal(Cv.shape)
-        return np.concatenate([Sv.ravel(), Cv.ravel(), [np.log(_GAMMA0), np.log(_BETA0)]])
+        return np.concatenate([Sv.ravel(), Cv.ravel(), [np.log(_GAMMA0), np.log(_BIAS0), np.log(_BETA0)]])
 
     # ------------------------------------------------------------ prediction
     def _index(self, labels, known, what):
@@ -307,8 +313,9 @@ class MGPM(BaseEstimator):
         Sa, Ca, Phi = self._train
         sv, cv = self.style_vectors_[s_pos], self.content_vectors_[c_pos]
         ks = (sv @ Sa.T) * (cv @ Ca.T) * np.exp(-0.5 * self.gamma_ * (phi[:, None] - Phi[None, :]) ** 2)
+        ks += self.bias_
         mean = ks @ self._alpha
-        kss = np.sum(sv ** 2, axis=1) * np.sum(cv ** 2, axis=1)
+        kss = np.sum(sv ** 2, axis=1) * np.sum(cv ** 2, axis=1) + self.bias_
         var = kss - np.sum((ks @ self._Kinv) * ks, axis=1) + 1.0 / self.beta_
         return mean, np.maximum(var, 1e-12)
 
