@@ -30,6 +30,14 @@ from nnsf.factor.mgpm import MGPM, neg_log_posterior
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@pytest.fixture(autouse=True)
+def one_blas_thread():
+    """Small matrices: threaded BLAS only adds contention on a shared 2-core machine."""
+    from threadpoolctl import threadpool_limits
+    with threadpool_limits(1, user_api="blas"):
+        yield
+
+
 # ------------------------------------------------------------------ gradients
 def test_mgpm_gradient_matches_finite_differences():
     rng = np.random.default_rng(0)

@@ -44,6 +44,7 @@ from scipy.optimize import minimize
 from sklearn.base import BaseEstimator
 from sklearn.decomposition import PCA
 from sklearn.utils.validation import check_array, check_is_fitted
+from threadpoolctl import threadpool_limits
 
 from nnsf.factor.gp_data import bin_centres, check_phase, interpolate_bins, phase_bins, phase_from_groups
 
@@ -187,6 +188,12 @@ class CBGPM(BaseEstimator):
 
     def fit(self, X, y, style, phase=None, groups=None):
         """Fit from frames ``X`` (n, d), contents ``y``, styles and phases (or clips ``groups``)."""
+        # One BLAS thread: the matrices are a few hundred wide at most, and
+        # threaded BLAS on them ran several times slower on a loaded 2-core machine.
+        with threadpool_limits(1, user_api="blas"):
+            return self._fit(X, y, style, phase, groups)
+
+    def _fit(self, X, y, style, phase, groups):
         X = check_array(X, dtype=np.float64, ensure_all_finite=True)
         n, d = X.shape
         _check_int("n_components", self.n_components)
