@@ -272,3 +272,23 @@ def test_evaluate_stage_exits_2_on_a_subsample_larger_than_the_data(tmp_path):
     assert lines == ["error: params.yaml: evaluate.gp.phase_bins: expected at most the frames of the "
                      "shortest clip (6); the GP models' subsample cannot be larger than the data, got 7"]
     assert not (tmp_path / "reports").exists()
+
+
+# ------------------------------------------------------------------ scikit-learn conventions
+@pytest.mark.parametrize("Estimator", [MGPM, CBGPM])
+def test_scikit_learn_conventions_that_do_not_need_fit_x_y(Estimator):
+    """check_estimator as a whole cannot pass: fit needs each row's style and phase (or clip)
+    besides X and y, and its checks call fit(X, y).  The checks of construction do apply."""
+    from sklearn.base import clone
+    from sklearn.utils.estimator_checks import (check_get_params_invariance,
+                                                check_no_attributes_set_in_init,
+                                                check_parameters_default_constructible)
+    name = Estimator.__name__
+    check_parameters_default_constructible(name, Estimator())
+    check_no_attributes_set_in_init(name, Estimator())
+    check_get_params_invariance(name, Estimator())
+    est = Estimator(n_components=2, phase_bins=2)
+    assert clone(est).get_params() == est.get_params()
+    X, y, s, g, ph = grid_table(offset_styles(S=2, C=3, T=4)[0], 4)
+    fitted = est.fit(X, y, s, ph)
+    assert fitted is est and not hasattr(clone(est), "classes_")
