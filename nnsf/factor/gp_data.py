@@ -5,7 +5,8 @@ neither GP baseline (:mod:`nnsf.factor.mgpm`, :mod:`nnsf.factor.cbgpm`) is fitte
 on every frame.  Each is fitted on a *documented subsample*: for every
 observed (style, content) cell, its frames are put into ``B`` equal bins of
 the motion's phase (the frame's position in its clip, 0 at the first frame, 1
-at the last) and each bin is replaced by the mean of its frames.  A full grid
+at the last) and each bin is replaced by the mean of its frames, at the mean
+phase of its frames.  A full grid
 of S styles × C contents gives at most ``n = S·C·B`` points, e.g. 9 × 15 × 3 =
 405 for the embedded dataset -- instead of 9,720 frames.
 
