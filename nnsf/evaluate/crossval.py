@@ -261,7 +261,8 @@ def precision_vs_rank(X, y, groups, styles=None, methods=METHODS, ranks=(2, 4, 8
         ``precision`` is ``precision_score(average="macro", zero_division=0)``
         over the classes that occur in the fold's truth or predictions;
         ``recon_error`` is relative (dimensionless); for the bilinear model
-        the reconstruction is its nearest cell mean ``A^s b^ĉ``.
+        the reconstruction is its nearest cell mean ``A^s b^ĉ``, for the GP models the
+        pose they predict at the chosen (content, phase).
     """
     X = np.asarray(X, dtype=float)
     if X.ndim != 2:
