@@ -46,7 +46,7 @@ from sklearn.decomposition import PCA
 from sklearn.utils.validation import check_array, check_is_fitted
 from threadpoolctl import threadpool_limits
 
-from nnsf.factor.gp_data import bin_centres, check_phase, interpolate_bins, phase_bins, phase_from_groups
+from nnsf.factor.gp_data import check_phase, interpolate_bins, phase_bins, phase_from_groups
 
 __all__ = ["CBGPM", "additive_fit", "neg_log_marginal"]
 
