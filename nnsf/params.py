@@ -19,7 +19,7 @@ from nnsf.errors import InputError, summarize
 DATASETS = ("synthetic", "bvh", "frames")
 FACINGS = ("normalise", "none")
 INITS = ("random", "nndsvd", "nndsvda", "nndsvdar")
-METHODS = ("nnsf", "nnsc", "nmf", "bilinear")
+METHODS = ("nnsf", "nnsc", "nmf", "bilinear", "mgpm", "cbgpm")
 LABELS = ("motion", "character")
 TRACKERS = ("ours", "agarwala", "lk")
 TRANSLATION_METHODS = ("nnsf", "nnsf_swapped", "nnsf_beta0", "nnsf_refit", "bilinear", "identity", "real")
@@ -180,6 +180,13 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "evaluate.ranks": _list(_rank(), 34),
     "evaluate.methods": _list(_choice(METHODS), 20),
     "evaluate.max_iter": _int(1, 100000),
+    "evaluate.gp.phase_bins": _int(1, 100),
+    "evaluate.gp.max_iter": _int(1, 100000),
+    # The GP baselines in the held-out translation (nnsf.evaluate.gp_translation);
+    # the rank is also checked against the data (at most max(styles, contents)).
+    "translation.gp_rank": _rank(),
+    "translation.gp_phase_bins": _int(1, 100),
+    "translation.gp_max_iter": _int(1, 100000),
     "isomap.samples": _size(20, 10000, lambda n: 3 * 8 * n * n,
                             "frames embedded (ISOMAP holds about three n x n float64 matrices)"),
     "isomap.neighbors": _int(2, 1000),

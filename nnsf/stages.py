@@ -446,10 +446,12 @@ def evaluate(params: dict, features_csv=FEATURES_CSV, reports=REPORTS, mapper=No
     y = table[label].to_numpy()
     groups = table["clip"].to_numpy()
     styles = table["character"].to_numpy()
+    gp_params, phase = _gp_settings(params, table, methods)
     try:
         folds_table = precision_vs_rank(
             X, y, groups, styles=styles, methods=methods, ranks=ranks, n_splits=n_splits,
             seed=seed, max_iter=max_iter, nnsf_params=kw, n_jobs=2, mapper=mapper,
+            phase=phase, gp_params=gp_params,
         )
     except ValueError as exc:
         if "fold" in str(exc) or "clips" in str(exc):
@@ -484,9 +486,37 @@ def evaluate(params: dict, features_csv=FEATURES_CSV, reports=REPORTS, mapper=No
     flat["cv_fit_seconds"] = round(fit_seconds, 3)
     return StageResult(
         params={"ranks": ",".join(map(str, ranks)), "methods": ",".join(methods), "folds": n_splits,
-                "max_iter": max_iter, "seed": seed, "label": label, "rank": nnsf_rank, **kw},
+                "max_iter": max_iter, "seed": seed, "label": label, "rank": nnsf_rank, **kw,
+                **{f"gp_{k}": v for k, v in (gp_params or {}).items()}},
         metrics=flat, artifacts=figs + [reports / "precision_vs_rank.csv"],
     )
+
+
+def clip_phase(table: pd.DataFrame) -> np.ndarray:
+    """Phase in [0, 1] of every row: its ``frame`` relative to its clip's first and last frame."""
+    frame = table["frame"].to_numpy(float)
+    by_clip = table.groupby("clip", sort=False)["frame"]
+    lo = by_clip.transform("min").to_numpy(float)
+    hi = by_clip.transform("max").to_numpy(float)
+    return np.where(hi > lo, (frame - lo) / np.where(hi > lo, hi - lo, 1.0), 0.0)
+
+
+def _gp_settings(params: dict, table: pd.DataFrame, methods) -> tuple[dict | None, np.ndarray | None]:
+    """``evaluate.gp`` settings and per-row phases when a GP baseline is requested, else (None, None).
+
+    The subsample (``evaluate.gp.phase_bins`` bins per cell) cannot be larger
+    than the data: every bin needs a frame even for a cell with one clip, so
+    the bins may not outnumber the frames of the shortest clip.
+    """
+    if not any(m in ("mgpm", "cbgpm") for m in methods):
+        return None, None
+    bins = int(require(params, "evaluate.gp.phase_bins"))
+    shortest = int(table.groupby("clip").size().min())
+    if bins > shortest:
+        raise InputError(source_of(params), "evaluate.gp.phase_bins",
+                         f"at most the frames of the shortest clip ({shortest}); the GP models' "
+                         "subsample cannot be larger than the data", bins)
+    return {"phase_bins": bins, "max_iter": int(require(params, "evaluate.gp.max_iter"))}, clip_phase(table)
 
 
 def _evaluate_metrics(summary: pd.DataFrame, nnsf_rank: int, label: str, folds: int, chance: float) -> dict:

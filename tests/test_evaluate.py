@@ -9,11 +9,14 @@ import pandas as pd
 import pytest
 from sklearn.datasets import make_swiss_roll
 
-from nnsf.evaluate.crossval import (METHODS, TABLE_COLUMNS, folds, max_rank, precision_vs_rank,
+from nnsf.evaluate.crossval import (TABLE_COLUMNS, folds, max_rank, precision_vs_rank,
                                     summarise, wide)
 from nnsf.evaluate.figures import isomap_figure, precision_vs_rank_figure, reconstruction_figure
 from nnsf.evaluate.isomap import (connected_n_neighbors, intrinsic_dimension, residual_variance,
                                   stratified_sample)
+
+#: The four classic methods; the GP baselines have their own tests (tests/test_gp_baselines.py).
+METHODS = ("nnsf", "nnsc", "nmf", "bilinear")
 
 
 # --------------------------------------------------------------------------- data

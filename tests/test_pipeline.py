@@ -90,8 +90,11 @@ nnsf:
 evaluate:
   folds: 3
   ranks: [2, 4]
-  methods: [nnsf, nnsc, nmf, bilinear]
+  methods: [nnsf, nnsc, nmf, bilinear, mgpm, cbgpm]
   max_iter: 20
+  gp:
+    phase_bins: 2
+    max_iter: 10
 isomap:
   samples: 60
   neighbors: 6

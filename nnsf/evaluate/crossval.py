@@ -4,7 +4,9 @@ The paper's Fig. 7 made objective: for every method and rank, fit on the
 training folds, encode the held-out frames with the basis fixed, and score
 
 * macro precision of the predicted class (``argmax(V_test W)`` for the
-  factorisations, nearest cell mean for the bilinear model), and
+  factorisations, nearest cell mean for the bilinear model, the most likely
+  (content, phase) under the frame's style for the two Gaussian-process
+  models), and
 * relative reconstruction error ``‖X_test − X̂_test‖_F / ‖X_test‖_F``.
 
 Folds are grouped by clip (:func:`folds`), so consecutive, nearly identical
@@ -27,7 +29,13 @@ from threadpoolctl import threadpool_limits
 from nnsf.factor.baselines import BilinearModel, NMFClassifier, make_nnsc
 
 #: Methods in the order tables and figures list them.
-METHODS: tuple[str, ...] = ("nnsf", "nnsc", "nmf", "bilinear")
+METHODS: tuple[str, ...] = ("nnsf", "nnsc", "nmf", "bilinear", "mgpm", "cbgpm")
+
+#: The methods fitted on (style, content, phase) rather than on frames alone.
+GP_METHODS: tuple[str, ...] = ("mgpm", "cbgpm")
+
+#: Settings of the Gaussian-process baselines and their defaults.
+GP_DEFAULTS: dict = {"phase_bins": 3, "max_iter": 60}
 
 #: Columns of :func:`precision_vs_rank`'s table.
 TABLE_COLUMNS: tuple[str, ...] = (
@@ -86,14 +94,18 @@ def max_rank(method: str, n_features: int, n_styles: int, n_classes: int) -> int
 
     The factorisations need ``k ≤ d`` (NNDSVD initialisation, and docs/method.md §15.1's
     ``k = 1..34``); the bilinear model's content vectors live in at most
-    ``min(S·d, C)`` dimensions.
+    ``min(S·d, C)`` dimensions; the MGPM's latent vectors in at most
+    ``max(S, C)`` (style vectors ``min(k, S)``, content vectors ``min(k, C)``);
+    the CBGPM works in ``k ≤ d`` principal components.
     """
     if method == "bilinear":
         return min(n_styles * n_features, n_classes)
+    if method == "mgpm":
+        return max(n_styles, n_classes)
     return n_features
 
 
-def _make(method, rank, max_iter, seed, nnsf_params):
+def _make(method, rank, max_iter, seed, nnsf_params, gp_params=None):
     if method == "nnsf":
         from nnsf.factor.nnsf import NNSF
         return NNSF(n_components=rank, max_iter=max_iter, random_state=seed, **nnsf_params)
@@ -107,6 +119,14 @@ def _make(method, rank, max_iter, seed, nnsf_params):
                              init=nnsf_params.get("init", "nndsvda"), random_state=seed)
     if method == "bilinear":
         return BilinearModel(n_components=rank)
+    gp = {**GP_DEFAULTS, **(gp_params or {})}
+    if method == "mgpm":
+        from nnsf.factor.mgpm import MGPM
+        return MGPM(n_components=rank, phase_bins=gp["phase_bins"], max_iter=gp["max_iter"],
+                    random_state=seed)
+    if method == "cbgpm":
+        from nnsf.factor.cbgpm import CBGPM
+        return CBGPM(n_components=rank, phase_bins=gp["phase_bins"], max_iter=gp["max_iter"])
     raise ValueError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
 
 
@@ -121,15 +141,19 @@ def _check_nnsf_params(nnsf_params):
     return nnsf_params
 
 
-def _score_fold(method, rank, max_iter, seed, nnsf_params, X, y, styles, train, test, blas_threads):
+def _score_fold(method, rank, max_iter, seed, nnsf_params, X, y, styles, train, test, blas_threads,
+                phase=None, gp_params=None):
     """Fit one model on ``train`` and score it on ``test``; returns a dict of metrics."""
     with threadpool_limits(blas_threads, user_api="blas"), warnings.catch_warnings():
         # Hitting max_iter is expected in a sweep; the table's n_iter shows it.
         warnings.simplefilter("ignore", ConvergenceWarning)
-        model = _make(method, rank, max_iter, seed, nnsf_params)
+        model = _make(method, rank, max_iter, seed, nnsf_params, gp_params)
         t0 = time.perf_counter()
-        if method == "bilinear":
-            model.fit(X[train], y[train], styles[train])
+        if method in ("bilinear",) + GP_METHODS:
+            if method == "bilinear":
+                model.fit(X[train], y[train], styles[train])
+            else:
+                model.fit(X[train], y[train], styles[train], phase[train])
             Xt, st = X[test], styles[test]
             known = np.isin(st, model.styles_)
             pred = np.empty(len(test), dtype=model.classes_.dtype)
@@ -169,7 +193,8 @@ def score_fold(job: tuple) -> dict:
 def precision_vs_rank(X, y, groups, styles=None, methods=METHODS, ranks=(2, 4, 8, 16, 34),
                       n_splits: int = 10, seed: int = 0, max_iter: int = 200,
                       nnsf_params: dict | None = None, n_jobs: int = 1,
-                      blas_threads: int | None = 1, mapper=None) -> pd.DataFrame:
+                      blas_threads: int | None = 1, mapper=None, phase=None,
+                      gp_params: dict | None = None) -> pd.DataFrame:
     """Cross-validated precision and reconstruction error for every method and rank.
 
     Parameters
@@ -182,10 +207,13 @@ def precision_vs_rank(X, y, groups, styles=None, methods=METHODS, ranks=(2, 4, 8
         Clip of each frame (fold grouping).
     styles : array, shape (n,), optional
         Style (character) of each frame; required for ``"bilinear"``.
-    methods : sequence of {"nnsf", "nnsc", "nmf", "bilinear"}
+    methods : sequence of {"nnsf", "nnsc", "nmf", "bilinear", "mgpm", "cbgpm"}
         ``nnsf``: NNSF with ``nnsf_params``; ``nnsc``: the same with β = 0
         (α kept); ``nmf``: scikit-learn NMF (α = 0) + class map;
-        ``bilinear``: Tenenbaum & Freeman's asymmetric model.
+        ``bilinear``: Tenenbaum & Freeman's asymmetric model; ``mgpm``:
+        Wang et al.'s multifactor GP (:class:`~nnsf.factor.mgpm.MGPM`);
+        ``cbgpm``: the constraint-based GP of style after Ma et al.
+        (:class:`~nnsf.factor.cbgpm.CBGPM`).  The last three need ``styles``.
     ranks : sequence of int >= 1
         Requested ranks.  A rank above what a method supports
         (:func:`max_rank`: ``d`` for the factorisations, ``min(S·d, C)`` for
@@ -212,6 +240,14 @@ def precision_vs_rank(X, y, groups, styles=None, methods=METHODS, ranks=(2, 4, 8
         ``mapper(fn, jobs) -> list`` running :func:`score_fold` over the
         packed fit jobs in order, e.g. on a Prefect task runner (the pipeline
         passes one, so folds fan out on the configured runner).
+    phase : array, shape (n,), optional
+        Phase of each frame in its clip, in [0, 1] (the GP models' state);
+        by default each row's position within its clip (``groups``, rows in
+        table order).
+    gp_params : dict, optional
+        ``phase_bins`` (training points per cell and the phases searched when
+        classifying) and ``max_iter`` (L-BFGS iterations) of the GP models;
+        defaults :data:`GP_DEFAULTS`.
     blas_threads : int or None
         BLAS threads per fit (``threadpoolctl``).  The matrices are thin
         (d = 34), so one thread is fastest: with several threads the
@@ -225,7 +261,8 @@ def precision_vs_rank(X, y, groups, styles=None, methods=METHODS, ranks=(2, 4, 8
         ``precision`` is ``precision_score(average="macro", zero_division=0)``
         over the classes that occur in the fold's truth or predictions;
         ``recon_error`` is relative (dimensionless); for the bilinear model
-        the reconstruction is its nearest cell mean ``A^s b^ĉ``.
+        the reconstruction is its nearest cell mean ``A^s b^ĉ``, for the GP models the
+        pose they predict at the chosen (content, phase).
     """
     X = np.asarray(X, dtype=float)
     if X.ndim != 2:
@@ -249,12 +286,20 @@ def precision_vs_rank(X, y, groups, styles=None, methods=METHODS, ranks=(2, 4, 8
             raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
     if blas_threads is not None and not (isinstance(blas_threads, numbers.Integral) and blas_threads >= 1):
         raise ValueError(f"blas_threads must be None or an integer >= 1, got {blas_threads!r}")
-    if "bilinear" in methods:
+    if any(m in methods for m in ("bilinear",) + GP_METHODS):
         if styles is None:
-            raise ValueError("the bilinear method needs styles (the character of each frame)")
+            who = next(m for m in methods if m in ("bilinear",) + GP_METHODS)
+            raise ValueError(f"the {who} method needs styles (the character of each frame)")
         styles = np.asarray(styles)
         if styles.shape != (n,):
             raise ValueError(f"styles needs one entry per row of X ({n}), got shape {styles.shape}")
+    gp_params = dict(gp_params or {})
+    unknown = sorted(set(gp_params) - set(GP_DEFAULTS))
+    if unknown:
+        raise ValueError(f"gp_params: unknown parameter(s) {unknown}; allowed: {sorted(GP_DEFAULTS)}")
+    if any(m in methods for m in GP_METHODS):
+        from nnsf.factor.gp_data import check_phase, phase_from_groups
+        phase = phase_from_groups(groups) if phase is None else check_phase(phase, n)
     if any(m in methods for m in ("nnsf", "nnsc")):
         nnsf_params = _check_nnsf_params(nnsf_params)
     else:
@@ -274,7 +319,7 @@ def precision_vs_rank(X, y, groups, styles=None, methods=METHODS, ranks=(2, 4, 8
             plan.append((method, int(rank), used, note))
     keys = list(dict.fromkeys((m, used, f) for m, _, used, _ in plan for f in range(len(splits))))
     jobs = [(m, used, max_iter, seed, nnsf_params, X, y, styles, splits[f][0], splits[f][1],
-             blas_threads) for m, used, f in keys]
+             blas_threads, phase, gp_params) for m, used, f in keys]
     if mapper is not None:
         scored = list(mapper(score_fold, jobs))
     else:
@@ -328,7 +373,7 @@ def wide(summary: pd.DataFrame, value: str = "precision_mean") -> pd.DataFrame:
     """Pivot ``summary`` to one row per rank and one column per method.
 
     Columns are ``rank`` then the methods present, in :data:`METHODS` order
-    (``rank, nnsf, nnsc, nmf, bilinear``) -- the CSV shape ``dvc plots``
+    (``rank, nnsf, nnsc, nmf, bilinear, mgpm, cbgpm``) -- the CSV shape ``dvc plots``
     renders as one line per method.
     """
     if value not in summary:

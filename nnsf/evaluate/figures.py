@@ -27,6 +27,8 @@ METHOD_STYLE: dict[str, dict] = {
     "nnsc": {"color": "#1f77b4", "marker": "s", "label": "NNSC (NNSF, β = 0)"},
     "nmf": {"color": "#2ca02c", "marker": "^", "label": "NMF"},
     "bilinear": {"color": "#9467bd", "marker": "D", "label": "Bilinear (Tenenbaum & Freeman)"},
+    "mgpm": {"color": "#ff7f0e", "marker": "v", "label": "MGPM (Wang et al.)"},
+    "cbgpm": {"color": "#8c564b", "marker": "P", "label": "CBGPM (after Ma et al.)"},
 }
 
 
