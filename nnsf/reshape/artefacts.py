@@ -352,7 +352,9 @@ def clip_artefacts(renderer, frames: np.ndarray, orders: np.ndarray, keypoints: 
     ``frames`` ``(T, n, 2)`` and ``keypoints`` ``(T, 17, 2)`` in the
     character's pixels (``offset`` ``(2,)`` is added for drawing on the
     renderer's canvas).  Columns: ``hole_px`` (mean per frame),
-    ``holes_gt4`` (total over the measured frames), ``frames_with_holes``,
+    ``holes_gt4`` (total over the measured frames), ``holes_gt4_rest`` (in
+    the drawing's mask), ``extra_holes`` (total of each frame's holes beyond
+    the drawing's: holes the artist did not draw), ``frames_with_holes``,
     ``tear_px`` (mean), ``tear_px_max``, ``outline_ink`` and
     ``outline_ink_rest``, ``spikes`` (mean per frame) and ``spikes_rest``,
     the :func:`width_profile_stats`, and ``artefact_frames`` (how many
@@ -379,7 +381,11 @@ def clip_artefacts(renderer, frames: np.ndarray, orders: np.ndarray, keypoints: 
         rows.append(frame_artefacts(rgba, lab, thr, spike_thr))
         widths.append(limb_widths(frames[t] + off, renderer.triangles, parts, keypoints[t] + off, shape))
     hole = np.array([r["hole_px"] for r in rows], float)
+    drawn_holes = holes(np.asarray(mask, dtype=bool))[1]  # the drawing's own (the robot's arm gaps)
     out = {"hole_px": float(hole.mean()), "holes_gt4": int(sum(r["holes_gt4"] for r in rows)),
+           "holes_gt4_rest": drawn_holes,
+           # holes the drawing does not have: per frame, beyond the drawing's own count
+           "extra_holes": int(sum(max(r["holes_gt4"] - drawn_holes, 0) for r in rows)),
            "frames_with_holes": int(sum(r["holes_gt4"] > 0 for r in rows)),
            "tear_px": float(np.mean([r["tear_px"] for r in rows])),
            "tear_px_max": int(max(r["tear_px"] for r in rows)),

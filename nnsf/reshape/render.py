@@ -53,6 +53,16 @@ class MeshRenderer:
                  layer=None, underlay=None, behind=None, rim=None, seal=False):
         #: Whether :meth:`render` seals holes and joint cracks (:mod:`nnsf.reshape.seal`).
         self.seal = bool(seal)
+        self._seal_kw = {}
+        if self.seal and mask is not None:
+            from nnsf.reshape.seal import drawn_hole_limit
+
+            self._seal_kw["hole_max"] = drawn_hole_limit(mask)
+            # Cracks are closed over a radius that scales with the drawing (4 px
+            # on a 600 px character, 1 px on a 128 px sprite whose drawn gaps are a few px).
+            ys = np.flatnonzero(np.asarray(mask, dtype=bool).any(axis=1))
+            height = float(ys[-1] - ys[0] + 1) if len(ys) else 0.0
+            self._seal_kw["close"] = int(np.clip(round(0.007 * height), 1, 4))
         self.uv = np.asarray(rest_vertices, dtype=np.float64)
         self.triangles = np.asarray(triangles, dtype=np.int64)
         self.parts = np.asarray(parts, dtype=np.int64)
@@ -264,7 +274,7 @@ class MeshRenderer:
         if self.seal and h:
             from nnsf.reshape.seal import seal
 
-            crop = seal(crop, part_crop)
+            crop = seal(crop, part_crop, **self._seal_kw)
         part_img = None
         if labels:
             part_img = np.full((H, W), -1, np.int64)

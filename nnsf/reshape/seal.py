@@ -8,9 +8,10 @@ where two parts meet.  :func:`seal` closes them on the rendered frame:
 
 * **holes**: background components enclosed by the character (4-connected,
   not touching the crop's border) that are small (at most
-  ``hole_share`` × the character's area, or no wider than ``2 × thin`` px)
-  are filled; a large enclosed gap (an arm forming a loop with the body) is
-  drawing and stays;
+  ``hole_share`` × the character's area and at most half the drawing's own
+  smallest hole, or no wider than ``2 × thin`` px) are filled; a large
+  enclosed gap (an arm forming a loop with the body, the gap between a
+  Kenney robot's arm and body) is drawing and stays;
 * **cracks and notches**: background pixels inside the morphological
   closing of the coverage (an ellipse of ``2·close + 1`` px) that lie within
   ``close + 1`` px (Chebyshev) of two different parts are filled.  The closing also
@@ -33,8 +34,13 @@ from scipy import ndimage
 
 
 def seal_mask(labels: np.ndarray, alpha: np.ndarray, close: int = 4, hole_share: float = 0.02,
-              thin: float = 3.0) -> np.ndarray:
-    """Pixels ``(h, w)`` bool to fill, from visible parts ``(h, w)`` int (−1 empty) and alpha ``(h, w)`` uint8."""
+              thin: float = 3.0, hole_max: float | None = None) -> np.ndarray:
+    """Pixels ``(h, w)`` bool to fill, from visible parts ``(h, w)`` int (−1 empty) and alpha ``(h, w)`` uint8.
+
+    ``hole_max``: fill no wider-than-thin hole larger than this (px²); the
+    renderer sets it to half the drawing's own smallest hole
+    (:func:`drawn_hole_limit`), so a gap the artist drew is never filled.
+    """
     cov = np.asarray(alpha) >= 128
     if not cov.any():
         return np.zeros(cov.shape, bool)
@@ -55,7 +61,10 @@ def seal_mask(labels: np.ndarray, alpha: np.ndarray, close: int = 4, hole_share:
         inner = np.setdiff1d(np.arange(1, n), border)
         if len(inner):
             area = stats[inner, cv2.CC_STAT_AREA]
-            small = inner[area <= max(hole_share * drawn.sum(), 16)]
+            limit = max(hole_share * drawn.sum(), 16)
+            if hole_max is not None:
+                limit = min(limit, hole_max)
+            small = inner[area <= limit]
             big = np.setdiff1d(inner, small)
             if len(big):  # thin enclosed cracks, whatever their length
                 dist = cv2.distanceTransform(bg, cv2.DIST_L2, 3)
@@ -63,6 +72,16 @@ def seal_mask(labels: np.ndarray, alpha: np.ndarray, close: int = 4, hole_share:
                 small = np.concatenate([small, big[np.asarray(widest) <= thin]])
             fill |= np.isin(lab, small)
     return fill
+
+
+def drawn_hole_limit(mask: np.ndarray) -> float | None:
+    """Half the area (px²) of the drawing's smallest enclosed hole larger than 4 px², or None without one."""
+    bg = (~np.asarray(mask, dtype=bool)).astype(np.uint8)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(bg, connectivity=4)
+    border = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
+    areas = [stats[i, cv2.CC_STAT_AREA] for i in range(1, n) if i not in border]
+    areas = [a for a in areas if a > 4]
+    return 0.5 * float(min(areas)) if areas else None
 
 
 def seal(crop: np.ndarray, labels: np.ndarray, **kw) -> np.ndarray:

@@ -16,6 +16,7 @@
       fps: 24               # frames per second of the motion rows (1..120)
       max_frames: 240       # at most this many frames are rendered (1..5000)
       formats: [png, gif, mp4]
+      depth_overrides: []   # e.g. ["left_arm over torso from 12 to 30"] (frames 0-based, inclusive)
 
 and writes, atomically as one folder ``out_dir``: ``frames/frame_0000.png``…,
 ``<name>.gif``, ``<name>.mp4``, ``<name>_sheet.png`` (a contact sheet) and
@@ -108,11 +109,13 @@ def build_rig(character: Character, method: str = "ours", mesh: str = "layered",
 
 
 def animate(rig: Rig, motion: np.ndarray, joint_depth: np.ndarray | None = None, source="motion",
-            frames=None, hysteresis: float = 0.015) -> Animation:
+            frames=None, hysteresis: float = 0.015, overrides=None) -> Animation:
     """Drive ``rig`` with a motion ``(T, 17, 2)`` (any units); depth ``(T, 17)`` optional.
 
     ``hysteresis``: depth tie band as a fraction of the motion's body height
-    (median vertical extent of its key points).
+    (median vertical extent of its key points).  ``overrides``: checked user
+    depth overrides (:func:`nnsf.reshape.depth.parse_overrides`), applied
+    last, on their frames only.
     """
     kp = retarget(motion, rig.character.keypoints, source=source, frames=frames)
     V = rig.animate(kp)
@@ -124,6 +127,8 @@ def animate(rig: Rig, motion: np.ndarray, joint_depth: np.ndarray | None = None,
         height = float(np.median(np.ptp(np.asarray(motion)[..., 1], axis=1)))
         pairs = depth_mod.part_overlaps(V, rig.mesh.triangles, rig.mesh.parts)
         orders = depth_mod.depth_orders(z, hysteresis * height, pairs=pairs)
+    if overrides:
+        orders = depth_mod.apply_overrides(orders, overrides)
     return Animation(rig, kp, V, orders, z)
 
 
@@ -191,6 +196,7 @@ def _params(params: dict) -> dict:
         "fps": get("fps", 24),
         "max_frames": get("max_frames", 240),
         "formats": get("formats", list(FORMATS)),
+        "depth_overrides": get("depth_overrides", []),
     }
     checks = [
         ("character_size", isinstance(p["character_size"], int) and 64 <= p["character_size"] <= 4096,
@@ -232,7 +238,8 @@ def reshape(params: dict, motion_csv=Path("data/features/features.csv"), charact
     clip, frame_ids, points = read_motion(motion_csv, p["clip"])
     points, frame_ids = points[: p["max_frames"]], frame_ids[: p["max_frames"]]
     rig = build_rig(character, p["method"], p["mesh"], p["n_vertices"], p["subkeys_per_limb"], p["propagation"])
-    anim = animate(rig, points, source=f"{motion_csv} (clip {clip})", frames=frame_ids)
+    overrides = depth_mod.parse_overrides(p["depth_overrides"], len(points))
+    anim = animate(rig, points, source=f"{motion_csv} (clip {clip})", frames=frame_ids, overrides=overrides)
     offset, size = canvas(character, anim.frames)
     renderer = MeshRenderer.for_mesh(rig.mesh, character, size=size)
     images = renderer.render_clip(anim.frames + offset, anim.orders, background=BACKGROUND)
@@ -258,6 +265,6 @@ def reshape(params: dict, motion_csv=Path("data/features/features.csv"), charact
         write_json(tmp / "metrics.json", {"character": character.name, "clip": clip, "params": p,
                                           "metrics": numbers})
     scalar = {f"reshape_{k}": v for k, v in numbers.items() if isinstance(v, (int, float)) and np.isfinite(v)}
-    return StageResult(params={f"reshape.{k}": (v if not isinstance(v, list) else ",".join(v))
+    return StageResult(params={f"reshape.{k}": (v if not isinstance(v, list) else ",".join(map(str, v)))
                                for k, v in p.items()},
                        metrics=scalar, artifacts=artifacts + [out_dir / "metrics.json"])
