@@ -137,7 +137,10 @@ def test_layered_mesh_has_no_holes_on_a_kenney_character():
     sealed = _artefacts(ch, KICK, seal=True, every=4)
     # The robot is drawn with two enclosed gaps between arms and body: they stay, no other appears.
     assert sealed["holes_gt4_rest"] == 2
-    assert sealed["extra_holes"] == 0 and sealed["tear_px_max"] <= 3
+    assert sealed["extra_holes"] == 0
+    # At 128 px the drawn gaps between arm and body are within 3 px of both parts: the tear
+    # measure counts them in the rest pose too; deformed frames have no more than the drawing.
+    assert sealed["tear_px"] <= sealed["tear_px_rest"]
 
 
 # --------------------------------------------------------------------------- depth overrides
