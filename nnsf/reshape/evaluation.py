@@ -20,6 +20,24 @@ with four rigs on the same character:
                     two methods coincide there)
 =================  ==========================================================
 
+``layered/ours_unsealed`` is ``layered/ours`` rendered without the seal of
+:mod:`nnsf.reshape.seal` (pieced meshes are sealed by default): what the
+seal fixes.  Walks are projected from the side (:data:`AZIMUTH`,
+``reshape_eval.azimuth``).  The six Kenney sprites (:mod:`nnsf.reshape.kenney`,
+their ``idle`` drawing and hand key points) are driven by the same motions
+when their images and annotations exist; their rows are in the CSV, the
+per-variant means of the JSON's ``means`` are the AnimatedDrawings rows'
+(``means_by_source`` has both).
+
+Besides the deformation numbers, every row has the rendered-frame artefacts
+of :func:`nnsf.reshape.artefacts.clip_artefacts` (holes, tears, outline
+ink, spikes, limb width profile and jitter), measured on every
+:data:`ARTEFACT_EVERY`-th frame; ``reshape_fig8_widths.png`` and the JSON's
+``fig8_widths`` compare key points and subkeys on the limb widths (the
+paper's Fig. 8 claim); ``reshape_eval/sheets/`` holds a contact sheet of
+the default variant per AnimatedDrawings character and motion, and of
+:data:`KENNEY_SHEET`.
+
 Each row of ``reshape_eval.csv`` holds :func:`nnsf.reshape.stage.report`'s
 numbers (ARAP energy, σ1/σ2, flips, width drift, limb bending, jitter,
 driving-failure ratio, depth agreement and order flips) plus the subkeys'
@@ -60,7 +78,7 @@ VARIANTS = (("connected", "keypoints"), ("connected", "ours"), ("limbs", "keypoi
 #: ``reshape_eval.azimuth`` in params.yaml.
 AZIMUTH = {"walk_normal_001": 90.0}
 #: Every how many frames the rendered-frame artefacts (:mod:`nnsf.reshape.artefacts`) are measured.
-ARTEFACT_EVERY = 12
+ARTEFACT_EVERY = 24
 LABELS = {"connected/keypoints": "ARAP, key points (connected mesh)",
           "connected/ours": "subkeys (connected mesh)",
           "limbs/keypoints": "ARAP, key points (whole-limb pieces)",
@@ -379,8 +397,15 @@ def run(data_root=Path("../shared/data"), out_dir=Path("reports"), characters=CH
 
 def _safe_item(item: dict) -> dict:
     """:func:`evaluate_item`, with bad input turned into an error entry (the other items go on)."""
+    import sys
+    import time
+
+    t0 = time.perf_counter()
     try:
-        return evaluate_item(item)
+        out = evaluate_item(item)
+        print(f"reshape-eval: {item.get('kenney') or Path(item['character']).name} x {Path(item['motion']).stem} "
+              f"{time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
+        return out
     except InputError as exc:
         return {"item": f"{Path(item['character']).name} x {Path(item['motion']).stem}", "error": str(exc)}
 
@@ -444,8 +469,17 @@ def main(argv=None) -> int:
     ap.add_argument("--max-frames", type=int, default=240)
     ap.add_argument("--characters", nargs="+", default=list(CHARACTERS))
     ap.add_argument("--motions", nargs="+", default=list(MOTIONS))
+    ap.add_argument("--workers", type=int, default=1, help="processes for the items (default 1)")
     a = ap.parse_args(argv)
-    s = run(a.data, a.out, tuple(a.characters), tuple(a.motions), a.vertices, a.max_frames, 4, a.kenney)
+    mapper = None
+    if a.workers > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        def mapper(fn, xs):
+            with ProcessPoolExecutor(a.workers) as ex:
+                return list(ex.map(fn, xs))
+    s = run(a.data, a.out, tuple(a.characters), tuple(a.motions), a.vertices, a.max_frames, 4, a.kenney,
+            mapper=mapper)
     pd.set_option("display.width", 200)
     print(pd.DataFrame(s["means"]).T[["arap_energy_mean", "stretch_ratio_max", "flipped_triangles",
                                       "driving_failure_ratio", "width_drift_mean", "limb_bending_change",
