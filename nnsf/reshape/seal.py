@@ -18,7 +18,7 @@ where two parts meet.  :func:`seal` closes them on the rendered frame:
   rounds the inside corner of a bent joint a little, as a drawn joint is.
 
 Filled pixels take the colour of the nearest fully opaque pixel of the frame
-(SciPy's exact Euclidean distance transform with indices): the body's fill
+(OpenCV's distance transform with per-pixel labels): the body's fill
 inside a crack, the ink of the outline across a notch, so an outline cut
 by a crack is drawn across it again.
 
@@ -96,9 +96,14 @@ def seal(crop: np.ndarray, labels: np.ndarray, **kw) -> np.ndarray:
     solid = crop[y0:y1, x0:x1, 3] == 255
     if not solid.any():
         return crop
-    _, (iy, ix) = ndimage.distance_transform_edt(~solid, return_indices=True)
+    # Nearest opaque pixel of every pixel: OpenCV labels each zero pixel of its input in raster
+    # order (DIST_LABEL_PIXEL), so label k is the k-th opaque pixel of np.argwhere.
+    _, lab = cv2.distanceTransformWithLabels((~solid).astype(np.uint8), cv2.DIST_L2, 5,
+                                             labelType=cv2.DIST_LABEL_PIXEL)
+    src = np.argwhere(solid)
     out = crop.copy()
     f = fill[y0:y1, x0:x1]
+    near = src[lab[f] - 1]
     box = out[y0:y1, x0:x1]
-    box[f] = crop[y0:y1, x0:x1][iy[f], ix[f]]
+    box[f] = crop[y0:y1, x0:x1][near[:, 0], near[:, 1]]
     return out
