@@ -225,11 +225,18 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "reshape.fps": _num(1, 120),
     "reshape.max_frames": _size(1, 5000, 512 * 512 * 3, "rendered frames of 512x512 px"),
     "reshape.formats": _list(_choice(("png", "gif", "mp4")), 3),
+    # Parts and frame ranges are checked against the clip by nnsf.reshape.depth.parse_overrides.
+    "reshape.depth_overrides": ((lambda v: isinstance(v, list) and len(v) <= 1000
+                                 and all(isinstance(x, (str, dict)) for x in v)),
+                                "a list of overrides such as 'left_arm over torso from 12 to 30'"),
     "reshape_eval.characters": _list(_str(), 100),
     "reshape_eval.motions": _list(_str(), 100),
     "reshape_eval.n_vertices": _int(100, 6000),
     "reshape_eval.max_frames": _int(3, 5000),
     "reshape_eval.subkeys_per_limb": _int(1, 12),
+    "reshape_eval.azimuth": ((lambda v: isinstance(v, dict) and all(
+        isinstance(k, str) and isinstance(x, numbers.Real) and not isinstance(x, bool) for k, x in v.items())),
+        "a mapping of motion names to projection azimuths in degrees"),
     "mlflow.experiment": _str(),
 }
 

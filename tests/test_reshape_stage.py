@@ -134,8 +134,15 @@ def test_evaluation_on_one_character_and_motion(tmp_path):
                          "max_frames": 30, "subkeys_per_limb": 4, "figure": False, "gif_dir": None})
     rows = {f"{r['mesh']}/{r['method']}": r for r in out["rows"]}
     assert set(rows) == {"connected/keypoints", "connected/ours", "limbs/keypoints", "limbs/ours",
-                         "layered/keypoints", "layered/ours"}
+                         "layered/keypoints", "layered/ours", "layered/ours_unsealed"}
     ours = rows["layered/ours"]
+    # the rendered-frame artefacts: the seal leaves no hole the drawing lacks, fewer tears than without
+    raw = rows["layered/ours_unsealed"]
+    assert ours["sealed"] and not raw["sealed"]
+    assert ours["extra_holes"] == 0 and ours["tear_px"] <= raw["tear_px"]
+    for k in ("hole_px", "tear_px", "outline_ink", "outline_ink_rest", "spikes", "spikes_rest", "width_error",
+              "width_change", "width_roughness", "width_jitter"):
+        assert np.isfinite(ours[k]), k
     assert ours["flipped_triangles"] == 0 and ours["driving_failure_ratio"] == 0.0
     assert ours["stretch_ratio_max"] < 1.05 and ours["subkey_slide"] < 1e-6
     assert ours["depth_agreement"] > 0.9

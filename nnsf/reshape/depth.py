@@ -199,3 +199,84 @@ def depth_metric(orders: np.ndarray, part_z: np.ndarray, margin: float, pairs=No
         "order_flips": flips,
         "order_flips_per_100_frames": 100.0 * flips / max(len(z) - 1, 1),
     }
+
+
+# --------------------------------------------------------------------------- user overrides
+
+#: Names a depth override may use: every part of :data:`PARTS`, and whole limbs.
+PART_ALIASES: dict[str, tuple[int, ...]] = {
+    **{name: (PART_INDEX[name],) for name in PARTS},
+    "left_arm": (PART_INDEX["l_upper_arm"], PART_INDEX["l_forearm"]),
+    "right_arm": (PART_INDEX["r_upper_arm"], PART_INDEX["r_forearm"]),
+    "left_leg": (PART_INDEX["l_thigh"], PART_INDEX["l_shin"]),
+    "right_leg": (PART_INDEX["r_thigh"], PART_INDEX["r_shin"]),
+}
+
+
+def parse_overrides(spec, n_frames: int, source="params.yaml", field="reshape.depth_overrides"):
+    """User depth overrides, checked: ``[(over parts, under parts, first frame, last frame), ...]``.
+
+    ``spec``: a list (or None) of items, each either a sentence
+    ``"left_arm over torso from 12 to 30"`` or a mapping
+    ``{over: left_arm, under: torso, from: 12, to: 30}``; frames are
+    0-based and inclusive, within ``0 .. n_frames − 1``.  Names are
+    :data:`PART_ALIASES` (a part, or ``left_arm`` etc. for both its
+    segments).  Bad input raises :class:`InputError` naming the item's field.
+    """
+    if spec is None:
+        return []
+    if not isinstance(spec, list):
+        raise InputError(source, field, "a list of overrides such as 'left_arm over torso from 12 to 30'", spec)
+    names = ", ".join(PART_ALIASES)
+    out = []
+    for i, item in enumerate(spec):
+        f = f"{field}[{i}]"
+        if isinstance(item, str):
+            words = item.split()
+            if len(words) != 7 or words[1] != "over" or words[3] != "from" or words[5] != "to":
+                raise InputError(source, f, "'<part> over <part> from <first frame> to <last frame>'", item)
+            item = {"over": words[0], "under": words[2], "from": words[4], "to": words[6]}
+            for k in ("from", "to"):
+                try:
+                    item[k] = int(item[k])
+                except ValueError:
+                    raise InputError(source, f"{f}.{k}", "a frame number", item[k]) from None
+        if not isinstance(item, dict) or set(item) != {"over", "under", "from", "to"}:
+            raise InputError(source, f, "a mapping with over, under, from, to (or a sentence)", item)
+        for k in ("over", "under"):
+            if item[k] not in PART_ALIASES:
+                raise InputError(source, f"{f}.{k}", f"a part name ({names})", item[k])
+        for k in ("from", "to"):
+            v = item[k]
+            if not isinstance(v, int) or isinstance(v, bool) or not 0 <= v < n_frames:
+                raise InputError(source, f"{f}.{k}", f"a frame number in 0..{n_frames - 1} (the clip has "
+                                 f"{n_frames} frames)", v)
+        if item["from"] > item["to"]:
+            raise InputError(source, f"{f}.to", f"a frame at or after from ({item['from']})", item["to"])
+        over, under = PART_ALIASES[item["over"]], PART_ALIASES[item["under"]]
+        if set(over) & set(under):
+            raise InputError(source, f"{f}.under", "a part other than the one drawn over it", item["under"])
+        out.append((over, under, int(item["from"]), int(item["to"])))
+    return out
+
+
+def apply_overrides(orders: np.ndarray, overrides) -> np.ndarray:
+    """Orders ``(T, 10)`` with each override ``(over, under, t0, t1)`` enforced on frames t0..t1.
+
+    In a frame where some ``over`` part is drawn before some ``under`` part,
+    the ``over`` parts move (keeping their order among themselves) to just
+    after the last ``under`` part; every other part keeps its place, and
+    frames outside the range are untouched.  Overrides apply in list order.
+    """
+    out = np.array(orders, dtype=np.int64, copy=True)
+    for over, under, t0, t1 in overrides:
+        for t in range(t0, min(t1, len(out) - 1) + 1):
+            o = list(out[t])
+            pos = {p: k for k, p in enumerate(o)}
+            if min(pos[p] for p in over) > max(pos[p] for p in under):
+                continue
+            moving = [p for p in o if p in over]
+            rest = [p for p in o if p not in over]
+            last = max(rest.index(p) for p in under)
+            out[t] = rest[:last + 1] + moving + rest[last + 1:]
+    return out

@@ -20,6 +20,24 @@ with four rigs on the same character:
                     two methods coincide there)
 =================  ==========================================================
 
+``layered/ours_unsealed`` is ``layered/ours`` rendered without the seal of
+:mod:`nnsf.reshape.seal` (pieced meshes are sealed by default): what the
+seal fixes.  Walks are projected from the side (:data:`AZIMUTH`,
+``reshape_eval.azimuth``).  The six Kenney sprites (:mod:`nnsf.reshape.kenney`,
+their ``idle`` drawing and hand key points) are driven by the same motions
+when their images and annotations exist; their rows are in the CSV, the
+per-variant means of the JSON's ``means`` are the AnimatedDrawings rows'
+(``means_by_source`` has both).
+
+Besides the deformation numbers, every row has the rendered-frame artefacts
+of :func:`nnsf.reshape.artefacts.clip_artefacts` (holes, tears, outline
+ink, spikes, limb width profile and jitter), measured on every
+:data:`ARTEFACT_EVERY`-th frame; ``reshape_fig8_widths.png`` and the JSON's
+``fig8_widths`` compare key points and subkeys on the limb widths (the
+paper's Fig. 8 claim); ``reshape_eval/sheets/`` holds a contact sheet of
+the default variant per AnimatedDrawings character and motion, and of
+:data:`KENNEY_SHEET`.
+
 Each row of ``reshape_eval.csv`` holds :func:`nnsf.reshape.stage.report`'s
 numbers (ARAP energy, σ1/σ2, flips, width drift, limb bending, jitter,
 driving-failure ratio, depth agreement and order flips) plus the subkeys'
@@ -54,13 +72,20 @@ from nnsf.errors import InputError
 CHARACTERS = ("char1", "char2", "char3", "char4")
 MOTIONS = ("walk_normal_001", "run_active_001", "kick_normal_001", "punch_normal_001")
 VARIANTS = (("connected", "keypoints"), ("connected", "ours"), ("limbs", "keypoints"), ("limbs", "ours"),
-            ("layered", "keypoints"), ("layered", "ours"))
+            ("layered", "keypoints"), ("layered", "ours"), ("layered", "ours_unsealed"))
+#: Projection azimuth (degrees) per motion: a walk seen from the side, where its legs swing
+#: (from the front, mocap walking toward the camera hides the swing).  Overridden by
+#: ``reshape_eval.azimuth`` in params.yaml.
+AZIMUTH = {"walk_normal_001": 90.0}
+#: Every how many frames the rendered-frame artefacts (:mod:`nnsf.reshape.artefacts`) are measured.
+ARTEFACT_EVERY = 24
 LABELS = {"connected/keypoints": "ARAP, key points (connected mesh)",
           "connected/ours": "subkeys (connected mesh)",
           "limbs/keypoints": "ARAP, key points (whole-limb pieces)",
           "limbs/ours": "subkeys (whole-limb pieces)",
           "layered/keypoints": "key points (layered mesh)",
-          "layered/ours": "ours: subkeys (layered mesh)"}
+          "layered/ours": "ours: subkeys (layered mesh)",
+          "layered/ours_unsealed": "subkeys (layered mesh), not sealed"}
 FIGURE_ITEMS = (("char1", "kick_normal_001"), ("char4", "walk_normal_001"))
 #: Side-by-side GIF panels: the key-point baseline and subkeys on whole-limb
 #: pieces (the comparison of the paper's Fig. 8), and the stage's default.
@@ -85,41 +110,66 @@ def subkey_slide(rig, keypoints: np.ndarray) -> float:
     return float(np.abs(u[1:] - u[:1]).mean())
 
 
+def _character(item: dict):
+    """The item's character: an AnimatedDrawings folder, or a Kenney sprite (``item["kenney"]``)."""
+    if item.get("kenney"):
+        from nnsf.reshape.kenney import kenney_character
+
+        return kenney_character(item["kenney"], item["kenney_root"], item["kenney_annotations"])[0]
+    from nnsf.reshape.character import load_animated_drawings
+
+    return load_animated_drawings(item["character"])
+
+
 def evaluate_item(item: dict) -> dict:
     """One (character, motion): rows of metrics per variant, and frames for the figures.
 
-    ``item`` keys: ``character`` (folder), ``motion`` (BVH path), ``n_vertices``,
+    ``item`` keys: ``character`` (folder) or ``kenney`` (a Kenney character
+    name, with ``kenney_root`` and ``kenney_annotations``), ``motion`` (BVH
+    path), ``azimuth`` (projection, degrees), ``n_vertices``,
     ``max_frames``, ``subkeys_per_limb``, ``figure`` (bool), ``gif_dir``
     (or None).  Module-level and picklable for a task-runner map.
     """
     from nnsf.datasets.bvh_source import load_clip
-    from nnsf.reshape.character import load_animated_drawings
+    from nnsf.reshape.artefacts import clip_artefacts
     from nnsf.reshape.mesh import build_mesh
     from nnsf.reshape.render import MeshRenderer, write_gif
     from nnsf.reshape.stage import animate, build_rig, canvas, report
 
-    ch = load_animated_drawings(item["character"])
-    clip = load_clip(item["motion"], fps=30)
+    ch = _character(item)
+    clip = load_clip(item["motion"], fps=30, azimuth=float(item.get("azimuth", 0.0)))
     T = min(len(clip.points), item["max_frames"])
     motion, depth = clip.points[:T], clip.depth[:T]
     height = float(np.median(np.ptp(motion[..., 1], axis=1)))
     meshes = {kind: build_mesh(ch.mask, ch.keypoints, item["n_vertices"], split=kind, texture=ch.texture)
               for kind in dict.fromkeys(mesh for mesh, _ in VARIANTS)}
-    rows, anims = [], {}
+    rows, anims, renderers = [], {}, {}
+    results = {}
     for mesh, method in VARIANTS:
-        rig = build_rig(ch, method, mesh, item["n_vertices"], item["subkeys_per_limb"], base_mesh=meshes[mesh])
-        anim = animate(rig, motion, depth, source=str(item["motion"]))
+        base = method.replace("_unsealed", "")
+        key = f"{mesh}/{method}"
+        if base != method and f"{mesh}/{base}" in results:
+            anim = results[f"{mesh}/{base}"]  # the same animation, rendered without the seal
+        else:
+            rig = build_rig(ch, base, mesh, item["n_vertices"], item["subkeys_per_limb"], base_mesh=meshes[mesh])
+            anim = animate(rig, motion, depth, source=str(item["motion"]))
+        results[key] = anim
+    allV = np.concatenate([a.frames.reshape(-1, 2) for a in results.values()])
+    offset, size = canvas(ch, allV)
+    for (mesh, method), (key, anim) in zip(VARIANTS, results.items()):
+        renderers[key] = MeshRenderer.for_mesh(anim.rig.mesh, ch, size=size,
+                                               seal=False if method.endswith("_unsealed") else None)
         row = {"character": ch.name, "motion": Path(item["motion"]).stem.replace("dataset-1_", ""),
-               "mesh": mesh, "method": method}
+               "mesh": mesh, "method": method, "azimuth": float(item.get("azimuth", 0.0)),
+               "sealed": bool(renderers[key].seal)}
         row.update(report(anim, depth_margin=0.02 * height))
-        row["subkey_slide"] = subkey_slide(rig, anim.keypoints)
+        row["subkey_slide"] = subkey_slide(anim.rig, anim.keypoints)
+        row.update(clip_artefacts(renderers[key], anim.frames, anim.orders, anim.keypoints, anim.rig.mesh.vertices,
+                                  ch.keypoints, ch.texture, ch.mask, every=ARTEFACT_EVERY, offset=offset))
         rows.append(row)
-        anims[f"{mesh}/{method}"] = anim
+        anims[key] = anim
     out = {"rows": rows, "figure": None}
     if item.get("figure") or item.get("gif_dir"):
-        allV = np.concatenate([a.frames.reshape(-1, 2) for a in anims.values()])
-        offset, size = canvas(ch, allV)
-        renderers = {k: MeshRenderer.for_mesh(a.rig.mesh, ch, size=size) for k, a in anims.items()}
         pick = np.linspace(0, T - 1, 6).round().astype(int)
         out["figure"] = {"character": ch.name, "motion": rows[0]["motion"], "frames": pick.tolist(),
                          "images": {k: np.stack([renderers[k].render(a.frames[t] + offset, a.orders[t],
@@ -140,6 +190,13 @@ def evaluate_item(item: dict) -> dict:
             name = f"{ch.name}_{rows[0]['motion']}.gif"
             write_gif(Path(item["gif_dir"]) / name, frames, 15)
             out["gif"] = str(Path(item["gif_dir"]) / name)
+    if item.get("sheet"):
+        a = anims["layered/ours"]
+        pick = np.linspace(0, T - 1, 12).round().astype(int)
+        out["sheet"] = (f"{ch.name}_{rows[0]['motion']}",
+                        np.stack([renderers["layered/ours"].render(a.frames[t] + offset, a.orders[t],
+                                                                   background=(255, 255, 255)) for t in pick]),
+                        pick.tolist())
     return out
 
 
@@ -180,30 +237,98 @@ def summarise(df: pd.DataFrame) -> dict:
     """Per-variant means of the numeric columns, and the failure ratio per (variant, motion)."""
     num = df.select_dtypes("number").columns
     df = df.assign(variant=df["mesh"] + "/" + df["method"])
+    kenney = ~df["character"].str.startswith("char")
+    by_source = {src: {v: {k: (None if not np.isfinite(x) else float(x)) for k, x in r.items()}
+                       for v, r in d.groupby("variant")[list(num)].mean().iterrows()}
+                 for src, d in (("animated_drawings", df[~kenney]), ("kenney", df[kenney])) if len(d)}
+    df = df[~kenney] if (~kenney).any() else df  # the means (and the stage's metrics) stay AnimatedDrawings'
     means = df.groupby("variant")[list(num)].mean()
     fail = df.pivot_table(index="variant", columns="motion", values="driving_failure_ratio", aggfunc="mean")
     return {"means": {v: {k: (None if not np.isfinite(x) else float(x)) for k, x in r.items()}
                       for v, r in means.iterrows()},
-            "failure_ratio": {v: {m: float(x) for m, x in r.items()} for v, r in fail.iterrows()}}
+            "failure_ratio": {v: {m: float(x) for m, x in r.items()} for v, r in fail.iterrows()},
+            "means_by_source": by_source}
+
+
+#: Width measures of the paper's Fig. 8 claim ("thinner and smoother limbs"), with what they mean.
+WIDTH_MEASURES = (("width_error", "|w / w_rest - 1|, mean"), ("width_change", "w / w_rest - 1, mean (< 0: thinner)"),
+                  ("width_roughness", "bumpiness along the limb minus the drawing's"),
+                  ("width_jitter", "|w_t - w_t-1| / w_rest, mean"))
+#: The Kenney character whose contact sheets are written (besides every AnimatedDrawings one).
+KENNEY_SHEET = "robot"
+
+
+def width_table(df: pd.DataFrame) -> pd.DataFrame:
+    """Fig. 8 claim: per (source, mesh), key points vs subkeys on the width measures (means over items)."""
+    d = df[df["method"].isin(["keypoints", "ours"]) & df["mesh"].isin(["connected", "limbs"])]
+    d = d.assign(source=np.where(d["character"].str.startswith("char"), "AnimatedDrawings", "Kenney"))
+    cols = [k for k, _ in WIDTH_MEASURES] + ["arap_energy_mean"]
+    return d.groupby(["source", "mesh", "method"])[cols].mean()
+
+
+def figure_widths(table: pd.DataFrame, path: Path) -> None:
+    """Bar chart of :func:`width_table` (PNG): key points vs subkeys per mesh and source, one panel per measure."""
+    from matplotlib.figure import Figure
+
+    from nnsf.io import atomic_path
+
+    fig = Figure(figsize=(12, 3.4), dpi=110)
+    groups = [(src, mesh) for src, mesh in dict.fromkeys((a, b) for a, b, _ in table.index)]
+    for k, (col, what) in enumerate(WIDTH_MEASURES):
+        ax = fig.add_subplot(1, len(WIDTH_MEASURES), k + 1)
+        x = np.arange(len(groups))
+        for j, (method, label) in enumerate((("keypoints", "ARAP, key points"), ("ours", "subkeys"))):
+            vals = [table.loc[(src, mesh, method), col] if (src, mesh, method) in table.index else np.nan
+                    for src, mesh in groups]
+            ax.bar(x + (j - 0.5) * 0.38, vals, 0.38, label=label)
+        ax.set_xticks(x, [f"{'AD' if s.startswith('A') else s}\n{m}" for s, m in groups], fontsize=8)
+        ax.set_title(col, fontsize=9)
+        ax.set_xlabel(what, fontsize=7)
+        ax.axhline(0, color="k", lw=0.5)
+        if k == 0:
+            ax.legend(fontsize=7)
+    fig.suptitle("Limb width against the drawing, per rendered frame (the paper's Fig. 8 claim)", fontsize=10)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
 
 
 def run(data_root=Path("../shared/data"), out_dir=Path("reports"), characters=CHARACTERS, motions=MOTIONS,
         n_vertices: int = 800, max_frames: int = 240, subkeys_per_limb: int = 4, kenney_annotations=None,
-        mapper=None) -> dict:
-    """Evaluate and write the report files (module docstring); returns the summary dict."""
+        mapper=None, azimuth=None, kenney_characters=None, kenney_vertices: int = 300) -> dict:
+    """Evaluate and write the report files (module docstring); returns the summary dict.
+
+    ``azimuth``: projection per motion (degrees; default :data:`AZIMUTH`).
+    ``kenney_characters``: Kenney sprites driven by the same motions (default
+    all six of :mod:`nnsf.reshape.kenney` when their images and
+    ``kenney_annotations`` exist), meshed with ``kenney_vertices``.
+    """
     from nnsf.io import atomic_path, write_csv, write_json
+    from nnsf.reshape.render import contact_sheet
 
     data_root, out_dir = Path(data_root), Path(out_dir)
     chars = data_root / "animated-drawings" / "characters"
     mots = data_root / "bandai-namco-1" / "data"
     if not chars.is_dir() or not mots.is_dir():
         raise InputError(data_root, "folder", "animated-drawings/characters and bandai-namco-1/data inside")
+    az = dict(AZIMUTH if azimuth is None else azimuth)
     gif_dir = out_dir / "reshape_eval"
     items = [{"character": str(chars / c), "motion": str(mots / f"dataset-1_{m}.bvh"), "n_vertices": n_vertices,
-              "max_frames": max_frames, "subkeys_per_limb": subkeys_per_limb,
-              "figure": (c, m) in FIGURE_ITEMS or c == characters[0],
+              "max_frames": max_frames, "subkeys_per_limb": subkeys_per_limb, "azimuth": float(az.get(m, 0.0)),
+              "figure": (c, m) in FIGURE_ITEMS or c == characters[0], "sheet": True,
               "gif_dir": str(gif_dir) if (c, m) in FIGURE_ITEMS else None}
              for c in characters for m in motions]
+    ann = Path(kenney_annotations) if kenney_annotations is not None else None
+    kroot = data_root / "kenney-toon"
+    if ann is not None and ann.is_dir() and kroot.is_dir():
+        from nnsf.reshape.kenney import CHARACTERS as KC
+
+        for c in (KC if kenney_characters is None else kenney_characters):
+            items += [{"kenney": c, "kenney_root": str(kroot), "kenney_annotations": str(ann),
+                       "motion": str(mots / f"dataset-1_{m}.bvh"), "n_vertices": kenney_vertices,
+                       "max_frames": max_frames, "subkeys_per_limb": subkeys_per_limb,
+                       "azimuth": float(az.get(m, 0.0)), "figure": False, "gif_dir": None,
+                       "sheet": c == KENNEY_SHEET} for m in motions]
     mapper = mapper or (lambda fn, xs: list(map(fn, xs)))
     results = mapper(_safe_item, items)
     failed = [r["item"] for r in results if "error" in r]
@@ -232,7 +357,21 @@ def run(data_root=Path("../shared/data"), out_dir=Path("reports"), characters=CH
             cv2.imwrite(str(tmp), cv2.cvtColor(figure9(strips), cv2.COLOR_RGB2BGR))
         artifacts.append(path)
     artifacts += [Path(r["gif"]) for r in ok if r.get("gif")]
-    ann = Path(kenney_annotations) if kenney_annotations is not None else None
+    for r in ok:  # contact sheets of the default (layered, subkeys, sealed), 12 frames each
+        if r.get("sheet"):
+            name, imgs, pick = r["sheet"]
+            scale = 0.5 if imgs.shape[1] > 300 else 2.0
+            sheet = contact_sheet(imgs, columns=6, scale=scale, labels=[f"t={t}" for t in pick])
+            path = gif_dir / "sheets" / f"{name}.png"
+            path.parent.mkdir(parents=True, exist_ok=True)
+            with atomic_path(path) as tmp:
+                cv2.imwrite(str(tmp), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))
+            artifacts.append(path)
+    wt = width_table(df)
+    if len(wt):
+        summary["fig8_widths"] = {"/".join(k): {c: float(v) for c, v in r.items()} for k, r in wt.iterrows()}
+        figure_widths(wt, out_dir / "reshape_fig8_widths.png")
+        artifacts.append(out_dir / "reshape_fig8_widths.png")
     if ann is not None and ann.is_dir() and (data_root / "kenney-toon").is_dir():
         from nnsf.reshape.kenney import CHARACTERS as KC, check_character
 
@@ -258,8 +397,15 @@ def run(data_root=Path("../shared/data"), out_dir=Path("reports"), characters=CH
 
 def _safe_item(item: dict) -> dict:
     """:func:`evaluate_item`, with bad input turned into an error entry (the other items go on)."""
+    import sys
+    import time
+
+    t0 = time.perf_counter()
     try:
-        return evaluate_item(item)
+        out = evaluate_item(item)
+        print(f"reshape-eval: {item.get('kenney') or Path(item['character']).name} x {Path(item['motion']).stem} "
+              f"{time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
+        return out
     except InputError as exc:
         return {"item": f"{Path(item['character']).name} x {Path(item['motion']).stem}", "error": str(exc)}
 
@@ -280,6 +426,10 @@ def reshape_eval(params: dict, data_root=Path("../shared/data"), out_dir=Path("r
     n_vertices = get("n_vertices", 800)
     max_frames = get("max_frames", 240)
     per_limb = get("subkeys_per_limb", 4)
+    azimuth = get("azimuth", dict(AZIMUTH))
+    if not (isinstance(azimuth, dict) and all(isinstance(k, str) and isinstance(v, (int, float))
+                                              and not isinstance(v, bool) for k, v in azimuth.items())):
+        raise InputError("params.yaml", "reshape_eval.azimuth", "a mapping motion -> degrees", azimuth)
     for key, val, ok, what in (
             ("n_vertices", n_vertices, isinstance(n_vertices, int) and 100 <= n_vertices <= 6000, "an integer 100..6000"),
             ("max_frames", max_frames, isinstance(max_frames, int) and 3 <= max_frames <= 5000, "an integer 3..5000"),
@@ -288,11 +438,13 @@ def reshape_eval(params: dict, data_root=Path("../shared/data"), out_dir=Path("r
             ("motions", motions, len(motions) > 0 and all(isinstance(c, str) for c in motions), "a list of names")):
         if not ok:
             raise InputError(source_of(params), f"reshape_eval.{key}", what, val)
-    s = run(data_root, out_dir, chars, motions, n_vertices, max_frames, per_limb, kenney_annotations, mapper)
+    s = run(data_root, out_dir, chars, motions, n_vertices, max_frames, per_limb, kenney_annotations, mapper,
+            azimuth=azimuth)
     metrics = {}
     for v, m in s["means"].items():
         for k in ("driving_failure_ratio", "arap_energy_mean", "stretch_ratio_max", "flipped_triangles",
-                  "depth_agreement", "subkey_slide"):
+                  "depth_agreement", "subkey_slide", "extra_holes", "tear_px", "outline_ink", "spikes",
+                  "width_error", "width_jitter"):
             if m.get(k) is not None:
                 metrics[f"{v.replace('/', '_')}_{k}"] = m[k]
     for v, x in s.get("kenney_iou_mean", {}).items():
@@ -314,14 +466,26 @@ def main(argv=None) -> int:
     ap.add_argument("--max-frames", type=int, default=240)
     ap.add_argument("--characters", nargs="+", default=list(CHARACTERS))
     ap.add_argument("--motions", nargs="+", default=list(MOTIONS))
+    ap.add_argument("--workers", type=int, default=1, help="processes for the items (default 1)")
     a = ap.parse_args(argv)
-    s = run(a.data, a.out, tuple(a.characters), tuple(a.motions), a.vertices, a.max_frames, 4, a.kenney)
+    mapper = None
+    if a.workers > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        def mapper(fn, xs):
+            with ProcessPoolExecutor(a.workers) as ex:
+                return list(ex.map(fn, xs))
+    s = run(a.data, a.out, tuple(a.characters), tuple(a.motions), a.vertices, a.max_frames, 4, a.kenney,
+            mapper=mapper)
     pd.set_option("display.width", 200)
     print(pd.DataFrame(s["means"]).T[["arap_energy_mean", "stretch_ratio_max", "flipped_triangles",
                                       "driving_failure_ratio", "width_drift_mean", "limb_bending_change",
                                       "temporal_jitter", "depth_agreement", "order_flips_per_100_frames",
                                       "subkey_slide"]].round(4).to_string())
     print(pd.DataFrame(s["failure_ratio"]).T.round(3).to_string())
+    print(pd.DataFrame(s["means"]).T[["hole_px", "holes_gt4", "extra_holes", "tear_px", "tear_px_max",
+                                      "outline_ink", "outline_ink_rest", "spikes", "spikes_rest", "width_error",
+                                      "width_change", "width_roughness", "width_jitter"]].round(4).to_string())
     if "kenney_iou" in s:
         print(pd.DataFrame(s["kenney_iou"]).T.round(3).to_string())
     for f in s["failed"]:

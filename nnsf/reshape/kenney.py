@@ -90,13 +90,8 @@ def iou(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.logical_and(a, b).sum() / u) if u else float("nan")
 
 
-def check_character(name: str, image_root, annotation_dir, n_vertices: int = 300,
-                    variants=(("layered", "ours"), ("layered", "keypoints"), ("limbs", "ours"), ("limbs", "keypoints"),
-                              ("connected", "keypoints"))) -> list[dict]:
-    """IoU rows (one per walk frame and variant, plus the identity baseline) for one character."""
-    from nnsf.reshape.render import MeshRenderer
-    from nnsf.reshape.stage import build_rig
-
+def kenney_character(name: str, image_root, annotation_dir) -> tuple[Character, np.ndarray]:
+    """The ``idle`` drawing of a Kenney character with its hand-annotated key points, and the snap moves (px)."""
     ann = Path(annotation_dir) / f"{name}.keypoints.json"
     folder = Path(image_root) / name
     if not ann.is_file():
@@ -107,10 +102,24 @@ def check_character(name: str, image_root, annotation_dir, n_vertices: int = 300
     idle_name, idle = _frame(folder, kps, "idle", ann)
     mask = idle[..., 3] > 0
     rest, moves = snap_inside(mask, kps[idle_name])
-    ch = Character(name=name, texture=idle, mask=mask, keypoints=rest, source=str(folder / idle_name))
+    return Character(name=name, texture=idle, mask=mask, keypoints=rest, source=str(folder / idle_name)), moves
+
+
+def check_character(name: str, image_root, annotation_dir, n_vertices: int = 300,
+                    variants=(("layered", "ours"), ("layered", "keypoints"), ("limbs", "ours"), ("limbs", "keypoints"),
+                              ("connected", "keypoints"))) -> list[dict]:
+    """IoU rows (one per walk frame and variant, plus the identity baseline) for one character."""
+    from nnsf.reshape.render import MeshRenderer
+    from nnsf.reshape.stage import build_rig
+
+    ch, moves = kenney_character(name, image_root, annotation_dir)
+    ann = Path(annotation_dir) / f"{name}.keypoints.json"
+    folder = Path(image_root) / name
+    kps = read_keypoint_file(ann)
     walks = [_frame(folder, kps, w, ann) for w in WALK]
     targets = np.stack([kps[n] for n, _ in walks])
     truth = [img[..., 3] > 0 for _, img in walks]
+    mask = ch.mask
     rows = [{"character": name, "frame": w, "variant": "identity", "iou": iou(mask, t)}
             for w, t in zip(WALK, truth)]
     for mesh, method in variants:

@@ -16,6 +16,7 @@
       fps: 24               # frames per second of the motion rows (1..120)
       max_frames: 240       # at most this many frames are rendered (1..5000)
       formats: [png, gif, mp4]
+      depth_overrides: []   # e.g. ["left_arm over torso from 12 to 30"] (frames 0-based, inclusive)
 
 and writes, atomically as one folder ``out_dir``: ``frames/frame_0000.png``…,
 ``<name>.gif``, ``<name>.mp4``, ``<name>_sheet.png`` (a contact sheet) and
@@ -112,11 +113,13 @@ def build_rig(character: Character, method: str = "ours", mesh: str = "layered",
 
 
 def animate(rig: Rig, motion: np.ndarray, joint_depth: np.ndarray | None = None, source="motion",
-            frames=None, hysteresis: float = 0.015) -> Animation:
+            frames=None, hysteresis: float = 0.015, overrides=None) -> Animation:
     """Drive ``rig`` with a motion ``(T, 17, 2)`` (any units); depth ``(T, 17)`` optional.
 
     ``hysteresis``: depth tie band as a fraction of the motion's body height
-    (median vertical extent of its key points).
+    (median vertical extent of its key points).  ``overrides``: checked user
+    depth overrides (:func:`nnsf.reshape.depth.parse_overrides`), applied
+    last, on their frames only.
     """
     kp = retarget(motion, rig.character.keypoints, source=source, frames=frames)
     V = rig.animate(kp)
@@ -128,6 +131,8 @@ def animate(rig: Rig, motion: np.ndarray, joint_depth: np.ndarray | None = None,
         height = float(np.median(np.ptp(np.asarray(motion)[..., 1], axis=1)))
         pairs = depth_mod.part_overlaps(V, rig.mesh.triangles, rig.mesh.parts)
         orders = depth_mod.depth_orders(z, hysteresis * height, pairs=pairs)
+    if overrides:
+        orders = depth_mod.apply_overrides(orders, overrides)
     return Animation(rig, kp, V, orders, z)
 
 
@@ -184,7 +189,8 @@ def _params(params: dict) -> dict:
 
     defaults = {"clip": None, "character": "bruno", "character_size": 512, "n_vertices": 800,
                 "subkeys_per_limb": 4, "method": "ours", "mesh": "layered", "propagation": "limb-frame",
-                "fps": 24, "max_frames": 240, "formats": list(FORMATS)}
+                "fps": 24, "max_frames": 240, "formats": list(FORMATS),
+                "depth_overrides": []}
     p = {key: checked(params, f"reshape.{key}", default) for key, default in defaults.items()}
     if p["method"] == "ours" and p["subkeys_per_limb"] == 0:
         raise InputError(source_of(params), "reshape.subkeys_per_limb", "at least 1 for method ours", 0)
@@ -211,7 +217,8 @@ def reshape(params: dict, motion_csv=Path("data/features/features.csv"), charact
     points, frame_ids = points[: p["max_frames"]], frame_ids[: p["max_frames"]]
     rig = build_rig(character, p["method"], p["mesh"], p["n_vertices"], p["subkeys_per_limb"], p["propagation"],
                     source=source)
-    anim = animate(rig, points, source=f"{motion_csv} (clip {clip})", frames=frame_ids)
+    overrides = depth_mod.parse_overrides(p["depth_overrides"], len(points), source=source)
+    anim = animate(rig, points, source=f"{motion_csv} (clip {clip})", frames=frame_ids, overrides=overrides)
     offset, size = canvas(character, anim.frames)
     renderer = MeshRenderer.for_mesh(rig.mesh, character, size=size)
     images = renderer.render_clip(anim.frames + offset, anim.orders, background=BACKGROUND)
@@ -237,6 +244,6 @@ def reshape(params: dict, motion_csv=Path("data/features/features.csv"), charact
         write_json(tmp / "metrics.json", {"character": character.name, "clip": clip, "params": p,
                                           "metrics": numbers})
     scalar = {f"reshape_{k}": v for k, v in numbers.items() if isinstance(v, (int, float)) and np.isfinite(v)}
-    return StageResult(params={f"reshape.{k}": (v if not isinstance(v, list) else ",".join(v))
+    return StageResult(params={f"reshape.{k}": (v if not isinstance(v, list) else ",".join(map(str, v)))
                                for k, v in p.items()},
                        metrics=scalar, artifacts=artifacts + [out_dir / "metrics.json"])

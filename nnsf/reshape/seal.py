@@ -1,0 +1,109 @@
+"""Sealing a rendered frame of a pieced mesh: no holes in the body, no cracks at the joints.
+
+A layered or whole-limb mesh (:func:`nnsf.reshape.mesh.layer_pieces`) draws
+every segment as its own piece.  Where the pieces part (a limb swung away
+from the chest, a shoulder or a knee bent past what its joint cap covers), the
+page shows through: enclosed holes inside the body and thin cracks or notches
+where two parts meet.  :func:`seal` closes them on the rendered frame:
+
+* **holes**: background components enclosed by the character (4-connected,
+  not touching the crop's border) that are small (at most
+  ``hole_share`` × the character's area and at most half the drawing's own
+  smallest hole, or no wider than ``2 × thin`` px) are filled; a large
+  enclosed gap (an arm forming a loop with the body, the gap between a
+  Kenney robot's arm and body) is drawing and stays;
+* **cracks and notches**: background pixels inside the morphological
+  closing of the coverage (an ellipse of ``2·close + 1`` px) that lie within
+  ``close + 1`` px (Chebyshev) of two different parts are filled.  The closing also
+  rounds the inside corner of a bent joint a little, as a drawn joint is.
+
+Filled pixels take the colour of the nearest fully opaque pixel of the frame
+(OpenCV's distance transform with per-pixel labels): the body's fill
+inside a crack, the ink of the outline across a notch, so an outline cut
+by a crack is drawn across it again.
+
+It works on the renderer's premultiplied RGBA crop and its per-pixel part
+image, and costs a few milliseconds per frame (``benchmarks/bench_seal.py``).
+"""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from scipy import ndimage
+
+
+
+def seal_mask(labels: np.ndarray, alpha: np.ndarray, close: int = 4, hole_share: float = 0.02,
+              thin: float = 3.0, hole_max: float | None = None) -> np.ndarray:
+    """Pixels ``(h, w)`` bool to fill, from visible parts ``(h, w)`` int (−1 empty) and alpha ``(h, w)`` uint8.
+
+    ``hole_max``: fill no wider-than-thin hole larger than this (px²); the
+    renderer sets it to half the drawing's own smallest hole
+    (:func:`drawn_hole_limit`), so a gap the artist drew is never filled.
+    """
+    cov = np.asarray(alpha) >= 128
+    if not cov.any():
+        return np.zeros(cov.shape, bool)
+    # Cracks and notches first: closing a notch's mouth can enclose a hole behind it.
+    k = 2 * close + 1
+    ker = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
+    closed = cv2.morphologyEx(cov.astype(np.uint8), cv2.MORPH_CLOSE, ker).astype(bool)
+    fill = closed & ~cov
+    if fill.any():
+        from nnsf.reshape.artefacts import two_parts_near
+
+        fill &= two_parts_near(np.where(cov, labels, -1), close + 1)
+    drawn = cov | fill
+    bg = (~drawn).astype(np.uint8)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(bg, connectivity=4)
+    if n > 1:
+        border = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
+        inner = np.setdiff1d(np.arange(1, n), border)
+        if len(inner):
+            area = stats[inner, cv2.CC_STAT_AREA]
+            limit = max(hole_share * drawn.sum(), 16)
+            if hole_max is not None:
+                limit = min(limit, hole_max)
+            small = inner[area <= limit]
+            big = np.setdiff1d(inner, small)
+            if len(big):  # thin enclosed cracks, whatever their length
+                dist = cv2.distanceTransform(bg, cv2.DIST_L2, 3)
+                widest = ndimage.maximum(dist, lab, big)
+                small = np.concatenate([small, big[np.asarray(widest) <= thin]])
+            fill |= np.isin(lab, small)
+    return fill
+
+
+def drawn_hole_limit(mask: np.ndarray) -> float | None:
+    """Half the area (px²) of the drawing's smallest enclosed hole larger than 4 px², or None without one."""
+    bg = (~np.asarray(mask, dtype=bool)).astype(np.uint8)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(bg, connectivity=4)
+    border = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
+    areas = [stats[i, cv2.CC_STAT_AREA] for i in range(1, n) if i not in border]
+    areas = [a for a in areas if a > 4]
+    return 0.5 * float(min(areas)) if areas else None
+
+
+def seal(crop: np.ndarray, labels: np.ndarray, **kw) -> np.ndarray:
+    """A premultiplied RGBA crop ``(h, w, 4)`` uint8 with :func:`seal_mask` filled (nearest opaque colour)."""
+    fill = seal_mask(labels, crop[..., 3], **kw)
+    if not fill.any():
+        return crop
+    ys, xs = np.nonzero(fill)
+    pad = 8
+    y0, y1 = max(ys.min() - pad, 0), min(ys.max() + pad + 1, crop.shape[0])
+    x0, x1 = max(xs.min() - pad, 0), min(xs.max() + pad + 1, crop.shape[1])
+    solid = crop[y0:y1, x0:x1, 3] == 255
+    if not solid.any():
+        return crop
+    # Nearest opaque pixel of every pixel: OpenCV labels each zero pixel of its input in raster
+    # order (DIST_LABEL_PIXEL), so label k is the k-th opaque pixel of np.argwhere.
+    _, lab = cv2.distanceTransformWithLabels((~solid).astype(np.uint8), cv2.DIST_L2, 5,
+                                             labelType=cv2.DIST_LABEL_PIXEL)
+    src = np.argwhere(solid)
+    out = crop.copy()
+    f = fill[y0:y1, x0:x1]
+    near = src[lab[f] - 1]
+    box = out[y0:y1, x0:x1]
+    box[f] = crop[y0:y1, x0:x1][near[:, 0], near[:, 1]]
+    return out
