@@ -92,6 +92,9 @@ def run_stage_command(stage: str, args: list[str]) -> int:
 
     params = load(opts.params)
     require(params, "mlflow.experiment")
+    from nnsf.stages import check_outputs
+
+    check_outputs(stage)  # an unwritable output folder: one line now, not after the work
 
     from flows.console import quiet_prefect_console
 

@@ -98,6 +98,40 @@ def _pow10(e: np.ndarray) -> np.ndarray:
     return np.where(e >= 0, _POW10[np.clip(e, 0, 308)], 1.0 / _POW10[np.clip(-e, 0, 308)])
 
 
+def check_writable(folder: str | os.PathLike) -> Path:
+    """Fail with one line naming ``folder`` unless files can be created in it; returns it.
+
+    Creates nothing that stays: the folder's nearest existing ancestor must be
+    a folder (not a file), and a probe file made in it is removed at once.
+    The probe, not ``os.access``, decides, because ``root`` passes every
+    permission check but still cannot write to a read-only file system.
+    """
+    folder = Path(folder)
+    existing = folder
+    while not existing.exists() and existing != existing.parent:
+        if existing.is_symlink():  # a dangling link cannot be made a folder
+            break
+        existing = existing.parent
+    expected = "a folder that can be created and written"
+    if not existing.is_dir():
+        raise InputError(folder, "output folder", expected,
+                         f"{existing} is a file" if existing.exists() or existing.is_symlink()
+                         else f"{existing} does not exist")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".nnsf-write-probe.", dir=existing)
+    except OSError as exc:
+        raise InputError(folder, "output folder", expected, f"{existing}: {exc.strerror}") from None
+    os.close(fd)
+    os.unlink(probe)
+    return folder
+
+
+def _unwritable(path: Path, exc: OSError) -> InputError:
+    """The one-line error for an output that cannot be created (permissions, a file in the way)."""
+    return InputError(path.parent, "output folder", "a folder that can be created and written",
+                      exc.strerror or str(exc))
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; rename it onto ``path`` on success.
@@ -107,10 +141,13 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     format from the file name (matplotlib, OpenCV) still do the right thing.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(
-        prefix=f".{path.name}.", suffix=path.suffix if suffix is None else suffix, dir=path.parent
-    )
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(
+            prefix=f".{path.name}.", suffix=path.suffix if suffix is None else suffix, dir=path.parent
+        )
+    except OSError as exc:  # no permission, a file where a folder should be, read-only
+        raise _unwritable(path, exc) from None
     os.close(fd)
     tmp = Path(tmp)
     os.chmod(tmp, 0o644)  # mkstemp's 0600 would make the finished file private
@@ -140,8 +177,11 @@ def _drop_stale(path: Path) -> None:
 def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary folder beside ``path``; swap it in for ``path`` on success."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    except OSError as exc:  # no permission, a file where a folder should be, read-only
+        raise _unwritable(path, exc) from None
     os.chmod(tmp, 0o755)  # mkdtemp's 0700 would make the finished folder private
     try:
         yield tmp

@@ -25,6 +25,7 @@ def _client(uri: str):
     return MlflowClient(tracking_uri=uri)
 
 
+@pytest.mark.slow  # spawns a process and SIGKILLs it
 def test_a_run_whose_process_was_killed_is_marked_killed_on_the_next_start(tmp_path, mlflow_template,
                                                                              monkeypatch):
     from flows.mlflow_runs import ExperimentLog
