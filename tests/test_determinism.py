@@ -60,4 +60,5 @@ def test_every_output_hashes_the_same_under_two_blas_and_cpu_setups(tmp_path):
     differ = sorted(path for path in first if first[path] != second.get(path))
     assert len(first) > 40 and {"models/nnsf.npz", "reports/metrics.json", "reports/heldout.csv",
                                 "reports/tracking.json", "data/features/features.csv"} <= set(first)
-    assert set(first) == set(second) and differ == []
+    assert differ == []
+    assert set(first) == set(second)
