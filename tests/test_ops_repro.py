@@ -65,7 +65,7 @@ def reference(tmp_path_factory, mlflow_template, prefect_api):
     base = tmp_path_factory.mktemp("repro-reference")
     root, env = _small_clone(base, "reference", mlflow_template, prefect_api,
                              {"OPENBLAS_NUM_THREADS": "1"})
-    done = run(FLOWS + ["repro"], root, env, timeout=900)
+    done = run(FLOWS + ["repro"], root, env, timeout=1800)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     return lock_hashes(root)
 
@@ -90,7 +90,7 @@ def test_a_stage_killed_while_writing_leaves_nothing_finished_and_repro_recovers
     status = wait_for(lambda: _status(root, env), 60, "dvc status after the kill")
     assert "evaluate" in status
 
-    again = run(FLOWS + ["repro"], root, env, timeout=900)
+    again = run(FLOWS + ["repro"], root, env, timeout=1800)
     assert again.returncode == 0, again.stdout[-3000:] + again.stderr[-3000:]
     assert lock_hashes(root) == reference
     leftovers = [p for d in ("data", "models", "reports") for p in (root / d).rglob(".*")
@@ -127,7 +127,7 @@ def test_two_cold_repros_in_clones_on_two_blas_setups_give_identical_hashes(
 
     root, env = _small_clone(tmp_path, "second", mlflow_template, prefect_api,
                              SETUPS["avx2-two-threads"])
-    result = run(FLOWS + ["repro"], root, env, timeout=900)
+    result = run(FLOWS + ["repro"], root, env, timeout=1800)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     assert lock_hashes(root) == reference
     assert set(reference) >= {"frames", "track", "tracking", "data", "features", "factorize",
