@@ -12,6 +12,13 @@ kernel or thread count (a metric of 0.07895747601148273 on one machine,
 committed reports and ``dvc.lock`` do not change between machines.  A value
 changes only if BLAS noise (about 1e-16 relative) carries it across a
 rounding boundary of the 6th digit: about one value in 10^10.
+
+Reports (JSON, CSV, annotations) also write any value below :data:`ZERO` in
+magnitude as 0: such a value is what is left of an exact zero after
+round-off (a rigid mesh's ARAP energy of 1.8e-22 px², a width drift of
+5e-14), and its digits are all noise, which significant digits cannot
+remove.  Arrays (``.npz``) keep tiny values: there they are mostly products
+that keep their relative precision (NNSF's multiplicative updates).
 """
 from __future__ import annotations
 
@@ -31,12 +38,20 @@ from nnsf.errors import InputError
 
 #: Significant digits of every float written by this module (see the module docstring).
 DIGITS = 6
+#: Report values smaller than this in magnitude are round-off of an exact zero and written as 0.
+#: Every quantity we report (px, px², template units, ratios, seconds) is far above it when real.
+ZERO = 1e-12
 
 
 def round_float(x: float, digits: int = DIGITS) -> float:
-    """``x`` rounded to ``digits`` significant digits (correctly rounded decimal; inf/nan kept)."""
+    """``x`` rounded to ``digits`` significant digits (correctly rounded decimal; inf/nan kept).
+
+    ``|x| < ZERO`` gives 0.0 (round-off of an exact zero; also no ``-0.0``).
+    """
     x = float(x)
-    return float(f"{x:.{digits}g}") if np.isfinite(x) else x
+    if not np.isfinite(x):
+        return x
+    return 0.0 if abs(x) < ZERO else float(f"{x:.{digits}g}")
 
 
 def round_floats(obj, digits: int = DIGITS):
@@ -214,8 +229,18 @@ def _json_default(o):
 
 
 def write_csv(path, frame: pd.DataFrame, digits: int = DIGITS) -> None:
-    """Write a table as CSV without the index, floats to ``digits`` significant digits, atomically."""
+    """Write a table as CSV without the index, floats to ``digits`` significant digits, atomically.
+
+    Float values below :data:`ZERO` in magnitude are written as 0.
+    """
     float_format = f"%.{digits}g"
+    floats = frame.select_dtypes(include="floating").columns
+    if len(floats):
+        frame = frame.copy()
+        for col in floats:  # round-off of exact zeros, and -0.0, written as 0
+            values = frame[col].to_numpy(dtype=np.float64, copy=True)
+            values[np.abs(values) < ZERO] = 0.0
+            frame[col] = values
     with atomic_path(path) as tmp:
         frame.to_csv(tmp, index=False, float_format=float_format, lineterminator="\n")
 

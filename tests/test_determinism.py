@@ -27,7 +27,8 @@ from conftest import PROJECT
 
 pytestmark = pytest.mark.slow
 
-STAGES = ("frames", "track", "tracking", "data", "features", "factorize", "evaluate", "isomap", "heldout")
+STAGES = ("frames", "track", "tracking", "data", "features", "factorize", "evaluate", "isomap", "heldout",
+          "translate", "reshape")
 
 #: Two machines' worth of BLAS and SIMD choices (see the module docstring).
 SETUPS = {
