@@ -42,6 +42,14 @@ def main(argv: list[str] | None = None) -> int:
         return 0 if argv else 2
     command, rest = argv[0], argv[1:]
     try:
+        if command in STAGES and os.environ.get("NNSF_STAGE_SERVER"):
+            # Under `python -m flows repro`: the long-lived process that has Prefect and
+            # MLflow imported runs this stage in a child of its own (flows.stage_server).
+            from flows import stage_server
+
+            code = stage_server.delegate(argv)
+            if code is not None:
+                return code
         if command in STAGES:
             return run_stage_command(command, rest)
         if command == "repro":
@@ -92,6 +100,9 @@ def run_stage_command(stage: str, args: list[str]) -> int:
 
     params = load(opts.params)
     require(params, "mlflow.experiment")
+    from nnsf.stages import check_outputs
+
+    check_outputs(stage)  # an unwritable output folder: one line now, not after the work
 
     from flows.console import quiet_prefect_console
 
@@ -150,7 +161,8 @@ def _record_imports(stage: str, root: Path) -> None:
             rel = Path(path).resolve().relative_to(root)
         except ValueError:
             continue
-        if rel.parts[0] in ("nnsf", "flows"):
+        # The stage server only forks the stage's process: orchestration like DVC itself.
+        if rel.parts[0] in ("nnsf", "flows") and rel.as_posix() != "flows/stage_server.py":
             files.add(rel.as_posix())
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)

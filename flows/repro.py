@@ -15,7 +15,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from flows import prefect_server, project
+from flows import prefect_server, project, stage_server
 from flows.console import error_line
 
 
@@ -61,7 +61,10 @@ def main(args: list[str]) -> int:
     env = stage_env(root)
     repro = dvc("repro", *args)
     if env.get("PREFECT_API_URL"):
-        return subprocess.call(repro, cwd=root, env=env)
+        if stages_to_run(root, args, env) == []:
+            return subprocess.call(repro, cwd=root, env=env)
+        with stage_server.running(env, root, Path(env["PREFECT_HOME"]) / "stage-server.log") as env:
+            return subprocess.call(repro, cwd=root, env=env)
     todo = stages_to_run(root, args, env)
     if todo == []:
         return subprocess.call(repro, cwd=root, env=env)  # a no-op: DVC says so itself
@@ -74,7 +77,8 @@ def main(args: list[str]) -> int:
             print(f"Prefect API {api_url}; dashboard {api_url.removesuffix('/api')} "
                   "(stops when the run ends)", flush=True)
             env["PREFECT_API_URL"] = api_url
-            return subprocess.call(repro, cwd=root, env=env)
+            with stage_server.running(env, root, home / "stage-server.log") as env:
+                return subprocess.call(repro, cwd=root, env=env)
     except prefect_server.ServerError as err:
         error_line(str(err))
         return 1

@@ -20,11 +20,16 @@ The same stages run as Prefect flows with MLflow logging through
 from __future__ import annotations
 
 import argparse
+import errno
 import os
 import sys
 from pathlib import Path
 
 from nnsf.errors import InputError
+
+#: OS errors that mean "this output cannot be written here": reported like bad input (exit 2).
+UNWRITABLE = {errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOTDIR, errno.EISDIR, errno.ENOSPC,
+              errno.EDQUOT}
 
 STAGES = ("frames", "track", "tracking", "data", "features", "factorize", "evaluate", "isomap", "heldout")
 
@@ -94,6 +99,14 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "check":
             print(f"{args.params}: ok")
             return 0
+        # Every output folder is checked before any work: a file in the way, no
+        # permission or a read-only disk fails here in one line, and nothing is written.
+        if args.command in ("translate", "reshape"):
+            stages.check_outputs(args.command, [args.out])
+        elif args.command in ("reshape-eval", "tracking-real"):
+            stages.check_outputs(args.command, [args.out, args.out / "figures"])
+        elif args.command != "sweep":  # `nnsf sweep` writes its table to stdout only
+            stages.check_outputs(args.command)
         if args.command == "sweep":
             import pandas as pd
 
@@ -157,11 +170,23 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("error: interrupted", file=sys.stderr)
         return 130
+    except OSError as err:
+        if err.errno not in UNWRITABLE:
+            return _unexpected(args.command, err)
+        # A file the stage could not write (the folder check ran first, so the disk
+        # became full or read-only, or a permission changed, while it worked).
+        print(f"error: {err.filename or args.command}: {err.strerror}", file=sys.stderr)
+        return 2
     except Exception as err:  # a bug or an environment problem
-        if os.environ.get("NNSF_DEBUG"):
-            raise
-        print(f"error: {args.command}: {_one_line(err)} (set NNSF_DEBUG=1 for the traceback)", file=sys.stderr)
-        return 1
+        return _unexpected(args.command, err)
+
+
+def _unexpected(command: str, err: BaseException) -> int:
+    """A bug or an environment problem: one line (the traceback with ``NNSF_DEBUG=1``), exit 1."""
+    if os.environ.get("NNSF_DEBUG"):
+        raise err
+    print(f"error: {command}: {_one_line(err)} (set NNSF_DEBUG=1 for the traceback)", file=sys.stderr)
+    return 1
 
 
 if __name__ == "__main__":

@@ -3,6 +3,22 @@
 Outputs are written to a temporary file in the destination folder and renamed
 into place, so a killed stage never leaves a file that looks finished.  Arrays
 go to ``.npz`` and are read back with ``allow_pickle=False``; tables go to CSV.
+
+Every floating-point number these writers put in a file is rounded to
+:data:`DIGITS` significant digits (JSON, CSV and the float arrays of ``.npz``).
+Sums and products come out in the last bits differently on another CPU, BLAS
+kernel or thread count (a metric of 0.07895747601148273 on one machine,
+...272 on the next); rounded, they are the same bytes, so DVC's hashes, the
+committed reports and ``dvc.lock`` do not change between machines.  A value
+changes only if BLAS noise (about 1e-16 relative) carries it across a
+rounding boundary of the 6th digit: about one value in 10^10.
+
+Reports (JSON, CSV, annotations) also write any value below :data:`ZERO` in
+magnitude as 0: such a value is what is left of an exact zero after
+round-off (a rigid mesh's ARAP energy of 1.8e-22 px², a width drift of
+5e-14), and its digits are all noise, which significant digits cannot
+remove.  Arrays (``.npz``) keep tiny values: there they are mostly products
+that keep their relative precision (NNSF's multiplicative updates).
 """
 from __future__ import annotations
 
@@ -51,6 +67,116 @@ def renamed_write_error(exc: "WriteError", tmp: Path, final: Path) -> "WriteErro
         src = str(final) + src[len(str(tmp)):]
     return WriteError(src, exc.field, exc.expected, exc.got, reason=exc.reason)
 
+#: Significant digits of every float written by this module (see the module docstring).
+DIGITS = 6
+#: Report values smaller than this in magnitude are round-off of an exact zero and written as 0.
+#: Every quantity we report (px, px², template units, ratios, seconds) is far above it when real.
+ZERO = 1e-12
+
+
+def round_float(x: float, digits: int = DIGITS) -> float:
+    """``x`` rounded to ``digits`` significant digits (correctly rounded decimal; inf/nan kept).
+
+    ``|x| < ZERO`` gives 0.0 (round-off of an exact zero; also no ``-0.0``).
+    """
+    x = float(x)
+    if not np.isfinite(x):
+        return x
+    return 0.0 if abs(x) < ZERO else float(f"{x:.{digits}g}")
+
+
+def round_floats(obj, digits: int = DIGITS):
+    """A copy of a JSON-like ``obj`` with every float (Python or numpy) rounded; arrays to lists."""
+    if isinstance(obj, bool) or obj is None or isinstance(obj, (str, int, np.integer, np.bool_)):
+        return obj.item() if isinstance(obj, np.generic) else obj
+    if isinstance(obj, (float, np.floating)):
+        return round_float(obj, digits)
+    if isinstance(obj, np.ndarray):
+        return round_floats(obj.tolist(), digits)
+    if isinstance(obj, Mapping):
+        return {k: round_floats(v, digits) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [round_floats(v, digits) for v in obj]
+    return obj
+
+
+def round_array(a: np.ndarray, digits: int = DIGITS) -> np.ndarray:
+    """A float array rounded to ``digits`` significant digits, element-wise; other dtypes as they are.
+
+    Scales each value by a power of ten so that its ``digits`` leading digits
+    are left of the point, rounds half to even and scales back.  Only exactly
+    rounded IEEE operations touch the values, so the same input gives the same
+    bits on every machine.  The result need not be the double nearest to the
+    decimal (for files read by numpy that does not matter; JSON and CSV use
+    correctly rounded decimals).
+    """
+    a = np.asarray(a)
+    if a.dtype.kind not in "fc":
+        return a
+    if a.dtype.kind == "c":
+        return round_array(a.real, digits) + 1j * round_array(a.imag, digits)
+    out = a.copy()
+    x = a.astype(np.float64)
+    mag = np.abs(x)
+    # Values below 1e-290 (none in our outputs but exact zeros) are left alone: their scale
+    # factor would overflow.
+    todo = np.isfinite(x) & (mag >= 1e-290)
+    x, mag = x[todo], mag[todo]
+    # The decimal exponent from frexp's exact binary one (log10 could differ in its last bit
+    # between CPUs): floor((e - 1) log10 2) is the exponent or one below it.
+    exp10 = np.floor((np.frexp(mag)[1] - 1) * np.log10(2.0)).astype(np.int64)
+    exp10 += mag >= _pow10(exp10 + 1)
+    shift = digits - 1 - exp10
+    up = shift >= 0
+    scaled = np.where(up, x * _pow10(shift), x / _pow10(-shift))
+    rounded = np.round(scaled)
+    out[todo] = np.where(up, rounded / _pow10(shift), rounded * _pow10(-shift)).astype(a.dtype)
+    return out
+
+
+#: 10**k as the double nearest to it (Python rounds int -> float correctly), k = 0 .. 308.
+_POW10 = np.array([float(10 ** k) for k in range(309)])
+
+
+def _pow10(e: np.ndarray) -> np.ndarray:
+    """10.0**e for integer arrays, e >= -308, from the exact table (no libm ``pow``)."""
+    e = np.asarray(e, dtype=np.int64)
+    return np.where(e >= 0, _POW10[np.clip(e, 0, 308)], 1.0 / _POW10[np.clip(-e, 0, 308)])
+
+
+def check_writable(folder: str | os.PathLike) -> Path:
+    """Fail with one line naming ``folder`` unless files can be created in it; returns it.
+
+    Creates nothing that stays: the folder's nearest existing ancestor must be
+    a folder (not a file), and a probe file made in it is removed at once.
+    The probe, not ``os.access``, decides, because ``root`` passes every
+    permission check but still cannot write to a read-only file system.
+    """
+    folder = Path(folder)
+    existing = folder
+    while not existing.exists() and existing != existing.parent:
+        if existing.is_symlink():  # a dangling link cannot be made a folder
+            break
+        existing = existing.parent
+    expected = "a folder that can be created and written"
+    if not existing.is_dir():
+        raise InputError(folder, "output folder", expected,
+                         f"{existing} is a file" if existing.exists() or existing.is_symlink()
+                         else f"{existing} does not exist")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".nnsf-write-probe.", dir=existing)
+    except OSError as exc:
+        raise InputError(folder, "output folder", expected, f"{existing}: {exc.strerror}") from None
+    os.close(fd)
+    os.unlink(probe)
+    return folder
+
+
+def _unwritable(path: Path, exc: OSError) -> InputError:
+    """The one-line error for an output that cannot be created (permissions, a file in the way)."""
+    return WriteError(path.parent, "output folder", "a folder that can be created and written",
+                      exc.strerror or str(exc))
+
 
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
@@ -71,8 +197,8 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
         os.close(fd)
         tmp = Path(tmp)
         os.chmod(tmp, 0o644)  # mkstemp's 0600 would make the finished file private
-    except OSError as exc:
-        raise _write_error(path, exc) from None
+    except OSError as exc:  # no permission, a file where a folder should be, read-only
+        raise _unwritable(path, exc) from None
     try:
         yield tmp
         os.replace(tmp, path)
@@ -106,8 +232,8 @@ def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
         os.chmod(tmp, 0o755)  # mkdtemp's 0700 would make the finished folder private
-    except OSError as exc:
-        raise _write_error(path, exc) from None
+    except OSError as exc:  # no permission, a file where a folder should be, read-only
+        raise _unwritable(path, exc) from None
     try:
         try:
             yield tmp
@@ -129,10 +255,11 @@ def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
     _drop_stale(path)
 
 
-def write_json(path, obj: Mapping) -> None:
-    """Write ``obj`` as indented JSON (sorted keys, stable across runs), atomically."""
+def write_json(path, obj: Mapping, digits: int = DIGITS) -> None:
+    """Write ``obj`` as indented JSON (sorted keys, floats to ``digits`` significant digits), atomically."""
+    text = json.dumps(round_floats(obj, digits), indent=2, sort_keys=True, default=_json_default)
     with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(obj, indent=2, sort_keys=True, default=_json_default) + "\n")
+        tmp.write_text(text + "\n")
 
 
 def _json_default(o):
@@ -143,17 +270,35 @@ def _json_default(o):
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
-def write_csv(path, frame: pd.DataFrame, float_format: str | None = "%.10g") -> None:
-    """Write a table as CSV without the index, atomically."""
+def write_csv(path, frame: pd.DataFrame, digits: int = DIGITS) -> None:
+    """Write a table as CSV without the index, floats to ``digits`` significant digits, atomically.
+
+    Float values below :data:`ZERO` in magnitude are written as 0.
+    """
+    float_format = f"%.{digits}g"
+    floats = frame.select_dtypes(include="floating").columns
+    if len(floats):
+        frame = frame.copy()
+        for col in floats:  # round-off of exact zeros, and -0.0, written as 0
+            values = frame[col].to_numpy(dtype=np.float64, copy=True)
+            values[np.abs(values) < ZERO] = 0.0
+            frame[col] = values
     with atomic_path(path) as tmp:
         frame.to_csv(tmp, index=False, float_format=float_format, lineterminator="\n")
 
 
-def write_npz(path, **arrays: np.ndarray) -> None:
-    """Write arrays to an uncompressed ``.npz``, atomically.  No object arrays."""
+def write_npz(path, digits: int | None = DIGITS, **arrays: np.ndarray) -> None:
+    """Write arrays to an uncompressed ``.npz``, atomically.  No object arrays.
+
+    Float arrays are rounded to ``digits`` significant digits (:func:`round_array`;
+    ``None`` keeps every bit) so that the file, and DVC's hash of it, is the
+    same on every machine.
+    """
     for name, a in arrays.items():
         if np.asarray(a).dtype == object:
             raise TypeError(f"{name}: object arrays cannot be stored without pickle")
+    if digits is not None:
+        arrays = {name: round_array(a, digits) for name, a in arrays.items()}
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as fh:
             np.savez(fh, **arrays)

@@ -150,6 +150,35 @@ def heldout(params: dict, features_csv=FEATURES_CSV, reports=REPORTS, mapper=Non
 
 TRANSLATION_DIR = REPORTS / "translation"
 
+#: The folders each stage writes into (the parents of its dvc.yaml outs, and the
+#: outs that are folders).  The commands check them before any work starts, so an
+#: unwritable output fails in a second with one line, not after the stage's work.
+OUTPUT_FOLDERS = {
+    "frames": (FRAMES_DIR,),
+    "track": (TRACKS_DIR, TRACKED_DIR),
+    "tracking": (REPORTS, REPORTS / "figures"),
+    "data": (RAW_DIR,),
+    "features": (FEATURES_DIR,),
+    "factorize": (MODEL_PATH.parent, REPORTS, REPORTS / "figures"),
+    "evaluate": (REPORTS, REPORTS / "plots", REPORTS / "figures"),
+    "isomap": (REPORTS, REPORTS / "plots", REPORTS / "figures"),
+    "sweep": (REPORTS, REPORTS / "figures" / "sweep"),
+    "heldout": (REPORTS, REPORTS / "plots", REPORTS / "figures"),
+    "translate": (TRANSLATION_DIR,),
+    "reshape": (REPORTS / "reshape",),
+}
+
+
+def check_outputs(stage: str, folders=None) -> None:
+    """Raise :class:`InputError` naming the first of ``stage``'s output folders that cannot be written.
+
+    ``folders`` replaces :data:`OUTPUT_FOLDERS` (commands given ``--out``).
+    """
+    from nnsf.io import check_writable
+
+    for folder in (OUTPUT_FOLDERS.get(stage, ()) if folders is None else folders):
+        check_writable(folder)
+
 
 def translate(params: dict, features_csv=FEATURES_CSV, out_dir=TRANSLATION_DIR,
               content_clip=None, style=None) -> StageResult:

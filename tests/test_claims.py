@@ -7,6 +7,7 @@ the same rank, averaged over folds grouped by clip.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from nnsf.datasets import contract
 from nnsf.datasets.synthetic import generate
@@ -14,6 +15,7 @@ from nnsf.evaluate.crossval import precision_vs_rank
 from nnsf.skeleton import Unifier, to_points
 
 
+@pytest.mark.slow  # n_jobs=2: joblib starts worker processes
 def test_class_term_raises_held_out_precision():
     table = generate(characters=9, clips_per_cell=3, frames=24, noise_px=0.4, seed=0)
     P = to_points(contract.features(table))

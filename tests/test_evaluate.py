@@ -115,6 +115,7 @@ def test_precision_vs_rank_is_deterministic(table):
     pd.testing.assert_frame_equal(table[cols], again[cols])
 
 
+@pytest.mark.slow  # n_jobs=2: joblib starts worker processes
 def test_precision_vs_rank_parallel_matches_serial():
     X, y, g, s = cartoon(n_classes=2, n_styles=2, clips=3, d=8)
     kw = dict(methods=["nmf", "bilinear"], ranks=[2], n_splits=3, seed=0, max_iter=50)

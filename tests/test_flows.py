@@ -83,6 +83,7 @@ def assert_nothing_finished(root: Path) -> None:
 
 # -- bad input, caught before any flow starts (no Prefect server needed) -------------
 
+@pytest.mark.slow  # runs `python -m flows`
 def test_wrong_type_in_params_fails_before_prefect(make_project):
     root, env = make_project(prefect=False)
     set_params(root, **{"nnsf.rank": "ten"})
@@ -93,6 +94,7 @@ def test_wrong_type_in_params_fails_before_prefect(make_project):
     assert_nothing_finished(root)
 
 
+@pytest.mark.slow  # runs `python -m flows`
 def test_unknown_dataset_name(make_project):
     root, env = make_project(prefect=False)
     set_params(root, **{"dataset.name": "mocap-2000"})
@@ -102,6 +104,7 @@ def test_unknown_dataset_name(make_project):
     assert not (root / "data" / "raw").exists()
 
 
+@pytest.mark.slow  # runs `python -m flows`
 def test_unknown_command(make_project):
     root, env = make_project(prefect=False)
     result = run(FLOWS + ["factorise"], root, env)

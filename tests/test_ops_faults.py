@@ -25,6 +25,7 @@ def _client(uri: str):
     return MlflowClient(tracking_uri=uri)
 
 
+@pytest.mark.slow  # spawns a process and SIGKILLs it
 def test_a_run_whose_process_was_killed_is_marked_killed_on_the_next_start(tmp_path, mlflow_template,
                                                                              monkeypatch):
     from flows.mlflow_runs import ExperimentLog
@@ -128,7 +129,8 @@ def test_a_sweep_killed_halfway_resumes_without_recomputing_finished_points(
             continue
         fresh = stages.sweep_point(params, {"alpha": row.alpha, "beta": row.beta, "rank": int(row.rank)},
                                    features_csv=root / stages.FEATURES_DIR / "features.csv")
-        assert row.precision_mean == pytest.approx(fresh.metrics["precision_mean"], rel=1e-9)
+        assert row.precision_mean == pytest.approx(fresh.metrics["precision_mean"],
+                                                    rel=5.1e-6)  # the CSV keeps 6 digits
     figures = sorted(p.name for p in (root / "reports" / "figures" / "sweep").iterdir())
     assert len(figures) == total  # reused points got their figures back from MLflow
     assert not [f for f in figures if f.startswith(".")]  # the killed run's temporary files are gone

@@ -3,10 +3,14 @@
 - A stage SIGKILLed while it writes its outputs leaves nothing that looks
   finished, and the next repro gives outputs identical (same hashes in
   dvc.lock) to a run that was never interrupted.
-- Two cold repros of the default pipeline in separate git clones of HEAD give
-  identical dvc.lock output hashes.
+- Two cold repros of the small pipeline (test_pipeline.SMALL_PARAMS, every
+  stage) in separate git clones of HEAD give identical dvc.lock output hashes,
+  the second under another machine's BLAS and SIMD set-up (two OpenBLAS
+  threads, Haswell kernels, no AVX-512: test_determinism.SETUPS).
 
-Slow (minutes): they run the real pipeline several times.
+Every project here is a clone of HEAD with the small params committed; the
+uninterrupted cold repro is made once (module fixture) and is the reference
+of both tests.  Slow (minutes): they run the real pipeline several times.
 """
 from __future__ import annotations
 
@@ -20,7 +24,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from conftest import PROJECT, git, new_project, project_env, run
+from conftest import PROJECT, git, project_env, run
 from test_ops_support import process_group, wait_for
 
 pytestmark = pytest.mark.slow
@@ -42,20 +46,33 @@ def small_params() -> str:
     return SMALL_PARAMS
 
 
-def _small_project(base: Path, name: str, mlflow_template: Path, prefect_api: str):
-    root, env = new_project(base / name, mlflow_template, prefect_api)
+def _small_clone(base: Path, name: str, mlflow_template: Path, prefect_api: str,
+                 extra_env: dict | None = None):
+    """A git clone of HEAD without generated files, SMALL_PARAMS committed; (root, env)."""
+    root = _clone_head(base / name)
     (root / "params.yaml").write_text(small_params())
     git(root, "commit", "-q", "-am", "small params")
+    db = base / f"{name}-mlflow.db"
+    shutil.copy2(mlflow_template, db)
+    env = project_env(root, prefect_api, db)
+    env.update(extra_env or {})
     return root, env
 
 
-def test_a_stage_killed_while_writing_leaves_nothing_finished_and_repro_recovers(
-        tmp_path, mlflow_template, prefect_api):
-    reference, env_ref = _small_project(tmp_path, "reference", mlflow_template, prefect_api)
-    done = run(FLOWS + ["repro"], reference, env_ref, timeout=900)
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory, mlflow_template, prefect_api):
+    """dvc.lock output hashes of one uninterrupted cold repro of the small pipeline."""
+    base = tmp_path_factory.mktemp("repro-reference")
+    root, env = _small_clone(base, "reference", mlflow_template, prefect_api,
+                             {"OPENBLAS_NUM_THREADS": "1"})
+    done = run(FLOWS + ["repro"], root, env, timeout=1800)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    return lock_hashes(root)
 
-    root, env = _small_project(tmp_path, "killed", mlflow_template, prefect_api)
+
+def test_a_stage_killed_while_writing_leaves_nothing_finished_and_repro_recovers(
+        tmp_path, mlflow_template, prefect_api, reference):
+    root, env = _small_clone(tmp_path, "killed", mlflow_template, prefect_api)
     first_output = root / "reports" / "cv_folds.csv"      # evaluate writes this first ...
     last_output = root / "reports" / "metrics.json"       # ... and this last
     log = tmp_path / "killed.log"
@@ -73,9 +90,9 @@ def test_a_stage_killed_while_writing_leaves_nothing_finished_and_repro_recovers
     status = wait_for(lambda: _status(root, env), 60, "dvc status after the kill")
     assert "evaluate" in status
 
-    again = run(FLOWS + ["repro"], root, env, timeout=900)
+    again = run(FLOWS + ["repro"], root, env, timeout=1800)
     assert again.returncode == 0, again.stdout[-3000:] + again.stderr[-3000:]
-    assert lock_hashes(root) == lock_hashes(reference)
+    assert lock_hashes(root) == reference
     leftovers = [p for d in ("data", "models", "reports") for p in (root / d).rglob(".*")
                  if p.name != ".gitignore"]  # DVC's own
     assert leftovers == []  # no temporary file survived in an output
@@ -104,16 +121,14 @@ def _clone_head(dest: Path) -> Path:
     return dest
 
 
-def test_two_cold_repros_of_the_default_pipeline_give_identical_hashes(
-        tmp_path, mlflow_template, prefect_api):
-    hashes = []
-    for name in ("first", "second"):
-        root = _clone_head(tmp_path / name)
-        db = tmp_path / f"{name}-mlflow.db"
-        shutil.copy2(mlflow_template, db)
-        env = project_env(root, prefect_api, db)
-        result = run(FLOWS + ["repro"], root, env, timeout=1800)
-        assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
-        hashes.append(lock_hashes(root))
-    assert hashes[0] == hashes[1]
-    assert set(hashes[0]) >= {"data", "features", "factorize", "evaluate", "isomap", "sweep"}
+def test_two_cold_repros_in_clones_on_two_blas_setups_give_identical_hashes(
+        tmp_path, mlflow_template, prefect_api, reference):
+    from test_determinism import SETUPS
+
+    root, env = _small_clone(tmp_path, "second", mlflow_template, prefect_api,
+                             SETUPS["avx2-two-threads"])
+    result = run(FLOWS + ["repro"], root, env, timeout=1800)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    assert lock_hashes(root) == reference
+    assert set(reference) >= {"frames", "track", "tracking", "data", "features", "factorize",
+                              "evaluate", "isomap", "sweep", "heldout", "translate", "reshape"}

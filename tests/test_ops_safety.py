@@ -216,6 +216,7 @@ def _help_default_host(command: str) -> str | None:
     return m.group(1) if m else None
 
 
+@pytest.mark.slow  # runs each server command's --help
 def test_every_documented_server_command_binds_to_loopback():
     """Each server command in the README's code blocks binds to loopback, explicitly or by default.
 

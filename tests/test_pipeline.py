@@ -255,7 +255,7 @@ def test_mlflow_has_stage_runs_and_nested_sweep_runs(pipeline):
         ["params.alpha", "params.beta", "params.rank", "metrics.precision_mean"]].itertuples(index=False)}
     from_table = {(float(a), float(b), int(k)): float(p) for a, b, k, p in table[
         ["alpha", "beta", "rank", "precision_mean"]].itertuples(index=False)}
-    assert from_table == pytest.approx(from_runs, rel=1e-9)  # the CSV keeps 10 significant digits
+    assert from_table == pytest.approx(from_runs, rel=5.1e-6)  # the CSV keeps 6 significant digits
     best = json.loads((pipeline.root / "reports/sweep.json").read_text())
     assert best["points"] == 4 and best["best_rank"] == 4
 

@@ -74,8 +74,10 @@ def test_bvh_source_reads_labelled_clips_and_feeds_the_features_stage(tmp_path):
     assert feats[list(contract.COLUMNS[4:])].to_numpy().min() >= 0.5 - 1e-9
 
 
-def test_bvh_source_names_a_missing_folder(tmp_path):
-    missing = tmp_path / "nowhere"
+def test_bvh_source_names_a_missing_folder(tmp_path, monkeypatch):
+    # Relative: the message shortens long values, and pytest-xdist's temporary paths are long.
+    monkeypatch.chdir(tmp_path)
+    missing = Path("nowhere")
     with pytest.raises(InputError) as err:
         stages.data(params_with(name="bvh", path=str(missing)), out_dir=tmp_path / "raw")
     assert "dataset.path" in str(err.value) and "nowhere" in str(err.value)

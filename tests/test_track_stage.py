@@ -83,7 +83,7 @@ def test_evaluate_tracking_writes_reports(frames_dir, tmp_path):
     table = pd.read_csv(reports / "tracking.csv")
     assert sorted(table["tracker"]) == ["agarwala", "lk", "ours"]
     assert (reports / "figures" / "tracking_overlay.png").stat().st_size > 10_000
-    assert res.metrics["ours_mean_px"] == pytest.approx(summary["ours"]["mean_px"])
+    assert res.metrics["ours_mean_px"] == pytest.approx(summary["ours"]["mean_px"], rel=5.1e-6)  # 6 digits
     # deterministic: a second run writes the same bytes
     first = (reports / "tracking.json").read_bytes()
     evaluate_tracking(PARAMS, frames_dir, reports)

@@ -100,7 +100,8 @@ def test_heldout_stage_writes_tables_figures_and_one_run_per_method(unified, tmp
     for f in ("heldout_by_style.png", "heldout_strip.png", "heldout_example.gif"):
         assert (reports / "figures" / f).stat().st_size > 1000
     assert set(res.runs) == set(STAGE_METHODS)
-    assert res.runs["nnsf"].metrics["dtw_error"] == pytest.approx(summary["methods"]["nnsf"]["dtw_error"])
+    assert res.runs["nnsf"].metrics["dtw_error"] == pytest.approx(summary["methods"]["nnsf"]["dtw_error"],
+                                                                 rel=5.1e-6)  # the file keeps 6 digits
     # Same inputs, same bytes.
     again = tmp_path / "again"
     heldout(_params(), unified / "features.csv", again, mapper=lambda fn, xs: [fn(x) for x in xs])
@@ -133,7 +134,8 @@ def test_translate_stage_writes_features_pixels_and_a_gif(unified, tmp_path):
         # Pixels are the target's inverse unification of the features.
         u = Unifier.from_dict(json.loads((unified / "unifier.json").read_text()))
         np.testing.assert_allclose(to_points(contract.features(px)),
-                                   u.inverse_transform(contract.features(feats), "pip"), atol=1e-6)
+                                   u.inverse_transform(contract.features(feats), "pip"),
+                                   atol=1e-3)  # both files keep 6 significant digits
         with Image.open(out / "translation.gif") as im:
             assert im.n_frames >= 16
         meta = json.loads((out / "translation.json").read_text())

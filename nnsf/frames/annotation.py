@@ -290,8 +290,13 @@ def read_annotation(path) -> Annotation:
 
 
 def dumps(ann: Annotation) -> str:
-    """The file text: sorted keys, 2-space indent, every [x, y] pair on one line."""
-    text = json.dumps(ann.to_dict(), indent=2, sort_keys=True)
+    """The file text: sorted keys, 2-space indent, every [x, y] pair on one line.
+
+    Numbers are rounded like every other output (``nnsf.io.DIGITS`` significant digits).
+    """
+    from nnsf.io import round_floats
+
+    text = json.dumps(round_floats(ann.to_dict()), indent=2, sort_keys=True)
     # Put innermost number pairs on one line; the file stays diff-friendly.
     num = r"-?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?"
     return re.sub(rf"\[\s*({num}),\s*({num})\s*\]", r"[\1, \2]", text) + "\n"

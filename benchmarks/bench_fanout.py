@@ -1,0 +1,88 @@
+"""The held-out translation fan-out on each task runner: threads, processes, Dask; 1 and 2 workers.
+
+Builds the Bandai-Namco features as the pipeline would (``bench_translation``'s
+``build_features``), then runs the held-out stage on ``--cells`` cells inside a
+real Prefect flow whose fan-out goes through :mod:`flows.runners`, once per
+runner set-up, and prints the wall time of the stage, the speed-up over the
+first set-up and whether ``heldout.csv`` is identical to the first set-up's.
+
+    .venv/bin/python benchmarks/bench_fanout.py [--data ../shared/data/bandai-namco-1]
+        [--cells 20] [--setups threads:1,dask:1,dask:2,processes:2,threads:2]
+
+A temporary Prefect server on 127.0.0.1 is started unless ``PREFECT_API_URL`` is set.
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import hashlib
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+sys.path.insert(0, str(ROOT))
+
+import flows  # noqa: E402,F401  (telemetry off before Prefect is imported)
+from bench_translation import DEFAULT, TRANSLATION, build_features  # noqa: E402
+
+
+def run_setup(params: dict, features: Path, out: Path, runner: str, workers: int) -> float:
+    """One held-out stage on ``runner`` with ``workers`` workers; returns the stage's wall time."""
+    os.environ["NNSF_TASK_RUNNER"], os.environ["NNSF_WORKERS"] = runner, str(workers)
+    from prefect import flow
+
+    from flows.runners import configured, prefect_mapper
+    from nnsf.evaluate.translation import heldout
+
+    @flow(name="bench-fanout", persist_result=False, validate_parameters=False)
+    def stage():
+        t0 = time.perf_counter()
+        heldout(params, features, out, mapper=prefect_mapper("heldout-cell"))
+        return time.perf_counter() - t0
+
+    return configured(stage)()
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", type=Path, default=DEFAULT)
+    ap.add_argument("--fps", type=float, default=15.0)
+    ap.add_argument("--cells", type=int, default=20)
+    ap.add_argument("--setups", default="threads:1,dask:1,dask:2,processes:2,threads:2")
+    ap.add_argument("--out", type=Path, default=Path(tempfile.gettempdir()) / "bench-fanout")
+    args = ap.parse_args(argv)
+    args.dataset = "bandai"
+
+    params = yaml.safe_load((ROOT / "params.yaml").read_text())
+    params["translation"] = {**TRANSLATION, **params.get("translation", {}),
+                             "max_cells": args.cells, "examples": 0}
+    params["dataset"] = {**params.get("dataset", {}), "name": "bvh"}
+    feats = build_features(args, args.out / "features")
+    print(f"bandai: {len(feats)} frames, {feats['clip'].nunique()} clips; {args.cells} cells", flush=True)
+
+    with contextlib.ExitStack() as stack:
+        if not os.environ.get("PREFECT_API_URL"):
+            from flows import prefect_server
+            os.environ["PREFECT_API_URL"] = stack.enter_context(
+                prefect_server.running(args.out / "prefect-home", ui=False))
+        first_time = first_hash = None
+        for setup in args.setups.split(","):
+            runner, n = setup.split(":")
+            out = args.out / f"reports-{runner}-{n}"
+            seconds = run_setup(params, args.out / "features" / "features.csv", out, runner, int(n))
+            digest = hashlib.md5((out / "heldout.csv").read_bytes()).hexdigest()
+            first_time = first_time or seconds
+            first_hash = first_hash or digest
+            print(f"{runner:>9} x {n}: {seconds:7.1f} s  speed-up {first_time / seconds:4.2f}x  "
+                  f"heldout.csv {'identical' if digest == first_hash else 'DIFFERS'} ({digest[:8]})",
+                  flush=True)
+
+
+if __name__ == "__main__":
+    main()
