@@ -15,7 +15,7 @@ import yaml
 from nnsf.errors import InputError
 
 DATASETS = ("synthetic", "bvh", "frames")
-FACINGS = ("normalise", "none")
+FACINGS = ("first", "normalise", "none")
 INITS = ("random", "nndsvd", "nndsvda", "nndsvdar")
 METHODS = ("nnsf", "nnsc", "nmf", "bilinear")
 LABELS = ("motion", "character")

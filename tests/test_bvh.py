@@ -501,3 +501,52 @@ def test_bandai_resampled_to_15_fps():
     c15 = load_clip(files[0], fps=15)
     assert abs(len(c15.points) - len(c30.points) / 2) <= 1
     np.testing.assert_allclose(c15.points3d[[0, -1]], c30.points3d[[0, -1]], atol=1e-9)
+
+
+def _heading_deg(lr_x, lr_z):
+    """Heading (degrees, unwrapped) of a body whose summed left-minus-right vector is (x, z)."""
+    return np.rad2deg(np.unwrap(np.arctan2(-lr_z, lr_x)))
+
+
+def test_first_frame_facing_keeps_a_turn_and_faces_the_camera_at_the_start():
+    F = 60
+    yaw = np.linspace(20, 110, F)                       # a 90° turn, starting 20° off the camera
+    P = _figure(yaw, np.stack([np.linspace(0, 2, F), np.zeros(F)], -1))
+    pr = project(P, facing="first", across=(1, 2, 3, 4), root=0, center=True, window=1)
+    d = pr.xy[:, [1, 3], 0].sum(1) - pr.xy[:, [2, 4], 0].sum(1)
+    z = pr.depth[:, [1, 3]].sum(1) - pr.depth[:, [2, 4]].sum(1)
+    # camera depth grows away from the camera (-z of the world): heading from (x, -depth)
+    h = _heading_deg(d, -z)
+    assert abs(h[0]) < 1e-6                              # faces the camera at the start
+    assert h[-1] - h[0] == pytest.approx(-(yaw[-1] - yaw[0]), abs=1e-6) or \
+        h[-1] - h[0] == pytest.approx(yaw[-1] - yaw[0], abs=1e-6)
+    assert np.ptp(pr.yaw) == 0                           # one turn for the whole clip
+    # per-frame normalisation removes the turn
+    pn = project(P, facing="normalise", across=(1, 2, 3, 4), root=0, center=True, window=1)
+    dn = pn.xy[:, [1, 3], 0].sum(1) - pn.xy[:, [2, 4], 0].sum(1)
+    np.testing.assert_allclose(dn, dn[0], atol=1e-9)
+
+
+@needs_bandai
+@pytest.mark.parametrize("motion", ["walk-turn-left", "walk-turn-right"])
+def test_a_turning_bandai_clip_keeps_its_turn_through_the_reader(motion):
+    """The root's heading in the projected clip (from image x and camera depth of hips and
+    shoulders) changes by as much as the world heading of the motion capture."""
+    path = sorted((BANDAI / "data").glob(f"dataset-1_{motion}_normal_*.bvh"))[0]
+    clip = load_clip(path, fps=30, facing="first")
+    pairs = [JOINT_INDEX[n] for n in ("l_hip", "r_hip", "l_shoulder", "r_shoulder")]
+    W = clip.points3d
+    wl = W[:, pairs[0::2]].sum(1) - W[:, pairs[1::2]].sum(1)
+    world = _heading_deg(wl[:, 0], wl[:, 2])
+    x, z = clip.points[..., 0], clip.depth
+    img = _heading_deg(x[:, pairs[0::2]].sum(1) - x[:, pairs[1::2]].sum(1),
+                       -(z[:, pairs[0::2]].sum(1) - z[:, pairs[1::2]].sum(1)))
+    turn = world[-1] - world[0]
+    assert abs(turn) > 45                                # the capture really turns
+    assert abs(abs(img[-1] - img[0]) - abs(turn)) < 2.0  # ... and so does the projected clip
+    # per-frame normalisation (the old default) flattens it
+    flat = load_clip(path, fps=30, facing="normalise")
+    xf, zf = flat.points[..., 0], flat.depth
+    imf = _heading_deg(xf[:, pairs[0::2]].sum(1) - xf[:, pairs[1::2]].sum(1),
+                       -(zf[:, pairs[0::2]].sum(1) - zf[:, pairs[1::2]].sum(1)))
+    assert abs(imf[-1] - imf[0]) < 0.25 * abs(turn)
