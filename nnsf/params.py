@@ -20,7 +20,8 @@ INITS = ("random", "nndsvd", "nndsvda", "nndsvdar")
 METHODS = ("nnsf", "nnsc", "nmf", "bilinear")
 LABELS = ("motion", "character")
 TRACKERS = ("ours", "agarwala", "lk")
-TRANSLATION_METHODS = ("nnsf", "nnsf_swapped", "nnsf_beta0", "nnsf_refit", "bilinear", "identity", "real")
+TRANSLATION_METHODS = ("nnsf", "nnsf_smooth", "nnsf_swapped", "nnsf_beta0", "nnsf_refit", "bilinear", "offset",
+                       "identity", "real")
 
 
 def _optional_str():
@@ -133,6 +134,7 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "translation.amplitude": _choice(("restore", "none")),
     "translation.tempo": _bool(),
     "translation.ridge": _num(0),
+    "translation.smooth": _num(0),
     "translation.max_iter": _int(1),
     "translation.align_iter": _int(1),
     "translation.bilinear_rank": _int(1),

@@ -86,7 +86,7 @@ DEFAULT_VARIANTS: dict[str, dict] = {
     "nnsf_swapped": {"reading": "content_basis"},
     "nnsf_beta0": {"beta": 0.0},
     "nnsf_refit": {"basis": "refit", "synthesis": "source"},
-    "nnsf_smooth": {"smooth": 1.0},
+    "nnsf_smooth": {"smooth": 5.0},
 }
 
 #: StyleTranslator parameters that only change how a fitted translator is
@@ -716,6 +716,7 @@ def translator_params(params: dict) -> dict:
         "amplitude": require(params, "translation.amplitude"),
         "tempo": bool(require(params, "translation.tempo")),
         "ridge": float(require(params, "translation.ridge")),
+        "smooth": float(require(params, "translation.smooth")),
         "max_iter": int(require(params, "translation.max_iter")),
         "align_iter": int(require(params, "translation.align_iter")),
         "random_state": int(require(params, "seed")),
@@ -799,14 +800,17 @@ def heldout(params: dict, features_csv=Path("data/features/features.csv"), repor
             mapper=None, unifier_json=None):
     """Stage: leave-one-cell-out translation over the style × content grid (SPEC §6.3).
 
-    Reads the unified features (``character`` = style, ``motion`` = content),
+    Reads a contract table (``character`` = style, ``motion`` = content) --
+    the stage passes the raw key points in pixels, so that nothing fitted on
+    all clips (the features stage's unifier) reaches a cell; every cell's
+    unifier, models and judges are fitted on its remaining clips --,
     holds out every cell of :func:`grid_cells` (or ``translation.max_cells``
     of them, spread evenly), synthesises it with every method of
     ``translation.methods`` from the remaining data and scores it against the
     hidden clips (:func:`evaluate_cell`; the unifier, the models and the
     classifiers are refitted without the cell).  On the synthetic dataset the
-    exact translation (:class:`SyntheticTruth`, mapped with
-    ``unifier_json``, default beside ``features_csv``) adds ``truth_error``.
+    exact translation (:class:`SyntheticTruth`; mapped with
+    ``unifier_json`` when the table is already unified) adds ``truth_error``.
 
     Cells fan out through ``mapper(run_cell, jobs)`` (default: ``map``).
 
@@ -846,9 +850,11 @@ def heldout(params: dict, features_csv=Path("data/features/features.csv"), repor
     table = contract.read_table(features_csv)
     truth = None
     if require(params, "dataset.name") == "synthetic":
-        uj = Path(unifier_json) if unifier_json is not None else features_csv.parent / "unifier.json"
-        from nnsf.io import read_json
-        truth = UnifiedTruth(SyntheticTruth(seed=seed), read_json(uj))
+        if unifier_json is None:        # a table in pixels: the generator's pixels are the truth
+            truth = SyntheticTruth(seed=seed)
+        else:
+            from nnsf.io import read_json
+            truth = UnifiedTruth(SyntheticTruth(seed=seed), read_json(Path(unifier_json)))
     report = skipped_styles(table)
     cells = grid_cells(table)
     if not cells:
