@@ -20,7 +20,7 @@ INITS = ("random", "nndsvd", "nndsvda", "nndsvdar")
 METHODS = ("nnsf", "nnsc", "nmf", "bilinear")
 LABELS = ("motion", "character")
 TRACKERS = ("ours", "agarwala", "lk")
-TRANSLATION_METHODS = ("nnsf", "nnsf_smooth", "nnsf_swapped", "nnsf_beta0", "nnsf_refit", "bilinear", "offset",
+TRANSLATION_METHODS = ("nnsf", "nnsf_smooth", "nnsf_nosmooth", "nnsf_swapped", "nnsf_beta0", "nnsf_refit", "bilinear", "offset",
                        "identity", "real")
 
 

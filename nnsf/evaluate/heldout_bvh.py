@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-__all__ = ["main", "summary_tables"]
+__all__ = ["main", "summary_tables", "markdown"]
 
 METRICS = ("dtw_error", "style_lr", "content_lr", "style_nn1", "content_nn1", "style_angles",
            "content_angles", "style_all", "content_all", "style_acc", "content_acc", "jerk_ratio")
@@ -50,6 +50,22 @@ def summary_tables(results: pd.DataFrame) -> dict:
     return out
 
 
+def markdown(summary: dict, key: str = "methods") -> str:
+    """A Markdown table of one section of a written ``OUT.json`` (``methods``, ``per_style`` or
+    ``per_content``): DTW error in % of the torso, then every judge's style/content accuracy."""
+    fams = ("lr", "nn1", "angles", "all")
+    head = "| " + ("method" if key == "methods" else "cell group / method") + " | DTW % torso | " + \
+        " | ".join(f"style {f} | content {f}" for f in fams) + " | jerk ratio | cells |"
+    lines = [head, "|---" + "|---:" * (3 + 2 * len(fams)) + "|"]
+    for name, v in summary[key].items():
+        cells = [f"{100 * v['dtw_error']:.1f}" if v["dtw_error"] else "0"]
+        for f in fams:
+            cells += [f"{v[f'style_{f}']:.2f}", f"{v[f'content_{f}']:.2f}"]
+        cells += [f"{v['jerk_ratio']:.2f}", str(v["cells"])]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def _one(args):
     table, s, c, kw = args
     from threadpoolctl import threadpool_limits
@@ -72,13 +88,22 @@ def main(argv=None) -> int:
     from nnsf.stages import _complete_grid
 
     ap = argparse.ArgumentParser(prog="python -m nnsf.evaluate.heldout_bvh", description=__doc__.split("\n")[0])
-    ap.add_argument("--data", required=True, help="folder of labelled .bvh clips")
+    ap.add_argument("--data", help="folder of labelled .bvh clips")
     ap.add_argument("--out", required=True, help="output path without suffix (.csv and .json are written)")
     ap.add_argument("--params", default="params.yaml")
     ap.add_argument("--cells", type=int, default=0, help="cells to hold out, spread evenly (0: all)")
     ap.add_argument("--methods", default="nnsf,nnsf_smooth,nnsf_swapped,bilinear,offset,identity,real")
     ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--markdown", choices=("methods", "per_style", "per_content"),
+                    help="print that table of an existing OUT.json and exit")
     a = ap.parse_args(argv)
+    if a.markdown:
+        from nnsf.io import read_json
+        print(markdown(read_json(Path(a.out).with_suffix(".json")), a.markdown))
+        return 0
+    if not a.data:
+        print("error: --data: expected a folder of labelled .bvh clips, got nothing", file=sys.stderr)
+        return 2
     try:
         params = load(a.params)
         kw = {"fps": float(require(params, "dataset.bvh.fps")),

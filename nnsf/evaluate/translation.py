@@ -76,7 +76,7 @@ __all__ = [
 #: clip itself: zero error by definition, its accuracies are the classifiers'
 #: ceiling.
 METHODS: tuple[str, ...] = (
-    "nnsf", "nnsf_smooth", "nnsf_swapped", "nnsf_beta0", "nnsf_refit", "bilinear",
+    "nnsf", "nnsf_smooth", "nnsf_nosmooth", "nnsf_swapped", "nnsf_beta0", "nnsf_refit", "bilinear",
     "bilinear_template", "offset", "identity", "real",
 )
 
@@ -87,6 +87,7 @@ DEFAULT_VARIANTS: dict[str, dict] = {
     "nnsf_beta0": {"beta": 0.0},
     "nnsf_refit": {"basis": "refit", "synthesis": "source"},
     "nnsf_smooth": {"smooth": 5.0},
+    "nnsf_nosmooth": {"smooth": 0.0},
 }
 
 #: StyleTranslator parameters that only change how a fitted translator is
@@ -690,8 +691,8 @@ def per_style(results: pd.DataFrame) -> pd.DataFrame:
 # Stages: held-out evaluation and the translation of one clip
 # --------------------------------------------------------------------------- #
 #: Methods of the held-out stage, in table order (``real`` is the ceiling row).
-STAGE_METHODS: tuple[str, ...] = ("nnsf", "nnsf_smooth", "nnsf_swapped", "nnsf_beta0", "nnsf_refit",
-                                  "bilinear", "offset", "identity", "real")
+STAGE_METHODS: tuple[str, ...] = ("nnsf", "nnsf_smooth", "nnsf_nosmooth", "nnsf_swapped", "nnsf_beta0",
+                                  "nnsf_refit", "bilinear", "offset", "identity", "real")
 
 #: Summary metrics of ``reports/heldout.json`` per method: name there -> column.
 SUMMARY_METRICS: dict[str, str] = {

@@ -430,7 +430,7 @@ class StyleTranslator(BaseEstimator):
         departs from the average posture; with ``"aligned"`` they are fitted
         in the alternation, otherwise set afterwards to the centred mean
         residual of each style.  False is the plain model x ≈ v U_s.
-    smooth : float >= 0, default=0.0
+    smooth : float >= 0, default=5.0
         ``"aligned"`` only: weight of a temporal smoothness term on the
         shared weights, (λ/2) Σ_t ‖v_t − v_{t+1}‖² over consecutive rows of
         each content, with λ = ``smooth`` × (mean number of frames mapped to a
@@ -499,7 +499,7 @@ class StyleTranslator(BaseEstimator):
 
     def __init__(self, n_components=16, *, alpha=0.01, beta=0.0, label="content", class_in_loop=True,
                  reading="style_basis", basis="aligned", ridge=0.5, refit_iter=100, align_iter=150,
-                 basis_steps=3, realign=0, style_offset=True, smooth=0.0, free_norms=False, keep_residual=True,
+                 basis_steps=3, realign=0, style_offset=True, smooth=5.0, free_norms=False, keep_residual=True,
                  synthesis="consensus", amplitude="restore", tempo=True,
                  max_iter=150, tol=1e-5, init="nndsvda", random_state=0):
         self.n_components = n_components
