@@ -10,8 +10,14 @@ clip is compared with the hidden real clip(s):
 * ``dtw_error`` -- mean per-joint Euclidean error after DTW alignment
   (:func:`nnsf.factor.translate.dtw_align`), in template units (torso = 1.0,
   so ×100 reads as % of the torso);
-* ``style_acc`` -- does a style classifier trained on the remaining real
-  clips say the target style?
+* ``style_<family>``, ``content_<family>`` -- the verdict of the independent
+  judges (:mod:`nnsf.evaluate.judges`: logistic regression, 1-NN and an
+  angle-statistics SVM, trained on the remaining real clips, told neither
+  label; ``all`` = recognised by every family);
+* ``jerk_ratio`` -- mean |second difference| of the key points (:func:`jerk`)
+  over that of the target style's real training clips;
+* ``style_acc`` -- does the project's own (conditioned LDA) style classifier
+  trained on the remaining real clips say the target style?
 * ``content_acc`` -- does a content classifier trained on the remaining real
   clips say the cell's content?
 * ``bone_error`` -- mean absolute bone-length difference over the DTW-aligned
@@ -419,6 +425,8 @@ def evaluate_cell(table: pd.DataFrame, style: str, content: str, *,
         frame under the source style, rendered in the target style).
         ``bilinear_template`` -- the same model's cell template A^t b^c, held
         for as many frames as the source clip has.
+        ``offset`` -- the source clip plus the mean pose offset from its style
+        to the target's (:func:`style_offset`).
         ``identity`` -- the source clip unchanged (in unified features it is
         already retargeted: mapping back with the target's inverse
         unification gives the target's proportions).
