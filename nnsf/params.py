@@ -17,12 +17,13 @@ import yaml
 from nnsf.errors import InputError, summarize
 
 DATASETS = ("synthetic", "bvh", "frames")
-FACINGS = ("normalise", "none")
+FACINGS = ("first", "normalise", "none")
 INITS = ("random", "nndsvd", "nndsvda", "nndsvdar")
 METHODS = ("nnsf", "nnsc", "nmf", "bilinear", "mgpm", "cbgpm")
 LABELS = ("motion", "character")
 TRACKERS = ("ours", "agarwala", "lk")
-TRANSLATION_METHODS = ("nnsf", "nnsf_swapped", "nnsf_beta0", "nnsf_refit", "bilinear", "identity", "real")
+TRANSLATION_METHODS = ("nnsf", "nnsf_smooth", "nnsf_nosmooth", "nnsf_swapped", "nnsf_beta0", "nnsf_refit", "bilinear", "offset",
+                       "identity", "real")
 
 
 def _optional_str():
@@ -205,6 +206,7 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "translation.amplitude": _choice(("restore", "none")),
     "translation.tempo": _bool(),
     "translation.ridge": _num(0, 1e6),
+    "translation.smooth": _num(0, 1e6),
     "translation.max_iter": _int(1, 100000),
     "translation.align_iter": _int(1, 100000),
     "translation.bilinear_rank": _int(1, 34),

@@ -137,15 +137,17 @@ def tracking(params: dict, frames_dir=FRAMES_DIR, reports=REPORTS, mapper=None) 
     return evaluate_tracking(params, frames_dir=frames_dir, reports=reports, mapper=mapper)
 
 
-def heldout(params: dict, features_csv=FEATURES_CSV, reports=REPORTS, mapper=None) -> StageResult:
+def heldout(params: dict, keypoints_csv=RAW_DIR / "keypoints.csv", reports=REPORTS, mapper=None) -> StageResult:
     """Leave-one-cell-out style translation against the hidden real clips (docs/method.md §15.5).
 
-    See :func:`nnsf.evaluate.translation.heldout`; ``mapper`` fans out over cells.
+    Reads the raw key points (pixels), not the features stage's unified table:
+    that unifier saw every clip, hidden cells included, so each cell is
+    unified again from its remaining clips only.  See
+    :func:`nnsf.evaluate.translation.heldout`; ``mapper`` fans out over cells.
     """
     from nnsf.evaluate.translation import heldout as run
 
-    return run(params, features_csv=features_csv, reports=reports, mapper=mapper,
-               unifier_json=Path(features_csv).parent / "unifier.json")
+    return run(params, features_csv=keypoints_csv, reports=reports, mapper=mapper)
 
 
 TRANSLATION_DIR = REPORTS / "translation"

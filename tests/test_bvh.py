@@ -501,3 +501,72 @@ def test_bandai_resampled_to_15_fps():
     c15 = load_clip(files[0], fps=15)
     assert abs(len(c15.points) - len(c30.points) / 2) <= 1
     np.testing.assert_allclose(c15.points3d[[0, -1]], c30.points3d[[0, -1]], atol=1e-9)
+
+
+def _heading_deg(lr_x, lr_z):
+    """Heading (degrees, unwrapped) of a body whose summed left-minus-right vector is (x, z)."""
+    return np.rad2deg(np.unwrap(np.arctan2(-lr_z, lr_x)))
+
+
+def test_first_frame_facing_keeps_a_turn_and_faces_the_camera_at_the_start():
+    F = 60
+    yaw = np.linspace(20, 110, F)                       # a 90° turn, starting 20° off the camera
+    P = _figure(yaw, np.stack([np.linspace(0, 2, F), np.zeros(F)], -1))
+    pr = project(P, facing="first", across=(1, 2, 3, 4), root=0, center=True, window=1)
+    d = pr.xy[:, [1, 3], 0].sum(1) - pr.xy[:, [2, 4], 0].sum(1)
+    z = pr.depth[:, [1, 3]].sum(1) - pr.depth[:, [2, 4]].sum(1)
+    # camera depth grows away from the camera (-z of the world): heading from (x, -depth)
+    h = _heading_deg(d, -z)
+    assert abs(h[0]) < 1e-6                              # faces the camera at the start
+    assert h[-1] - h[0] == pytest.approx(-(yaw[-1] - yaw[0]), abs=1e-6) or \
+        h[-1] - h[0] == pytest.approx(yaw[-1] - yaw[0], abs=1e-6)
+    assert np.ptp(pr.yaw) == 0                           # one turn for the whole clip
+    # per-frame normalisation removes the turn
+    pn = project(P, facing="normalise", across=(1, 2, 3, 4), root=0, center=True, window=1)
+    dn = pn.xy[:, [1, 3], 0].sum(1) - pn.xy[:, [2, 4], 0].sum(1)
+    np.testing.assert_allclose(dn, dn[0], atol=1e-9)
+
+
+def _turned_copy(src: Path, dst: Path, degrees: float) -> Path:
+    """The clip with a yaw ramp 0 -> ``degrees`` added to its root's Y rotation (a real walk made
+    to turn: Bandai-Namco-1 has no turning clip; its root joint carries no rotation)."""
+    lines = src.read_text().splitlines()
+    m = lines.index("MOTION")
+    n = int(lines[m + 1].split()[-1])
+    head = lines[:m]
+    root_channels = next(ln for ln in head if "CHANNELS" in ln).split()[2:]
+    col = root_channels.index("Yrotation")
+    out = lines[:m + 3]
+    for i, ln in enumerate(lines[m + 3:m + 3 + n]):
+        v = ln.split()
+        v[col] = repr(float(v[col]) + degrees * i / max(n - 1, 1))
+        out.append(" ".join(v))
+    dst.write_text("\n".join(out) + "\n")
+    return dst
+
+
+@needs_bandai
+@pytest.mark.parametrize("degrees", [90.0, -120.0])
+def test_a_turning_clip_keeps_its_turn_through_the_reader(tmp_path, degrees):
+    """The root's heading in the projected clip (image x and camera depth of hips and shoulders)
+    changes by as much as the motion capture's world heading; per-frame normalisation loses it."""
+    src = sorted((BANDAI / "data").glob("dataset-1_walk_normal_*.bvh"))[0]
+    path = _turned_copy(src, tmp_path / src.name, degrees)
+    pairs = [JOINT_INDEX[n] for n in ("l_hip", "r_hip", "l_shoulder", "r_shoulder")]
+
+    def image_heading(clip):
+        x, z = clip.points[..., 0], clip.depth
+        return _heading_deg(x[:, pairs[0::2]].sum(1) - x[:, pairs[1::2]].sum(1),
+                            -(z[:, pairs[0::2]].sum(1) - z[:, pairs[1::2]].sum(1)))
+
+    clip = load_clip(path, fps=30, facing="first")
+    W = clip.points3d
+    wl = W[:, pairs[0::2]].sum(1) - W[:, pairs[1::2]].sum(1)
+    world = _heading_deg(wl[:, 0], wl[:, 2])
+    turn = world[-1] - world[0]
+    assert abs(abs(turn) - abs(degrees)) < 15            # the capture turns by about the ramp
+    img = image_heading(clip)
+    assert abs(img[0]) < 10                              # faces the camera at the start
+    assert abs(abs(img[-1] - img[0]) - abs(turn)) < 1.0  # ... and keeps the whole turn
+    flat = image_heading(load_clip(path, fps=30, facing="normalise"))
+    assert abs(flat[-1] - flat[0]) < 0.2 * abs(turn)

@@ -115,6 +115,7 @@ translation:
   amplitude: restore
   tempo: true
   ridge: 0.5
+  smooth: 0.0
   max_iter: 20
   align_iter: 20
   bilinear_rank: 1

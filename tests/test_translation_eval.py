@@ -31,7 +31,7 @@ def _params(**over):
         "unify": {"margin": 0.5},
         "translation": {
             "rank": 8, "alpha": 0.01, "beta": 10.0, "label": "motion", "basis": "aligned",
-            "synthesis": "consensus", "amplitude": "restore", "tempo": False, "ridge": 0.5,
+            "synthesis": "consensus", "amplitude": "restore", "tempo": False, "ridge": 0.5, "smooth": 0.0,
             "max_iter": 40, "align_iter": 20, "bilinear_rank": 1, "max_sources": 2, "max_cells": 3,
             "examples": 1, "methods": list(STAGE_METHODS),
         },
@@ -84,7 +84,8 @@ def test_the_hidden_cell_never_reaches_models_or_classifiers(pixels):
 # --------------------------------------------------------------- the stages
 def test_heldout_stage_writes_tables_figures_and_one_run_per_method(unified, tmp_path):
     reports = tmp_path / "reports"
-    res = heldout(_params(), unified / "features.csv", reports)
+    res = heldout(_params(), unified / "features.csv", reports,
+                  unifier_json=unified / "unifier.json")
     table = pd.read_csv(reports / "heldout.csv")
     assert len(table) == 3 * len(STAGE_METHODS)
     assert set(table["method"]) == set(STAGE_METHODS)
@@ -104,9 +105,25 @@ def test_heldout_stage_writes_tables_figures_and_one_run_per_method(unified, tmp
                                                                  rel=5.1e-6)  # the file keeps 6 digits
     # Same inputs, same bytes.
     again = tmp_path / "again"
-    heldout(_params(), unified / "features.csv", again, mapper=lambda fn, xs: [fn(x) for x in xs])
+    heldout(_params(), unified / "features.csv", again, mapper=lambda fn, xs: [fn(x) for x in xs],
+            unifier_json=unified / "unifier.json")
     for f in ("heldout.csv", "heldout.json", "plots/heldout_by_style.csv"):
         assert (reports / f).read_bytes() == (again / f).read_bytes(), f
+
+
+def test_heldout_stage_on_raw_pixels_unifies_each_cell_itself(pixels, tmp_path):
+    """The stage's own input: key points in pixels, no unifier fitted on all clips; the
+    synthetic truth is then the generator's pixels, unified by each cell's unifier."""
+    raw = tmp_path / "keypoints.csv"
+    contract.write_table(raw, pixels)
+    heldout(_params(max_cells=1, examples=0, methods=["nnsf", "offset", "identity", "real"]), raw,
+            tmp_path / "r")
+    summary = json.loads((tmp_path / "r" / "heldout.json").read_text())
+    # truth errors in template units (torso = 1): positive, and far below a torso
+    for m in ("nnsf", "offset", "identity"):
+        assert 0 < summary["methods"][m]["truth_error"] < 1.0
+    for m in ("nnsf", "offset", "identity", "real"):
+        assert {"style_lr", "content_nn1", "style_angles", "content_all"} <= set(summary["methods"][m])
 
 
 def test_unified_truth_of_a_clip_in_its_own_style_is_the_clip(pixels, unified):

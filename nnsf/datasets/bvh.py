@@ -642,7 +642,11 @@ def project(points: np.ndarray, azimuth: float = 0.0, elevation: float = 0.0, up
         on the image's right.  ``azimuth=90`` views its left side.
     up : the world up axis, ``"y"`` (BVH default), ``"z"``, ``"-y"``, … or a
         3-vector; points are first turned so that it becomes +y.
-    facing : ``"none"`` or ``"normalise"``.  Normalisation turns every frame
+    facing : ``"none"``, ``"first"`` or ``"normalise"``.  ``"first"`` turns
+        the whole clip once, about the vertical axis through the root's first
+        position, so that the body faces +z at the start (its heading over
+        the first ``window`` frames): turning within the clip is kept, only
+        the clip's initial orientation is removed.  ``"normalise"`` turns every frame
         about the vertical axis through the root so that the body faces +z.
         The facing direction is ``(left - right) x up`` of the ``across``
         pairs (e.g. hips and shoulders), smoothed over ``window`` frames
@@ -672,8 +676,8 @@ def project(points: np.ndarray, azimuth: float = 0.0, elevation: float = 0.0, up
     else:
         pivot = np.zeros((F, 2))
     yaw = np.zeros(F)
-    if facing not in ("none", "normalise", "normalize"):
-        raise ValueError(f"facing must be 'none' or 'normalise', got {facing!r}")
+    if facing not in ("none", "first", "normalise", "normalize"):
+        raise ValueError(f"facing must be 'none', 'first' or 'normalise', got {facing!r}")
     if facing != "none":
         if not across or len(across) % 2:
             raise ValueError("facing normalisation needs left/right index pairs in `across`")
@@ -681,8 +685,15 @@ def project(points: np.ndarray, azimuth: float = 0.0, elevation: float = 0.0, up
         d = (P[:, lr[:, 0]] - P[:, lr[:, 1]]).sum(axis=1)   # (F, 3) summed left-minus-right
         # forward = d x (0,1,0) = (-d_z, 0, d_x); heading angle from +z toward +x
         theta = np.unwrap(np.arctan2(-d[:, 2], d[:, 0]))
-        theta = smooth_linear(theta, window)
-        yaw = -np.rad2deg(theta)
+        if facing == "first":
+            # One turn for the whole clip (the heading of its first frames, the
+            # pelvis' swing averaged out) about the root's first position:
+            # a turn within the clip stays a turn.
+            theta = np.full(F, theta[:max(min(int(window), F), 1)].mean())
+            pivot = np.broadcast_to(pivot[0], pivot.shape)
+        else:
+            theta = smooth_linear(theta, window)
+        yaw = -np.rad2deg(theta)  # per frame; constant with "first"
         c, s = np.cos(-theta), np.sin(-theta)
         hx = P[..., 0] - pivot[:, None, 0]
         hz = P[..., 2] - pivot[:, None, 1]
@@ -690,6 +701,9 @@ def project(points: np.ndarray, azimuth: float = 0.0, elevation: float = 0.0, up
         # rotation about y by phi = -theta: x' = x c + z s, z' = -x s + z c
         P[..., 0] = hx * c[:, None] + hz * s[:, None] + pivot[:, None, 0]
         P[..., 2] = -hx * s[:, None] + hz * c[:, None] + pivot[:, None, 1]
+        if facing == "first" and root is not None:
+            # The root's path turned with the clip: centre on the turned path.
+            pivot = smooth_linear(P[:, root][:, [0, 2]], window)
     if center:
         if root is None:
             raise ValueError("center=True needs the root index")

@@ -236,7 +236,9 @@ def read_folder(path, fps: float | None = 30, azimuth: float = 0.0, elevation: f
     fps : output frame rate (linear resampling of 3D positions,
         :func:`nnsf.datasets.bvh.resample`); None keeps each file's rate.
     azimuth, elevation : camera angles in degrees; ``0, 0`` is the front view.
-    facing : ``"normalise"`` turns each frame about the vertical so the body
+    facing : ``"first"`` turns the whole clip once so that the body faces the
+        camera at its start (a turn within the clip is kept), ``"normalise"``
+        turns each frame about the vertical so the body
         faces the camera (heading smoothed over ``window`` seconds) or
         ``"none"`` keeps the world heading.
     center : remove the root's horizontal travel (smoothed over ``window``

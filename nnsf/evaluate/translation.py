@@ -10,8 +10,14 @@ clip is compared with the hidden real clip(s):
 * ``dtw_error`` -- mean per-joint Euclidean error after DTW alignment
   (:func:`nnsf.factor.translate.dtw_align`), in template units (torso = 1.0,
   so ×100 reads as % of the torso);
-* ``style_acc`` -- does a style classifier trained on the remaining real
-  clips say the target style?
+* ``style_<family>``, ``content_<family>`` -- the verdict of the independent
+  judges (:mod:`nnsf.evaluate.judges`: logistic regression, 1-NN and an
+  angle-statistics SVM, trained on the remaining real clips, told neither
+  label; ``all`` = recognised by every family);
+* ``jerk_ratio`` -- mean |second difference| of the key points (:func:`jerk`)
+  over that of the target style's real training clips;
+* ``style_acc`` -- does the project's own (conditioned LDA) style classifier
+  trained on the remaining real clips say the target style?
 * ``content_acc`` -- does a content classifier trained on the remaining real
   clips say the cell's content?
 * ``bone_error`` -- mean absolute bone-length difference over the DTW-aligned
@@ -58,6 +64,8 @@ from sklearn.preprocessing import StandardScaler
 
 from nnsf.datasets.contract import COLUMNS, features
 from nnsf.errors import InputError
+from nnsf.evaluate.judges import FAMILIES as JUDGE_FAMILIES
+from nnsf.evaluate.judges import Judges
 from nnsf.factor.baselines import BilinearModel
 from nnsf.factor.translate import (
     StyleTranslator, dtw_accumulate, dtw_path, joint_distance_matrix,
@@ -74,8 +82,8 @@ __all__ = [
 #: clip itself: zero error by definition, its accuracies are the classifiers'
 #: ceiling.
 METHODS: tuple[str, ...] = (
-    "nnsf", "nnsf_swapped", "nnsf_beta0", "nnsf_refit", "bilinear", "bilinear_template",
-    "identity", "real",
+    "nnsf", "nnsf_smooth", "nnsf_nosmooth", "nnsf_swapped", "nnsf_beta0", "nnsf_refit", "bilinear",
+    "bilinear_template", "offset", "identity", "real",
 )
 
 #: StyleTranslator parameters of every NNSF method (on top of ``translator_params``).
@@ -84,17 +92,101 @@ DEFAULT_VARIANTS: dict[str, dict] = {
     "nnsf_swapped": {"reading": "content_basis"},
     "nnsf_beta0": {"beta": 0.0},
     "nnsf_refit": {"basis": "refit", "synthesis": "source"},
+    "nnsf_smooth": {"smooth": 5.0},
+    "nnsf_nosmooth": {"smooth": 0.0},
 }
 
 #: StyleTranslator parameters that only change how a fitted translator is
 #: used (not the fit): variants differing only in these share one fit.
 _USE_PARAMS: tuple[str, ...] = ("reading", "synthesis", "amplitude", "tempo", "keep_residual")
 
-#: Columns of :func:`evaluate_cell`'s rows.
+#: Accuracy columns of the independent judges (:mod:`nnsf.evaluate.judges`):
+#: ``style_<family>``, ``content_<family>`` for every family and ``all``.
+JUDGE_COLUMNS: tuple[str, ...] = tuple(f"{what}_{fam}" for fam in (*JUDGE_FAMILIES, "all")
+                                       for what in ("style", "content"))
+
+#: Columns of :func:`evaluate_cell`'s rows.  ``style_acc``/``content_acc`` are
+#: the project's own (conditioned LDA) classifiers, kept for comparison; the
+#: judges' columns are the evaluation's verdict.
 RESULT_COLUMNS: tuple[str, ...] = (
-    "style", "content", "method", "dtw_error", "style_acc", "content_acc", "bone_error",
-    "truth_error", "n_sources", "n_hidden", "seconds",
+    "style", "content", "method", "dtw_error", "style_acc", "content_acc", *JUDGE_COLUMNS,
+    "jerk_ratio", "bone_error", "truth_error", "n_sources", "n_hidden", "seconds",
 )
+
+
+# --------------------------------------------------------------------------- #
+# Per-source baselines: name -> factory(cell) -> translate(X_source, source_style)
+# --------------------------------------------------------------------------- #
+@dataclass(frozen=True)
+class CellData:
+    """The training side of one held-out cell, for a baseline factory.
+
+    ``X`` (n, 34) unified training features (template units), ``clip_rows``
+    the rows of every training clip, ``clip_style``/``clip_content`` their
+    labels, ``style``/``content`` the hidden cell.  Nothing of the hidden
+    cell is in it.
+    """
+
+    X: np.ndarray
+    clip_rows: list
+    clip_style: np.ndarray
+    clip_content: np.ndarray
+    style: str
+    content: str
+
+
+def style_offset(cell: CellData, source_style: str, target_style: str) -> np.ndarray:
+    """Mean pose offset from ``source_style`` to ``target_style``, ``(34,)`` template units.
+
+    The mean over the contents c' that both styles perform in the training
+    data, other than the cell's content, of mean_pose(target, c') −
+    mean_pose(source, c'), each mean pose the mean frame over that
+    (style, content)'s clips (each clip weighing the same).  Zeros when they
+    share no such content.
+    """
+    def mean_pose(s, c):
+        idx = np.flatnonzero((cell.clip_style == s) & (cell.clip_content == c))
+        return np.mean([cell.X[cell.clip_rows[i]].mean(axis=0) for i in idx], axis=0)
+
+    have = lambda s: set(cell.clip_content[cell.clip_style == s]) - {cell.content}  # noqa: E731
+    shared = sorted(have(source_style) & have(target_style))
+    if not shared or source_style == target_style:
+        return np.zeros(cell.X.shape[1])
+    return np.mean([mean_pose(target_style, c) - mean_pose(source_style, c) for c in shared], axis=0)
+
+
+def _offset_baseline(cell: CellData):
+    """``offset``: the source clip plus the mean pose offset from its style to the target's
+    (:func:`style_offset`); from the ``normal`` style this is "normal clip + the style's mean
+    pose offset"."""
+    cache = {}
+
+    def run(Xs, source_style):
+        if source_style not in cache:
+            cache[source_style] = style_offset(cell, source_style, cell.style)
+        return np.asarray(Xs, dtype=float) + cache[source_style]
+    return run
+
+
+def _identity_baseline(cell: CellData):
+    """``identity``: the source clip unchanged."""
+    return lambda Xs, source_style: np.asarray(Xs, dtype=float)
+
+
+#: Per-source baselines of :func:`evaluate_cell`: name -> factory.  A factory
+#: gets the cell's :class:`CellData` once and returns ``f(X_source (n, 34),
+#: source_style) -> X_hat (m, 34)``; register a new baseline by adding it here
+#: (and to :data:`METHODS` / :data:`STAGE_METHODS` for the table order).
+BASELINES: dict = {"offset": _offset_baseline, "identity": _identity_baseline}
+
+
+def jerk(X) -> float:
+    """Mean |second difference| of the key points of a clip ``(n, 34)``, units per frame²."""
+    X = np.asarray(X, dtype=float)
+    if len(X) < 3:
+        return 0.0
+    D = np.diff(X, n=2, axis=0).reshape(len(X) - 2, -1, 2)
+    return float(np.linalg.norm(D, axis=-1).mean())
 
 
 # --------------------------------------------------------------------------- #
@@ -333,6 +425,8 @@ def evaluate_cell(table: pd.DataFrame, style: str, content: str, *,
         frame under the source style, rendered in the target style).
         ``bilinear_template`` -- the same model's cell template A^t b^c, held
         for as many frames as the source clip has.
+        ``offset`` -- the source clip plus the mean pose offset from its style
+        to the target's (:func:`style_offset`).
         ``identity`` -- the source clip unchanged (in unified features it is
         already retargeted: mapping back with the target's inverse
         unification gives the target's proportions).
@@ -406,6 +500,13 @@ def evaluate_cell(table: pd.DataFrame, style: str, content: str, *,
     keep = np.isin(clip_content, sorted(grid_contents))
     F = np.stack([clip_features(X[r]) for r in rows])
     clf = ClipClassifiers().fit(F[keep], clip_style[keep], clip_content[keep])
+    # The independent judges: every remaining real clip, as key points, unconditioned.
+    judges = Judges(seed=seed).fit([to_points(X[r]) for r in rows], clip_style, clip_content)
+    own = np.flatnonzero(clip_style == style)
+    jerk_real = float(np.mean([jerk(X[rows[i]]) for i in own]))
+    cell_data = CellData(X=X, clip_rows=rows, clip_style=clip_style, clip_content=clip_content,
+                         style=style, content=content)
+    baselines = {m: BASELINES[m](cell_data) for m in methods if m in BASELINES}
 
     # Sources: every remaining clip of the content (another style by construction).
     src = np.flatnonzero(clip_content == content)
@@ -434,8 +535,15 @@ def evaluate_cell(table: pd.DataFrame, style: str, content: str, *,
         bilinear.adapt_style(X[own], mo_train[own], style)
     fit_seconds = time.perf_counter() - t_start
 
-    sums = {m: dict(dtw=0.0, bone=0.0, truth=0.0, n_pairs=0, n_truth=0, style=0, content=0, n=0)
+    sums = {m: dict(dtw=0.0, bone=0.0, truth=0.0, n_pairs=0, n_truth=0, style=0, content=0, n=0,
+                    jerk=0.0, **{k: 0 for k in JUDGE_COLUMNS})
             for m in methods}
+
+    to_judge: list[tuple[str, np.ndarray]] = []    # judged at once at the end (one predict call)
+
+    def judge(m, clips):
+        to_judge.extend((m, x) for x in clips)
+
     examples = {}
     per_cell = {}           # syntheses that do not depend on the source clip
     for q in src:
@@ -459,8 +567,8 @@ def evaluate_cell(table: pd.DataFrame, style: str, content: str, *,
                     X_hats[m] += Xs - bilinear.inverse_transform(B, np.full(len(Xs), s_src))
             elif m == "bilinear_template":
                 X_hats[m] = np.tile(bilinear.cell_template(style, content), (len(Xs), 1))
-            elif m == "identity":
-                X_hats[m] = Xs
+            elif m in baselines:
+                X_hats[m] = baselines[m](Xs, s_src)
         synth = {m: v for m, v in X_hats.items()}
         for j, Xh_ref in enumerate(hidden_X):
             res = _compare(synth, Xh_ref)
@@ -478,6 +586,8 @@ def evaluate_cell(table: pd.DataFrame, style: str, content: str, *,
             sums[m]["style"] += int(clf.predict_style(f, content)[0] == style)
             sums[m]["content"] += int(clf.predict_content(f, style)[0] == content)
             sums[m]["n"] += 1
+            sums[m]["jerk"] += jerk(Xh) / max(jerk_real, 1e-12)
+            judge(m, [Xh])
         if return_examples and not examples:
             for m, Xh in synth.items():
                 err, path = _example_path(Xh, hidden_X[0])
@@ -490,6 +600,15 @@ def evaluate_cell(table: pd.DataFrame, style: str, content: str, *,
             sums["real"]["content"] += int(clf.predict_content(f, style)[0] == content)
             sums["real"]["n"] += 1
             sums["real"]["n_pairs"] += 1
+            sums["real"]["jerk"] += jerk(Xr) / max(jerk_real, 1e-12)
+        judge("real", hidden_X)
+    if to_judge:
+        verdict = judges.score([to_points(x) for _, x in to_judge], style, content)
+        who = np.array([m for m, _ in to_judge])
+        for fam, (ok_s, ok_c) in verdict.items():
+            for m in set(who):
+                sums[m][f"style_{fam}"] += int(ok_s[who == m].sum())
+                sums[m][f"content_{fam}"] += int(ok_c[who == m].sum())
     seconds = time.perf_counter() - t_start
 
     out = []
@@ -500,6 +619,8 @@ def evaluate_cell(table: pd.DataFrame, style: str, content: str, *,
             "dtw_error": s["dtw"] / s["n_pairs"] if s["n_pairs"] else np.nan,
             "style_acc": s["style"] / s["n"] if s["n"] else np.nan,
             "content_acc": s["content"] / s["n"] if s["n"] else np.nan,
+            **{k: s[k] / s["n"] if s["n"] else np.nan for k in JUDGE_COLUMNS},
+            "jerk_ratio": s["jerk"] / s["n"] if s["n"] else np.nan,
             "bone_error": s["bone"] / s["n_pairs"] if s["n_pairs"] else np.nan,
             "truth_error": s["truth"] / s["n_truth"] if s["n_truth"] else np.nan,
             "n_sources": int(len(src)) if m != "real" else 0,
@@ -558,7 +679,8 @@ def summarise(results: pd.DataFrame) -> pd.DataFrame:
 
     Adds ``dtw_error_pct`` (% of the torso length) and ``cells``.
     """
-    metrics = ["dtw_error", "style_acc", "content_acc", "bone_error", "truth_error"]
+    metrics = ["dtw_error", "style_acc", "content_acc", *JUDGE_COLUMNS, "jerk_ratio", "bone_error",
+               "truth_error"]
     order = [m for m in METHODS if m in set(results["method"])] + \
         [m for m in dict.fromkeys(results["method"]) if m not in METHODS]
     g = results.groupby("method", sort=False)[metrics].mean().reindex(order)
@@ -569,7 +691,7 @@ def summarise(results: pd.DataFrame) -> pd.DataFrame:
 
 def per_style(results: pd.DataFrame) -> pd.DataFrame:
     """Mean metrics per (style, method), for the per-style figure."""
-    metrics = ["dtw_error", "style_acc", "content_acc", "bone_error"]
+    metrics = ["dtw_error", "style_acc", "content_acc", *JUDGE_COLUMNS, "bone_error"]
     return results.groupby(["style", "method"], sort=True)[metrics].mean().reset_index()
 
 
@@ -577,13 +699,14 @@ def per_style(results: pd.DataFrame) -> pd.DataFrame:
 # Stages: held-out evaluation and the translation of one clip
 # --------------------------------------------------------------------------- #
 #: Methods of the held-out stage, in table order (``real`` is the ceiling row).
-STAGE_METHODS: tuple[str, ...] = ("nnsf", "nnsf_swapped", "nnsf_beta0", "nnsf_refit", "bilinear",
-                                  "identity", "real")
+STAGE_METHODS: tuple[str, ...] = ("nnsf", "nnsf_smooth", "nnsf_nosmooth", "nnsf_swapped", "nnsf_beta0",
+                                  "nnsf_refit", "bilinear", "offset", "identity", "real")
 
 #: Summary metrics of ``reports/heldout.json`` per method: name there -> column.
 SUMMARY_METRICS: dict[str, str] = {
     "dtw_error": "dtw_error", "dtw_error_pct_torso": "dtw_error_pct", "style_acc": "style_acc",
-    "content_acc": "content_acc", "bone_err": "bone_error", "truth_error": "truth_error",
+    "content_acc": "content_acc", **{k: k for k in JUDGE_COLUMNS}, "jerk_ratio": "jerk_ratio",
+    "bone_err": "bone_error", "truth_error": "truth_error",
 }
 
 
@@ -602,6 +725,7 @@ def translator_params(params: dict) -> dict:
         "amplitude": require(params, "translation.amplitude"),
         "tempo": bool(require(params, "translation.tempo")),
         "ridge": float(require(params, "translation.ridge")),
+        "smooth": float(require(params, "translation.smooth")),
         "max_iter": int(require(params, "translation.max_iter")),
         "align_iter": int(require(params, "translation.align_iter")),
         "random_state": int(require(params, "seed")),
@@ -685,14 +809,17 @@ def heldout(params: dict, features_csv=Path("data/features/features.csv"), repor
             mapper=None, unifier_json=None):
     """Stage: leave-one-cell-out translation over the style × content grid (docs/method.md §15.5).
 
-    Reads the unified features (``character`` = style, ``motion`` = content),
+    Reads a contract table (``character`` = style, ``motion`` = content) --
+    the stage passes the raw key points in pixels, so that nothing fitted on
+    all clips (the features stage's unifier) reaches a cell; every cell's
+    unifier, models and judges are fitted on its remaining clips --,
     holds out every cell of :func:`grid_cells` (or ``translation.max_cells``
     of them, spread evenly), synthesises it with every method of
     ``translation.methods`` from the remaining data and scores it against the
     hidden clips (:func:`evaluate_cell`; the unifier, the models and the
     classifiers are refitted without the cell).  On the synthetic dataset the
-    exact translation (:class:`SyntheticTruth`, mapped with
-    ``unifier_json``, default beside ``features_csv``) adds ``truth_error``.
+    exact translation (:class:`SyntheticTruth`; mapped with
+    ``unifier_json`` when the table is already unified) adds ``truth_error``.
 
     Cells fan out through ``mapper(run_cell, jobs)`` (default: ``map``).
 
@@ -732,9 +859,11 @@ def heldout(params: dict, features_csv=Path("data/features/features.csv"), repor
     table = contract.read_table(features_csv)
     truth = None
     if require(params, "dataset.name") == "synthetic":
-        uj = Path(unifier_json) if unifier_json is not None else features_csv.parent / "unifier.json"
-        from nnsf.io import read_json
-        truth = UnifiedTruth(SyntheticTruth(seed=seed), read_json(uj))
+        if unifier_json is None:        # a table in pixels: the generator's pixels are the truth
+            truth = SyntheticTruth(seed=seed)
+        else:
+            from nnsf.io import read_json
+            truth = UnifiedTruth(SyntheticTruth(seed=seed), read_json(Path(unifier_json)))
     report = skipped_styles(table)
     cells = grid_cells(table)
     if not cells:

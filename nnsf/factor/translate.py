@@ -398,8 +398,9 @@ class StyleTranslator(BaseEstimator):
         Rank k of the pooled NNSF.
     alpha : float >= 0, default=0.01
         Sparseness weight on V (NNSF's α), also used when encoding clips.
-    beta : float >= 0, default=10.0
-        Class-separability weight of the pooled fit; 0 gives Hoyer's NNSC.
+    beta : float >= 0, default=0.0
+        Class-separability weight of the pooled fit; 0 (the pipeline's
+        value) gives Hoyer's NNSC.
     label : {"content", "style"}, default="content"
         The labels of the pooled fit's class term.
     class_in_loop : bool, default=True
@@ -429,6 +430,15 @@ class StyleTranslator(BaseEstimator):
         departs from the average posture; with ``"aligned"`` they are fitted
         in the alternation, otherwise set afterwards to the centred mean
         residual of each style.  False is the plain model x ≈ v U_s.
+    smooth : float >= 0, default=5.0
+        ``"aligned"`` only: weight of a temporal smoothness term on the
+        shared weights, (λ/2) Σ_t ‖v_t − v_{t+1}‖² over consecutive rows of
+        each content, with λ = ``smooth`` × (mean number of frames mapped to a
+        row), so it is relative to the data term.  Each shared row is otherwise fitted
+        on its own, and DTW maps a different mix of frames of the clips to
+        neighbouring rows, so the consensus jitters from row to row; the
+        term makes the model's own clip smooth (Cai et al.'s graph-regularised
+        multiplicative update with the chain graph of each content's rows).
     free_norms : bool, default=False
         ``"aligned"`` only: let the rows of each style's basis take any
         length.  With weights shared across styles the length of atom i in
@@ -487,9 +497,9 @@ class StyleTranslator(BaseEstimator):
         and its reference clip.
     """
 
-    def __init__(self, n_components=16, *, alpha=0.01, beta=10.0, label="content", class_in_loop=True,
+    def __init__(self, n_components=16, *, alpha=0.01, beta=0.0, label="content", class_in_loop=True,
                  reading="style_basis", basis="aligned", ridge=0.5, refit_iter=100, align_iter=150,
-                 basis_steps=3, realign=0, style_offset=True, free_norms=False, keep_residual=True,
+                 basis_steps=3, realign=0, style_offset=True, smooth=5.0, free_norms=False, keep_residual=True,
                  synthesis="consensus", amplitude="restore", tempo=True,
                  max_iter=150, tol=1e-5, init="nndsvda", random_state=0):
         self.n_components = n_components
@@ -505,6 +515,7 @@ class StyleTranslator(BaseEstimator):
         self.basis_steps = basis_steps
         self.realign = realign
         self.style_offset = style_offset
+        self.smooth = smooth
         self.free_norms = free_norms
         self.keep_residual = keep_residual
         self.synthesis = synthesis
@@ -527,7 +538,7 @@ class StyleTranslator(BaseEstimator):
             raise ValueError(f"amplitude must be one of {AMPLITUDES}, got {self.amplitude!r}")
         if self.label not in ("content", "style"):
             raise ValueError(f"label must be 'content' or 'style', got {self.label!r}")
-        for name in ("ridge", "alpha", "beta", "tol"):
+        for name in ("ridge", "alpha", "beta", "tol", "smooth"):
             v = getattr(self, name)
             if not (isinstance(v, numbers.Real) and not isinstance(v, bool) and v >= 0):
                 raise ValueError(f"{name} must be a number >= 0, got {v!r}")
@@ -705,6 +716,17 @@ class StyleTranslator(BaseEstimator):
         alpha = float(self.alpha)
         step_fn = _free_basis_step if self.free_norms else _basis_step
         W = np.maximum(W, EPSILON)     # a row no frame maps to any more keeps a live start
+        smooth = float(self.smooth)
+        if smooth > 0:
+            # Chain graph of each content's rows: link[r] joins rows r and r + 1.
+            link = np.ones(max(R - 1, 0))
+            for a, b in self.content_rows_.values():
+                if b < R:
+                    link[b - 1] = 0.0
+            deg = np.zeros(R)
+            deg[:-1] += link
+            deg[1:] += link
+            lam_s = np.full(R, smooth * float(counts.mean()))
         Xb = X
         for _ in range(self.align_iter):
             if self.style_offset:
@@ -722,6 +744,13 @@ class StyleTranslator(BaseEstimator):
                 den += cnt[:, i, None] * (W @ (bases[i] @ bases[i].T))
             if alpha > 0:
                 den += alpha * counts[:, None]
+            if smooth > 0:
+                # Gradient of (λ/2)Σ‖v_r − v_{r+1}‖² split by sign: λ(deg·v_r) − λ(Σ neighbours).
+                nb = np.zeros_like(W)
+                nb[1:] += link[:, None] * W[:-1]
+                nb[:-1] += link[:, None] * W[1:]
+                num = num + lam_s[:, None] * nb
+                den = den + (lam_s * deg)[:, None] * W
             W *= num / np.maximum(den, EPSILON)
             # Basis steps per style, weights fixed.
             for i, rows in enumerate(rows_of):
