@@ -20,6 +20,8 @@ INITS = ("random", "nndsvd", "nndsvda", "nndsvdar")
 METHODS = ("nnsf", "nnsc", "nmf", "bilinear")
 LABELS = ("motion", "character")
 TRACKERS = ("ours", "agarwala", "lk")
+#: Camera views of projected motion capture (nnsf.datasets.views).
+VIEW_CHOICES = ("front", "side", "three-quarter", "auto")
 TRANSLATION_METHODS = ("nnsf", "nnsf_swapped", "nnsf_beta0", "nnsf_refit", "bilinear", "identity", "real")
 
 
@@ -60,6 +62,11 @@ def _str():
     return (lambda v: isinstance(v, str) and v != ""), "a non-empty string"
 
 
+def _view():
+    return (lambda v: v is None or v in VIEW_CHOICES), \
+        "one of " + ", ".join(VIEW_CHOICES) + " or null (null: use dataset.bvh.azimuth)"
+
+
 def _list(item):
     check, what = item
     return (lambda v: isinstance(v, list) and len(v) > 0 and all(check(x) for x in v)), \
@@ -76,6 +83,7 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "dataset.synthetic.noise_px": _num(0),
     "dataset.bvh.fps": _num(0, strict=True),
     "dataset.bvh.azimuth": _num(),
+    "dataset.bvh.view": _view(),
     "dataset.bvh.elevation": _num(),
     "dataset.bvh.facing": _choice(FACINGS),
     "dataset.bvh.center": _bool(),

@@ -169,6 +169,36 @@ def translate(params: dict, features_csv=FEATURES_CSV, out_dir=TRANSLATION_DIR,
                content_clip=clip, style=target, out_dir=out_dir)
 
 
+STYLES_MODEL = Path("models/styles.npz")
+
+
+def styles(params: dict, features_csv=FEATURES_CSV, out=STYLES_MODEL) -> StageResult:
+    """Fit the style translator (``translation.*``) on every clip and save it (``models/styles.npz``).
+
+    The model file (:mod:`nnsf.factor.style_model`) holds the translator,
+    the training characters' unifier (``unifier.json`` beside
+    ``features_csv``) and the feature table's SHA-256; ``nnsf animate`` and
+    :func:`nnsf.translate` apply it to new motion.
+    """
+    from nnsf.evaluate.translation import _check_translator, translator_params
+    from nnsf.factor.style_model import file_sha256, fit_model
+
+    tp = translator_params(params)
+    _check_translator(params, tp)
+    features_csv = Path(features_csv)
+    table = contract.read_table(features_csv, non_negative=True)
+    unifier = read_unifier(features_csv.parent)
+    started = time.perf_counter()
+    tr = fit_model(table, unifier, tp, out, features_sha256=file_sha256(features_csv),
+                   source=str(features_csv))
+    seconds = time.perf_counter() - started
+    return StageResult(
+        params={f"translation_{k}": v for k, v in tp.items()},
+        metrics={"styles": len(tr.styles_), "contents": len(tr.contents_), "frames": len(table),
+                 "fit_seconds": round(seconds, 3)},
+        artifacts=[Path(out)])
+
+
 def reshape(params: dict, motion_csv=TRANSLATION_DIR / "translated_features.csv",
             out_dir=REPORTS / "reshape", character_path=None) -> StageResult:
     """A drawn character performing one clip of ``motion_csv`` (SPEC §4), to ``out_dir``.
@@ -247,7 +277,26 @@ def _data_bvh(params: dict, out_dir) -> StageResult:
         "facing": require(params, "dataset.bvh.facing"),
         "center": bool(require(params, "dataset.bvh.center")),
     }
+    view = _bvh_view(params)
+    if view is not None:
+        from nnsf.datasets import views
+
+        if view == "auto":
+            # One view for the whole folder (a style model needs every clip
+            # seen alike): the one the clips move most in, summed.
+            front, _ = bvh_source.read_folder(folder, **{**kw, "azimuth": 0.0, "elevation": 0.0},
+                                              depth=True)
+            xy = contract.features(front).reshape(len(front), -1, 2)
+            depth = front[list(bvh_source.DEPTH_COLUMNS)].to_numpy(float)
+            var = {v: 0.0 for v in views.VIEWS}
+            for _, rows in front.groupby("clip", sort=False).indices.items():
+                for v, x in views.view_variances(xy[rows], depth[rows]).items():
+                    var[v] += x
+            view = max(views.VIEWS, key=lambda v: (var[v], -list(views.VIEWS).index(v)))
+        kw["azimuth"] = views.VIEWS[view]
     table, report = bvh_source.read_folder(folder, **kw)
+    if view is not None:
+        kw["view"] = view
     if require(params, "dataset.bvh.complete_grid"):
         table, dropped = _complete_grid(table)
         report = report + [f"dropped motion {m!r}: present in {n} of "
@@ -271,6 +320,16 @@ def _data_bvh(params: dict, out_dir) -> StageResult:
         params={"dataset": "bvh", "dataset_path": str(folder), **{f"bvh_{k}": v for k, v in kw.items()}},
         metrics={**_table_counts(table), "skipped_or_warned": len(report)},
     )
+
+
+def _bvh_view(params: dict):
+    """``dataset.bvh.view`` (None when absent or null: ``dataset.bvh.azimuth`` applies)."""
+    from nnsf.params import get
+
+    try:
+        return get(params, "dataset.bvh.view")
+    except KeyError:
+        return None
 
 
 def _complete_grid(table: pd.DataFrame) -> tuple[pd.DataFrame, list[tuple[str, int]]]:
