@@ -352,3 +352,40 @@ def unify_table(raw, margin: float, source="keypoints"):
     table = raw.copy()
     table.loc[:, list(contract.COLUMNS[4:])] = X
     return table, unifier
+
+
+def styles_by_hand(params: dict, data=None, out=Path("models/styles.npz")):
+    """``nnsf styles``: fit and save a model from a features folder or a folder of BVH clips.
+
+    ``data`` None reads ``data/features`` (the pipeline's configured
+    dataset); a folder with ``features.csv`` and ``unifier.json`` is read as
+    it is; any other folder is read as labelled BVH clips with the
+    ``dataset.bvh`` settings, unified with ``unify.margin``.  Returns the
+    stage's :class:`~nnsf.stages.StageResult`.
+    """
+    from nnsf import stages
+    from nnsf.params import require
+
+    folder = Path("data/features") if data is None else Path(data)
+    if not folder.is_dir():
+        raise InputError(folder, "--data", "a folder of labelled .bvh clips or a features folder")
+    if (folder / "features.csv").is_file():
+        return stages.styles(params, features_csv=folder / "features.csv", out=out)
+    from nnsf.evaluate.translation import _check_translator, translator_params
+
+    tp = translator_params(params)
+    _check_translator(params, tp)
+    bvh_params = dict(params)
+    bvh_params["dataset"] = {**params.get("dataset", {}), "name": "bvh", "path": str(folder)}
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="nnsf-styles-") as tmp:
+        stages.data(bvh_params, out_dir=Path(tmp) / "raw")
+        from nnsf.datasets import contract
+
+        raw = contract.read_table(Path(tmp) / "raw" / "keypoints.csv")
+    table, unifier = unify_table(raw, float(require(params, "unify.margin")), folder)
+    tr = fit_model(table, unifier, tp, out, source=str(folder))
+    return stages.StageResult(params={f"translation_{k}": v for k, v in tp.items()},
+                              metrics={"styles": len(tr.styles_), "contents": len(tr.contents_),
+                                       "frames": len(table)}, artifacts=[Path(out)])
