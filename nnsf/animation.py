@@ -283,7 +283,9 @@ def read_motion_spec(spec, view: str = "auto", fps: float | None = None, clip: s
                          "synthetic:<character>/<motion>")
     if p.suffix.lower() == ".bvh":
         views.check_view(view)
-        clip_obj, picked = views.load_clip_in_view(p, view=view, fps=fps, elevation=elevation)
+        # Motion capture is often 120 fps: 30 is smooth for drawn animation.
+        clip_obj, picked = views.load_clip_in_view(p, view=view, fps=float(fps) if fps else 30.0,
+                                                   elevation=elevation)
         return Motion(name=p.stem, points=clip_obj.points, fps=clip_obj.fps, depth=clip_obj.depth,
                       view=picked, source=str(p))
     if p.suffix.lower() == ".csv":

@@ -166,6 +166,14 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "reshape_eval.n_vertices": _int(100, 6000),
     "reshape_eval.max_frames": _int(3, 5000),
     "reshape_eval.subkeys_per_limb": _int(1, 12),
+    "animate.character": _str(),
+    "animate.motion": _str(),
+    "animate.style": _str(),
+    "animate.view": _choice(VIEW_CHOICES),
+    "animate.fps": _num(1),
+    "animate.n_vertices": _int(100, 6000),
+    "animate.max_frames": _int(1, 5000),
+    "animate.output": _list(_choice(("mp4", "gif", "sheet"))),
     "mlflow.experiment": _str(),
 }
 
