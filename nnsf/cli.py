@@ -191,7 +191,7 @@ def main(argv: list[str] | None = None) -> int:
             from nnsf.reshape.evaluation import reshape_eval
 
             if not args.data.is_dir():
-                raise InputError(args.data, "--data", "the shared data folder (animated-drawings, "
+                raise InputError(args.data, "--data", "a data folder (animated-drawings, "
                                  "bandai-namco-1, kenney-toon)")
             result = reshape_eval(params, data_root=args.data, out_dir=args.out,
                                   kenney_annotations=args.kenney)
