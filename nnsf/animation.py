@@ -300,7 +300,8 @@ def read_motion_spec(spec, view: str = "auto", fps: float | None = None, clip: s
 @dataclass
 class AnimateResult:
     files: dict[str, Path]
-    seconds: dict[str, float]
+    seconds: dict[str, float]       # wall time per part
+    cpu_seconds: dict[str, float]   # CPU time of this process per part (all its threads)
     frames: int
     fps: float
     view: str | None
@@ -356,7 +357,8 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
     views.check_view(view)
     targets = dict(outputs) if outputs is not None else output_targets(out)
     seconds: dict[str, float] = {}
-    t0 = time.perf_counter()
+    cpu: dict[str, float] = {}
+    t0, c0 = time.perf_counter(), time.process_time()
     # ---- load: check everything before any work, so bad input leaves nothing behind
     style = "none" if style is None else str(style)
     sm = None
@@ -371,22 +373,22 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
     mo = motion if isinstance(motion, Motion) else read_motion_spec(motion, view=view, fps=fps, clip=clip)
     points, depth = mo.points[:max_frames], None if mo.depth is None else mo.depth[:max_frames]
     out_fps = float(fps) if fps else mo.fps
-    seconds["load"] = time.perf_counter() - t0
+    seconds["load"], cpu["load"] = time.perf_counter() - t0, time.process_time() - c0
     if mo.view is not None:
         _say(progress, f"animate: view {mo.view}" + (" (auto: the view the motion moves most in)"
                                                      if view == "auto" else ""))
     _say(progress, f"animate: {len(points)} frames of {mo.name} at {out_fps:g} fps onto {ch.name} "
                    f"({ch.shape[1]}x{ch.shape[0]} px), style {style}")
     # ---- translate
-    t = time.perf_counter()
+    t, c = time.perf_counter(), time.process_time()
     moved = points if sm is None else style_translate(points, style, sm, source_style=source_style)
-    seconds["translate"] = time.perf_counter() - t
+    seconds["translate"], cpu["translate"] = time.perf_counter() - t, time.process_time() - c
     # ---- retarget
-    t = time.perf_counter()
+    t, c = time.perf_counter(), time.process_time()
     kp = retarget(moved, ch.keypoints, source=mo.source or mo.name)
-    seconds["retarget"] = time.perf_counter() - t
+    seconds["retarget"], cpu["retarget"] = time.perf_counter() - t, time.process_time() - c
     # ---- deform
-    t = time.perf_counter()
+    t, c = time.perf_counter(), time.process_time()
     rig = build_rig(ch, n_vertices=n_vertices)
     V = rig.animate(kp)
     if depth is None:
@@ -396,11 +398,11 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
         height = float(np.median(np.ptp(moved[..., 1], axis=1)))
         pairs = depth_mod.part_overlaps(V, rig.mesh.triangles, rig.mesh.parts)
         orders = depth_mod.depth_orders(z, 0.015 * height, pairs=pairs)
-    seconds["deform"] = time.perf_counter() - t
+    seconds["deform"], cpu["deform"] = time.perf_counter() - t, time.process_time() - c
     _say(progress, f"animate: deformed {len(V)} frames ({rig.mesh.n_vertices} vertices) in "
                    f"{seconds['deform']:.2f} s")
     # ---- render
-    t = time.perf_counter()
+    t, c = time.perf_counter(), time.process_time()
     offset, sz = canvas(ch, V)
     renderer = MeshRenderer.for_mesh(rig.mesh, ch, size=sz)
     images = np.empty((len(V), sz[0], sz[1], 3), np.uint8)
@@ -409,9 +411,9 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
         images[i] = renderer.render(V[i] + offset, orders[i], background=BACKGROUND)
         if (i + 1) % step == 0 or i + 1 == len(V):
             _say(progress, f"animate: rendered frame {i + 1}/{len(V)}")
-    seconds["render"] = time.perf_counter() - t
+    seconds["render"], cpu["render"] = time.perf_counter() - t, time.process_time() - c
     # ---- encode
-    t = time.perf_counter()
+    t, c = time.perf_counter(), time.process_time()
     files = {}
     if "mp4" in targets:
         files["mp4"] = write_mp4(targets["mp4"], images, out_fps)
@@ -432,7 +434,7 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
             if not cv2.imwrite(str(tmp), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR)):
                 raise OSError(f"could not write {targets['sheet']}")
         files["sheet"] = Path(targets["sheet"])
-    seconds["encode"] = time.perf_counter() - t
-    seconds["total"] = time.perf_counter() - t0
-    return AnimateResult(files=files, seconds=seconds, frames=len(images), fps=out_fps, view=mo.view,
+    seconds["encode"], cpu["encode"] = time.perf_counter() - t, time.process_time() - c
+    seconds["total"], cpu["total"] = time.perf_counter() - t0, time.process_time() - c0
+    return AnimateResult(files=files, seconds=seconds, cpu_seconds=cpu, frames=len(images), fps=out_fps, view=mo.view,
                          style=style, character=ch.name, motion=mo.name, notes=list(ch.notes) + mo.notes)
