@@ -177,6 +177,67 @@ def _png_character(png: Path, joints_path: Path | None):
     return Character(name=name or png.stem, texture=rgba, mask=mask, keypoints=kp, source=str(joints_path))
 
 
+_ARM = ("shoulder", "elbow", "hand")
+
+
+def _arm_sets(names) -> dict[str, dict[str, list[str]]]:
+    """``{side: {suffix: [shoulder, elbow, hand names]}}`` for numbered arms such as ``right_shoulder2``."""
+    import re
+
+    out: dict[str, dict[str, list[str]]] = {}
+    for n in names:
+        m = re.fullmatch(r"(right|left)_shoulder(\d+)", n)
+        if m:
+            side, k = m.groups()
+            chain = [f"{side}_{j}{k}" for j in _ARM]
+            if all(c in names for c in chain):
+                out.setdefault(side, {})[k] = chain
+    return out
+
+
+def _load_ad(cfg_path: Path):
+    """An AnimatedDrawings character; a skeleton with several numbered arms a side is mapped.
+
+    AnimatedDrawings' char5 has three arms a side (``right_shoulder1..3`` …).
+    Our body has one: on each side the arm whose shoulder is nearest the chest
+    (AnimatedDrawings' ``torso`` joint) drives the arm, and the other arms
+    are part of the body (they move rigidly with the torso; the layered mesh
+    gives a limb only the triangles within its capsule).  The choice is
+    recorded in the character's notes.  Any other unsupported skeleton
+    (e.g. char6's four legs and no arms) is refused, naming the joints.
+    """
+    from nnsf.reshape import character as chmod
+
+    cfg = _safe_yaml(cfg_path)
+    names = [j.get("name") for j in cfg["skeleton"] if isinstance(j, dict)]
+    sets = _arm_sets(set(names))
+    plain = all(f"{side}_{j}" in names for side in ("right", "left") for j in _ARM)
+    if plain or set(sets) != {"right", "left"}:
+        return chmod.load_character(cfg_path.parent if cfg_path.name == "char_cfg.yaml" else cfg_path)
+    loc = {j["name"]: np.asarray(j["loc"], dtype=float) for j in cfg["skeleton"] if isinstance(j, dict)}
+    chest = loc.get("torso")
+    if chest is None:
+        return chmod.load_character(cfg_path)
+    joints, notes = {}, []
+    for side, by_k in sets.items():
+        k = min(by_k, key=lambda q: (float(np.linalg.norm(loc[by_k[q][0]] - chest)), q))
+        for j, n in zip(_ARM, by_k[k]):
+            joints[f"{side}_{j}"] = loc[n]
+        others = [q for q in sorted(by_k) if q != k]
+        notes.append(f"{cfg_path}: skeleton: {side} arm {k} drives the {side} arm; arms "
+                     f"{', '.join(others)} move with the body")
+    for n in chmod.AD_JOINTS:
+        if n not in joints:
+            if n not in loc:
+                return chmod.load_character(cfg_path)   # refused, naming what is missing
+            joints[n] = loc[n]
+    folder = cfg_path.parent
+    texture, mask, note = chmod._load_images(folder / "texture.png", folder / "mask.png", cfg_path)
+    kp = chmod._ad_to_keypoints(joints, mask, cfg_path)
+    return chmod.Character(name=folder.name, texture=texture, mask=mask, keypoints=kp, source=str(cfg_path),
+                           notes=([note] if note else []) + notes)
+
+
 def read_character(spec, joints=None, size: int = 512):
     """A :class:`nnsf.reshape.character.Character` from any supported format (module docstring).
 
@@ -201,7 +262,7 @@ def read_character(spec, joints=None, size: int = 512):
     if p.is_dir():
         if (p / "char_cfg.yaml").is_file():
             _check_ad_config(p / "char_cfg.yaml")
-            return load_character(p)
+            return _load_ad(p / "char_cfg.yaml")
         pngs = sorted(p.glob("*.png"))
         yamls = [y for y in sorted(p.glob("*.y*ml"))]
         if len(yamls) == 1 and joints is None:
@@ -215,7 +276,7 @@ def read_character(spec, joints=None, size: int = 512):
         obj = _safe_yaml(p)
         if isinstance(obj, dict) and "skeleton" in obj:
             _check_ad_config(p)
-            return load_character(p)
+            return _load_ad(p)
         if isinstance(obj, dict) and "joints" in obj:
             image = obj.get("image")
             if not isinstance(image, str) or not image:

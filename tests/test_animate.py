@@ -311,7 +311,7 @@ def test_reshape_eval_and_tracking_real_need_data(capsys):
 
 # --------------------------------------------------------------------------- real characters
 @needs_shared
-@pytest.mark.parametrize("name", ["char1", "char2", "char3", "char4"])
+@pytest.mark.parametrize("name", ["char1", "char2", "char3", "char4", "char5"])
 def test_every_animated_drawings_character_loads(name):
     from nnsf.animation import read_character
 
@@ -320,17 +320,30 @@ def test_every_animated_drawings_character_loads(name):
 
 
 @needs_shared
-@pytest.mark.parametrize("name, joints", [("char5", ("right_shoulder1", "left_shoulder3")),
-                                          ("char6", ("right_hip_b", "left_foot_f"))])
-def test_multi_limb_characters_are_refused_naming_the_joints(name, joints):
-    """char5 has three arms a side, char6 four legs and no arms: refused, the joints named."""
+def test_char6_is_refused_naming_its_joints():
+    """char6 has four legs and no arms: refused, the joints named, one line."""
     from nnsf.animation import read_character
 
     with pytest.raises(InputError) as exc:
-        read_character(AD / "characters" / name)
+        read_character(AD / "characters" / "char6")
     text = str(exc.value)
-    assert "char_cfg.yaml: skeleton" in text and all(j in text for j in joints)
-    assert "\n" not in text
+    assert "char_cfg.yaml: skeleton" in text and "right_hip_b" in text and "left_foot_f" in text
+    assert "missing joints: right_shoulder" in text and "\n" not in text
+
+
+@needs_shared
+def test_char5_maps_the_arm_nearest_the_chest_and_says_so():
+    """char5 has three arms a side: arm 3 (shoulders nearest the chest) drives each arm."""
+    from nnsf.animation import read_character
+    from nnsf.reshape.character import points_in_mask
+
+    ch = read_character(AD / "characters" / "char5")
+    cfg = yaml.safe_load((AD / "characters" / "char5" / "char_cfg.yaml").read_text())
+    loc = {j["name"]: j["loc"] for j in cfg["skeleton"]}
+    assert ch.keypoints[JOINT_INDEX["r_wrist"]].tolist() == loc["right_hand3"]
+    assert ch.keypoints[JOINT_INDEX["l_shoulder"]].tolist() == loc["left_shoulder3"]
+    assert any("right arm 3 drives the right arm; arms 1, 2 move with the body" in n for n in ch.notes)
+    assert points_in_mask(ch.mask, ch.keypoints).all()
 
 
 @needs_shared
