@@ -355,3 +355,26 @@ def test_kenney_frame_with_the_hand_made_joints(tmp_path, capsys):
                             "--out", out, "--vertices", "200"], capsys)
     assert code == 0, err
     assert _frames(out) == 8
+
+
+@needs_shared
+def test_dataset_bvh_view_names_an_azimuth_and_auto_picks_one_for_the_folder(tmp_path):
+    from nnsf import stages
+
+    folder = tmp_path / "bvh"
+    folder.mkdir()
+    for style in ("normal", "old"):
+        name = f"dataset-1_walk_{style}_001.bvh"
+        (folder / name).symlink_to(BN / name)
+    base = {"seed": 0, "dataset": {"name": "bvh", "path": str(folder), "bvh": {
+        "fps": 15, "azimuth": 90.0, "elevation": 0.0, "facing": "normalise", "center": True,
+        "complete_grid": True}}}
+    by_azimuth = stages.data(base, out_dir=tmp_path / "a")
+    side = {**base, "dataset": {**base["dataset"], "bvh": {**base["dataset"]["bvh"], "azimuth": 0.0,
+                                                              "view": "side"}}}
+    stages.data(side, out_dir=tmp_path / "b")
+    auto = {**base, "dataset": {**base["dataset"], "bvh": {**base["dataset"]["bvh"], "view": "auto"}}}
+    result = stages.data(auto, out_dir=tmp_path / "c")
+    a, b, c = (contract.read_table(tmp_path / d / "keypoints.csv") for d in "abc")
+    assert a.equals(b) and a.equals(c)            # a walk: auto takes the side view
+    assert result.params["bvh_view"] == "side" and by_azimuth.params["bvh_azimuth"] == 90.0
