@@ -239,6 +239,19 @@ def test_animate_a_png_with_a_joints_yaml(tmp_path, capsys):
                     "--out", tmp_path / "h2.gif", "--vertices", "300"], capsys)[0] == 0
 
 
+def test_animate_a_feature_matrix_csv(tmp_path, capsys):
+    """Any 17-point clip in the contract: here one synthetic clip of a multi-clip table."""
+    table = contract.validate(synthetic.generate(characters=2, clips_per_cell=1, frames=10, seed=0), "syn")
+    csv = tmp_path / "motion.csv"
+    contract.write_table(csv, table[table["motion"].isin(["walk", "wave"])])
+    clip = sorted(table.loc[table["motion"] == "wave", "clip"])[0]
+    out = tmp_path / "csv.mp4"
+    code, stdout, err = run_cli(["animate", "--character", "pip", "--motion", csv, "--clip", clip,
+                                 "--out", out, "--vertices", "300"], capsys)
+    assert code == 0, err
+    assert _frames(out) == 10 and f"of {clip} at 24 fps" in err
+
+
 def _bad(capsys, argv, *needles, out=None):
     code, stdout, err = run_cli(argv, capsys)
     assert code == 2, (code, err)
