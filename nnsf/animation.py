@@ -433,6 +433,10 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
     ch = character if isinstance(character, Character) else read_character(character, joints, size)
     mo = motion if isinstance(motion, Motion) else read_motion_spec(motion, view=view, fps=fps, clip=clip)
     points, depth = mo.points[:max_frames], None if mo.depth is None else mo.depth[:max_frames]
+    learned = sm.meta.get("view") if sm is not None else None
+    if learned not in (None, "auto") and mo.view is not None and learned != mo.view:
+        mo.notes.append(f"{sm.path}: the styles were learned in the {learned} view; this motion is seen "
+                        f"in the {mo.view} view (--view {learned} matches the model)")
     out_fps = float(fps) if fps else mo.fps
     seconds["load"], cpu["load"] = time.perf_counter() - t0, time.process_time() - c0
     if mo.view is not None:

@@ -181,7 +181,7 @@ def styles(params: dict, features_csv=FEATURES_CSV, out=STYLES_MODEL) -> StageRe
     :func:`nnsf.translate` apply it to new motion.
     """
     from nnsf.evaluate.translation import _check_translator, translator_params
-    from nnsf.factor.style_model import file_sha256, fit_model
+    from nnsf.factor.style_model import dataset_view, file_sha256, fit_model
 
     tp = translator_params(params)
     _check_translator(params, tp)
@@ -190,7 +190,7 @@ def styles(params: dict, features_csv=FEATURES_CSV, out=STYLES_MODEL) -> StageRe
     unifier = read_unifier(features_csv.parent)
     started = time.perf_counter()
     tr = fit_model(table, unifier, tp, out, features_sha256=file_sha256(features_csv),
-                   source=str(features_csv))
+                   source=str(features_csv), view=dataset_view(params))
     seconds = time.perf_counter() - started
     return StageResult(
         params={f"translation_{k}": v for k, v in tp.items()},

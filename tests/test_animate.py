@@ -391,3 +391,14 @@ def test_dataset_bvh_view_names_an_azimuth_and_auto_picks_one_for_the_folder(tmp
     a, b, c = (contract.read_table(tmp_path / d / "keypoints.csv") for d in "abc")
     assert a.equals(b) and a.equals(c)            # a walk: auto takes the side view
     assert result.params["bvh_view"] == "side" and by_azimuth.params["bvh_azimuth"] == 90.0
+
+
+def test_the_model_records_the_view_its_styles_were_learned_in():
+    from nnsf.factor.style_model import dataset_view
+
+    bvh = {"name": "bvh", "bvh": {"azimuth": 0.0}}
+    assert dataset_view({"dataset": {"name": "synthetic"}}) is None
+    assert dataset_view({"dataset": bvh}) == "front"
+    assert dataset_view({"dataset": {**bvh, "bvh": {"azimuth": 90.0, "view": None}}}) == "side"
+    assert dataset_view({"dataset": {**bvh, "bvh": {"azimuth": 30.0}}}) == "azimuth 30"
+    assert dataset_view({"dataset": {**bvh, "bvh": {"azimuth": 0.0, "view": "auto"}}}) == "auto"

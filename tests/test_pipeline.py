@@ -46,6 +46,7 @@ dataset:
   bvh:
     fps: 30
     azimuth: 0.0
+    view: null
     elevation: 0.0
     facing: normalise
     center: true

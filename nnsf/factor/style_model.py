@@ -147,7 +147,7 @@ class _Reader:
 
 # ----------------------------------------------------------------------------- files
 def save_model(translator, path, *, unifier=None, features_sha256: str | None = None,
-               source: str = "") -> Path:
+               source: str = "", view: str | None = None) -> Path:
     """Write a fitted translator (and the unifier of its training characters) to ``path``, atomically."""
     from sklearn.utils.validation import check_is_fitted
 
@@ -165,6 +165,8 @@ def save_model(translator, path, *, unifier=None, features_sha256: str | None = 
         "unifier": unifier.to_dict() if unifier is not None else None,
         "features_sha256": features_sha256,
         "source": str(source),
+        # The camera view of a motion-capture dataset (None: drawn/synthetic 2D data).
+        "view": view,
         "state": state,
     }
     write_npz(path, meta=np.array(json.dumps(meta, sort_keys=True)), **w.arrays)
@@ -313,7 +315,8 @@ def translate(content_clip, style, model, source_style=None) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- fitting one
-def fit_model(table, unifier, translator_params: dict, out, *, features_sha256=None, source=""):
+def fit_model(table, unifier, translator_params: dict, out, *, features_sha256=None, source="",
+              view=None):
     """Fit a translator on a unified contract table and save it to ``out``; returns the translator.
 
     ``table``: the feature-matrix contract in template units (``features.csv``);
@@ -334,7 +337,7 @@ def fit_model(table, unifier, translator_params: dict, out, *, features_sha256=N
     # One BLAS thread: the products are thin (34 columns), see stages.factorize.
     with threadpool_limits(limits=1, user_api="blas"):
         tr = StyleTranslator(**translator_params).fit(X, motions, chars, clips)
-    save_model(tr, out, unifier=unifier, features_sha256=features_sha256, source=source)
+    save_model(tr, out, unifier=unifier, features_sha256=features_sha256, source=source, view=view)
     return tr
 
 
@@ -352,6 +355,28 @@ def unify_table(raw, margin: float, source="keypoints"):
     table = raw.copy()
     table.loc[:, list(contract.COLUMNS[4:])] = X
     return table, unifier
+
+
+def dataset_view(params: dict) -> str | None:
+    """The view a ``dataset.name: bvh`` dataset is projected in (a view name or ``azimuth N``), else None."""
+    from nnsf.params import get
+
+    try:
+        if get(params, "dataset.name") != "bvh":
+            return None
+    except KeyError:
+        return None
+    for key, fmt in (("dataset.bvh.view", "{}"), ("dataset.bvh.azimuth", "azimuth {:g}")):
+        try:
+            value = get(params, key)
+        except KeyError:
+            continue
+        if value is not None:
+            if key.endswith("azimuth"):
+                named = {0.0: "front", 90.0: "side", 45.0: "three-quarter"}.get(float(value))
+                return named or fmt.format(float(value))
+            return str(value)
+    return "front"
 
 
 def styles_by_hand(params: dict, data=None, out=Path("models/styles.npz")):
@@ -385,7 +410,7 @@ def styles_by_hand(params: dict, data=None, out=Path("models/styles.npz")):
 
         raw = contract.read_table(Path(tmp) / "raw" / "keypoints.csv")
     table, unifier = unify_table(raw, float(require(params, "unify.margin")), folder)
-    tr = fit_model(table, unifier, tp, out, source=str(folder))
+    tr = fit_model(table, unifier, tp, out, source=str(folder), view=dataset_view(bvh_params))
     return stages.StageResult(params={f"translation_{k}": v for k, v in tp.items()},
                               metrics={"styles": len(tr.styles_), "contents": len(tr.contents_),
                                        "frames": len(table)}, artifacts=[Path(out)])
