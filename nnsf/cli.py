@@ -75,7 +75,6 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, default=Path("models/styles.npz"))
 
     p = sub.add_parser("animate", help="your character performing your motion in a learned style")
-    p.add_argument("--params", default="params.yaml")
     p.add_argument("--character", required=True,
                    help="AnimatedDrawings folder or char_cfg.yaml, RGBA PNG (+ --joints), joints YAML, "
                         "character JSON, or a built-in character name")
@@ -87,7 +86,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--style", default="none", help="a style of the model, or none (default)")
     p.add_argument("--source-style", default=None,
                    help="the style the motion is performed in, if the model knows it")
-    p.add_argument("--model", type=Path, default=Path("models/styles.npz"))
+    p.add_argument("--model", type=Path, default=Path("models/styles.npz"),
+                   help="a style model written by `nnsf styles` (default: models/styles.npz)")
     p.add_argument("--view", default="auto", help="front, side, three-quarter or auto (a BVH motion)")
     p.add_argument("--out", type=Path, default=Path("animation.mp4"),
                    help="FILE.mp4, FILE.gif or a folder for PNG frames (a contact sheet is written beside)")
