@@ -139,7 +139,7 @@ animate:
   motion: synthetic:max/walk/6
   style: bruno
   view: auto
-  fps: 12
+  fps: 24
   n_vertices: 300
   max_frames: 6
   output: [mp4, gif, sheet]
