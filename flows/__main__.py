@@ -3,7 +3,7 @@
 Commands::
 
     python -m flows frames|track|tracking|data|features|factorize|evaluate|isomap|sweep|
-                    heldout|translate|reshape [--params FILE]
+                    heldout|translate|reshape|styles|animate [--params FILE]
         run one DVC stage as a Prefect flow and log it to MLflow (dvc.yaml's cmd)
     python -m flows repro [dvc repro arguments]
         `dvc repro` with one short-lived local Prefect server shared by all stages
@@ -31,7 +31,7 @@ from flows.console import error_line, one_line
 # scikit-learn (about 2 s), which a no-op `python -m flows repro` does not need.
 
 STAGES = ("frames", "track", "tracking", "data", "features", "factorize", "evaluate", "isomap", "sweep",
-          "heldout", "translate", "reshape")
+          "heldout", "translate", "reshape", "styles", "animate")
 USAGE = __doc__.split("Commands::", 1)[1].split("Exit codes", 1)[0].rstrip()
 
 

@@ -131,8 +131,20 @@ def reshape(params: dict):
     return run_stage("reshape", stages.reshape, params)
 
 
+@flow(name="nnsf-styles", **_OPTIONS)
+def styles(params: dict):
+    """Fit the style translator on the configured dataset and save it (models/styles.npz, an MLflow artifact)."""
+    return run_stage("styles", stages.styles, params)
+
+
+@flow(name="nnsf-animate", **_OPTIONS)
+def animate(params: dict):
+    """The animate block: a character performing a motion in a style (reports/animate)."""
+    return run_stage("animate", stages.animate, params)
+
+
 #: The stage flows by DVC stage name (the sweep lives in :mod:`flows.sweep`).
 FLOWS = {f.fn.__name__: f for f in (data, features, factorize, evaluate, isomap, frames, track, tracking,
-                                    heldout, translate, reshape)}
+                                    heldout, translate, reshape, styles, animate)}
 #: Stages that fan out on the configured task runner (flows.runners).
 FAN_OUT = {"evaluate", "frames", "track", "tracking", "heldout"}

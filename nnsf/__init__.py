@@ -5,7 +5,7 @@ It imports none of the orchestration or experiment-tracking tools; those live
 in the top-level ``flows`` package.
 """
 __version__ = "0.1.0"
-__all__ = ["NNSF", "__version__"]
+__all__ = ["NNSF", "translate", "__version__"]
 
 
 def __getattr__(name):
@@ -15,4 +15,8 @@ def __getattr__(name):
         from nnsf.factor.nnsf import NNSF
 
         return NNSF
+    if name == "translate":
+        from nnsf.factor.style_model import translate
+
+        return translate
     raise AttributeError(f"module 'nnsf' has no attribute {name!r}")

@@ -7,9 +7,15 @@
                                         one clip's motion performed in another style
     nnsf reshape [--motion CSV] [--clip CLIP] [--character NAME|FILE|FOLDER] [--out DIR]
                                         a drawn character performing a motion clip
-    nnsf reshape-eval [--data DIR] [--out DIR]
-                                        the reshaping evaluation on the shared drawn characters
-    nnsf tracking-real [--data DIR] [--out DIR]
+    nnsf styles [--data FOLDER] [--out FILE]
+                                        fit the style model and save it (default models/styles.npz)
+    nnsf animate --character C --motion M [--style NAME|none] [--model FILE]
+                 [--view front|side|three-quarter|auto] [--out FILE.mp4|FILE.gif|DIR] [--fps N]
+                                        your character performing your motion in a learned style
+    nnsf reshape-eval --data DIR [--out DIR]
+                                        the reshaping evaluation on drawn characters (AnimatedDrawings,
+                                        Bandai-Namco, Kenney folders under DIR)
+    nnsf tracking-real --data DIR [--out DIR]
                                         the trackers on the Kenney toon walk cycles vs their silhouettes
 
 The same stages run as Prefect flows with MLflow logging through
@@ -66,16 +72,45 @@ def _parser() -> argparse.ArgumentParser:
                         "(default: reshape.character)")
     p.add_argument("--out", type=Path, default=Path("reports/reshape"))
 
-    p = sub.add_parser("reshape-eval", help="reshaping evaluation on ../shared/data (SPEC §6.5-6.6)")
+    p = sub.add_parser("styles", help="fit the style model and save it")
     p.add_argument("--params", default="params.yaml")
-    p.add_argument("--data", type=Path, default=Path("../shared/data"))
+    p.add_argument("--data", type=Path, default=None,
+                   help="a folder of labelled .bvh clips, or a features folder (features.csv, unifier.json); "
+                        "default: data/features (the pipeline's configured dataset)")
+    p.add_argument("--out", type=Path, default=Path("models/styles.npz"))
+
+    p = sub.add_parser("animate", help="your character performing your motion in a learned style")
+    p.add_argument("--character", required=True,
+                   help="AnimatedDrawings folder or char_cfg.yaml, RGBA PNG (+ --joints), joints YAML, "
+                        "character JSON, or a built-in character name")
+    p.add_argument("--joints", type=Path, default=None,
+                   help="joints YAML (or Kenney nnsf.keypoints JSON) for a PNG character")
+    p.add_argument("--motion", required=True,
+                   help="a .bvh, a feature-matrix .csv, or synthetic:<character>/<motion>[/<frames>]")
+    p.add_argument("--clip", default=None, help="the clip of a multi-clip CSV (default: the first)")
+    p.add_argument("--style", default="none", help="a style of the model, or none (default)")
+    p.add_argument("--source-style", default=None,
+                   help="the style the motion is performed in, if the model knows it")
+    p.add_argument("--model", type=Path, default=Path("models/styles.npz"),
+                   help="a style model written by `nnsf styles` (default: models/styles.npz)")
+    p.add_argument("--view", default="auto", help="front, side, three-quarter or auto (a BVH motion)")
+    p.add_argument("--out", type=Path, default=Path("animation.mp4"),
+                   help="FILE.mp4, FILE.gif or a folder for PNG frames (a contact sheet is written beside)")
+    p.add_argument("--fps", type=float, default=None, help="frames per second (default: the motion's)")
+    p.add_argument("--vertices", type=int, default=800, help="mesh vertices (100..6000)")
+
+    p = sub.add_parser("reshape-eval", help="reshaping evaluation on drawn characters (SPEC §6.5-6.6)")
+    p.add_argument("--params", default="params.yaml")
+    p.add_argument("--data", type=Path, required=True,
+                   help="folder holding animated-drawings/, bandai-namco-1/ and kenney-toon/")
     p.add_argument("--kenney", type=Path, default=Path("tests/data/kenney"),
                    help="hand-made Kenney key-point annotations")
     p.add_argument("--out", type=Path, default=Path("reports"))
 
     p = sub.add_parser("tracking-real", help="the trackers on real cartoon frames (Kenney toon walk cycles)")
     p.add_argument("--params", default="params.yaml")
-    p.add_argument("--data", type=Path, default=Path("../shared/data/kenney-toon"))
+    p.add_argument("--data", type=Path, required=True,
+                   help="the Kenney toon characters folder (female_adventurer/, robot/, ...)")
     p.add_argument("--annotations", type=Path, default=Path("tests/data/kenney"),
                    help="hand-made keyframe annotations, <character>.annotation.json")
     p.add_argument("--out", type=Path, default=Path("reports"))
@@ -89,9 +124,32 @@ def _print_metrics(command: str, metrics: dict) -> None:
               else f"{command}: {key} = {value}")
 
 
+def _animate(args) -> int:
+    from nnsf.animation import animate_files
+    from nnsf.datasets.views import check_view
+
+    check_view(args.view, "--view", "view")
+    if args.fps is not None and not 1 <= args.fps <= 120:
+        raise InputError("--fps", "fps", "a number 1..120", args.fps)
+    if not 100 <= args.vertices <= 6000:
+        raise InputError("--vertices", "vertices", "an integer 100..6000", args.vertices)
+    res = animate_files(args.character, args.motion, style=args.style, model=args.model, view=args.view,
+                        out=args.out, fps=args.fps, joints=args.joints, source_style=args.source_style,
+                        n_vertices=args.vertices, clip=args.clip)
+    for note in res.notes:
+        print(f"animate: note: {note}", file=sys.stderr)
+    parts = ", ".join(f"{k} {v:.2f} s" for k, v in res.seconds.items() if k != "total")
+    print(f"animate: {res.frames} frames at {res.fps:g} fps in {res.seconds['total']:.2f} s ({parts})")
+    for kind, path in res.files.items():
+        print(f"animate: {kind}: {path}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     try:
+        if args.command == "animate":  # needs no params.yaml
+            return _animate(args)
         from nnsf import params as params_mod
         from nnsf import stages
 
@@ -136,11 +194,17 @@ def main(argv: list[str] | None = None) -> int:
                                     character_path=character_path)
             shown = [str(a) for a in result.artifacts if str(a).endswith(".gif")]
             print(f"reshape: wrote {args.out}/" + (f"; open {shown[0]}" if shown else ""))
+        elif args.command == "styles":
+            from nnsf.factor.style_model import styles_by_hand
+
+            result = styles_by_hand(params, args.data, args.out)
+            print(f"styles: wrote {args.out} ({result.metrics['styles']} styles, "
+                  f"{result.metrics['contents']} contents)")
         elif args.command == "reshape-eval":
             from nnsf.reshape.evaluation import reshape_eval
 
             if not args.data.is_dir():
-                raise InputError(args.data, "--data", "the shared data folder (animated-drawings, "
+                raise InputError(args.data, "--data", "a data folder (animated-drawings, "
                                  "bandai-namco-1, kenney-toon)")
             result = reshape_eval(params, data_root=args.data, out_dir=args.out,
                                   kenney_annotations=args.kenney)

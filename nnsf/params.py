@@ -22,6 +22,8 @@ INITS = ("random", "nndsvd", "nndsvda", "nndsvdar")
 METHODS = ("nnsf", "nnsc", "nmf", "bilinear", "mgpm", "cbgpm")
 LABELS = ("motion", "character")
 TRACKERS = ("ours", "agarwala", "lk")
+#: Camera views of projected motion capture (nnsf.datasets.views).
+VIEW_CHOICES = ("front", "side", "three-quarter", "auto")
 TRANSLATION_METHODS = ("nnsf", "nnsf_smooth", "nnsf_nosmooth", "nnsf_swapped", "nnsf_beta0", "nnsf_refit", "bilinear", "offset",
                        "identity", "real")
 
@@ -94,6 +96,11 @@ def _str(max_len: int = 500):
     return (lambda v: isinstance(v, str) and 0 < len(v) <= max_len), "a non-empty string"
 
 
+def _view():
+    return (lambda v: v is None or v in VIEW_CHOICES), \
+        "one of " + ", ".join(VIEW_CHOICES) + " or null (null: use dataset.bvh.azimuth)"
+
+
 def _list(item, max_items: int = 100):
     check, what = item
     return (lambda v: isinstance(v, list) and 0 < len(v) <= max_items and all(check(x) for x in v)), \
@@ -140,6 +147,7 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "dataset.synthetic.noise_px": _num(0, 100),
     "dataset.bvh.fps": _num(0, 1000, strict=True),
     "dataset.bvh.azimuth": _num(-360, 360),
+    "dataset.bvh.view": _view(),
     "dataset.bvh.elevation": _num(-90, 90),
     "dataset.bvh.facing": _choice(FACINGS),
     "dataset.bvh.center": _bool(),
@@ -239,6 +247,14 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "reshape_eval.azimuth": ((lambda v: isinstance(v, dict) and all(
         isinstance(k, str) and isinstance(x, numbers.Real) and not isinstance(x, bool) for k, x in v.items())),
         "a mapping of motion names to projection azimuths in degrees"),
+    "animate.character": _str(),
+    "animate.motion": _str(),
+    "animate.style": _str(),
+    "animate.view": _choice(VIEW_CHOICES),
+    "animate.fps": _num(1, 120),
+    "animate.n_vertices": _int(100, 6000),
+    "animate.max_frames": _int(1, 5000),
+    "animate.output": _list(_choice(("mp4", "gif", "sheet")), 3),
     "mlflow.experiment": _str(),
 }
 

@@ -214,6 +214,77 @@ def translate(params: dict, features_csv=FEATURES_CSV, out_dir=TRANSLATION_DIR,
                content_clip=clip, style=target, out_dir=out_dir)
 
 
+STYLES_MODEL = Path("models/styles.npz")
+
+
+def styles(params: dict, features_csv=FEATURES_CSV, out=STYLES_MODEL) -> StageResult:
+    """Fit the style translator (``translation.*``) on every clip and save it (``models/styles.npz``).
+
+    The model file (:mod:`nnsf.factor.style_model`) holds the translator,
+    the training characters' unifier (``unifier.json`` beside
+    ``features_csv``) and the feature table's SHA-256; ``nnsf animate`` and
+    :func:`nnsf.translate` apply it to new motion.
+    """
+    from nnsf.evaluate.translation import _check_translator, translator_params
+    from nnsf.factor.style_model import dataset_view, file_sha256, fit_model
+
+    tp = translator_params(params)
+    _check_translator(params, tp)
+    features_csv = Path(features_csv)
+    table = contract.read_table(features_csv, non_negative=True)
+    unifier = read_unifier(features_csv.parent)
+    started = time.perf_counter()
+    tr = fit_model(table, unifier, tp, out, features_sha256=file_sha256(features_csv),
+                   source=str(features_csv), view=dataset_view(params))
+    seconds = time.perf_counter() - started
+    return StageResult(
+        params={f"translation_{k}": v for k, v in tp.items()},
+        metrics={"styles": len(tr.styles_), "contents": len(tr.contents_), "frames": len(table),
+                 "fit_seconds": round(seconds, 3)},
+        artifacts=[Path(out)])
+
+
+ANIMATE_DIR = REPORTS / "animate"
+
+
+def animate(params: dict, model=STYLES_MODEL, out_dir=ANIMATE_DIR) -> StageResult:
+    """The ``animate:`` block: a character performing a motion in a style (:mod:`nnsf.animation`).
+
+    Writes, atomically as one folder ``out_dir``: ``animation.mp4``,
+    ``animation.gif``, ``animation_sheet.png`` (as ``animate.output`` lists)
+    and ``animate.json`` (what was made; no wall times, those go to MLflow).
+    Character and motion paths must be relative and stay inside the project.
+    """
+    from nnsf.animation import animate_files
+    from nnsf.datasets.views import check_view
+
+    src = source_of(params)
+    spec = {k: require(params, f"animate.{k}") for k in
+            ("character", "motion", "style", "view", "fps", "n_vertices", "max_frames", "output")}
+    for key in ("character", "motion"):
+        text = str(spec[key])
+        if not text.startswith("synthetic:") and ("/" in text or "." in text):
+            p = Path(text)
+            if p.is_absolute() or ".." in p.parts:
+                raise InputError(src, f"animate.{key}", "a relative path inside the project", text)
+    check_view(spec["view"], src, "animate.view")
+    out_dir = Path(out_dir)
+    with atomic_dir(out_dir) as tmp:
+        outputs = {kind: tmp / name for kind, name in (("mp4", "animation.mp4"), ("gif", "animation.gif"),
+                                                       ("sheet", "animation_sheet.png"))
+                   if kind in spec["output"]}
+        res = animate_files(spec["character"], spec["motion"], style=spec["style"], model=model,
+                            view=spec["view"], fps=spec["fps"], n_vertices=int(spec["n_vertices"]),
+                            max_frames=int(spec["max_frames"]), outputs=outputs, progress=False)
+        write_json(tmp / "animate.json", {
+            "character": res.character, "motion": res.motion, "style": res.style, "view": res.view,
+            "frames": res.frames, "fps": res.fps, "files": sorted(p.name for p in res.files.values())})
+    return StageResult(
+        params={f"animate.{k}": (",".join(v) if isinstance(v, list) else v) for k, v in spec.items()},
+        metrics={"frames": res.frames, **{f"seconds_{k}": round(v, 3) for k, v in res.seconds.items()}},
+        artifacts=[out_dir / p.name for p in res.files.values()] + [out_dir / "animate.json"])
+
+
 def reshape(params: dict, motion_csv=TRANSLATION_DIR / "translated_features.csv",
             out_dir=REPORTS / "reshape", character_path=None) -> StageResult:
     """A drawn character performing one clip of ``motion_csv`` (docs/method.md §10-§14), to ``out_dir``.
@@ -292,7 +363,26 @@ def _data_bvh(params: dict, out_dir) -> StageResult:
         "facing": require(params, "dataset.bvh.facing"),
         "center": bool(require(params, "dataset.bvh.center")),
     }
+    view = _bvh_view(params)
+    if view is not None:
+        from nnsf.datasets import views
+
+        if view == "auto":
+            # One view for the whole folder (a style model needs every clip
+            # seen alike): the one the clips move most in, summed.
+            front, _ = bvh_source.read_folder(folder, **{**kw, "azimuth": 0.0, "elevation": 0.0},
+                                              depth=True)
+            xy = contract.features(front).reshape(len(front), -1, 2)
+            depth = front[list(bvh_source.DEPTH_COLUMNS)].to_numpy(float)
+            var = {v: 0.0 for v in views.VIEWS}
+            for _, rows in front.groupby("clip", sort=False).indices.items():
+                for v, x in views.view_variances(xy[rows], depth[rows]).items():
+                    var[v] += x
+            view = max(views.VIEWS, key=lambda v: (var[v], -list(views.VIEWS).index(v)))
+        kw["azimuth"] = views.VIEWS[view]
     table, report = bvh_source.read_folder(folder, **kw)
+    if view is not None:
+        kw["view"] = view
     if require(params, "dataset.bvh.complete_grid"):
         table, dropped = _complete_grid(table)
         report = report + [f"dropped motion {m!r}: present in {n} of "
@@ -316,6 +406,16 @@ def _data_bvh(params: dict, out_dir) -> StageResult:
         params={"dataset": "bvh", "dataset_path": str(folder), **{f"bvh_{k}": v for k, v in kw.items()}},
         metrics={**_table_counts(table), "skipped_or_warned": len(report)},
     )
+
+
+def _bvh_view(params: dict):
+    """``dataset.bvh.view`` (None when absent or null: ``dataset.bvh.azimuth`` applies)."""
+    from nnsf.params import get
+
+    try:
+        return get(params, "dataset.bvh.view")
+    except KeyError:
+        return None
 
 
 def _complete_grid(table: pd.DataFrame) -> tuple[pd.DataFrame, list[tuple[str, int]]]:

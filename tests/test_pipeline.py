@@ -29,7 +29,7 @@ pytestmark = pytest.mark.slow
 FLOWS = [sys.executable, "-m", "flows"]
 DVC = [sys.executable, "-m", "dvc"]
 ALL_STAGES = {"frames", "track", "tracking", "data", "features", "factorize", "evaluate", "isomap", "sweep",
-              "heldout", "translate", "reshape"}
+              "heldout", "translate", "reshape", "styles", "animate"}
 EXPERIMENT = "nnsf-e2e"
 
 #: Small enough for seconds per stage, big enough for 3 grouped folds.
@@ -46,6 +46,7 @@ dataset:
   bvh:
     fps: 30
     azimuth: 0.0
+    view: null
     elevation: 0.0
     facing: normalise
     center: true
@@ -137,6 +138,15 @@ reshape:
   fps: 12
   max_frames: 6
   formats: [png, gif, mp4]
+animate:
+  character: pip
+  motion: synthetic:max/walk/6
+  style: bruno
+  view: auto
+  fps: 24
+  n_vertices: 300
+  max_frames: 6
+  output: [mp4, gif, sheet]
 mlflow:
   experiment: {EXPERIMENT}
 """
@@ -225,7 +235,7 @@ def test_mlflow_has_stage_runs_and_nested_sweep_runs(pipeline):
     by_stage = runs.groupby("tags.nnsf.stage").size().to_dict()
     assert by_stage == {"frames": 1, "track": 1, "tracking": 1, "data": 1, "features": 1, "factorize": 1,
                         "evaluate": 1, "isomap": 1, "sweep": 1, "sweep-point": 4, "heldout": 1,
-                        "heldout-run": 3, "translate": 1, "reshape": 1}
+                        "heldout-run": 3, "translate": 1, "reshape": 1, "styles": 1, "animate": 1}
     experiment = mlflow.get_experiment_by_name(EXPERIMENT)
     assert experiment.artifact_location == (pipeline.root / "mlartifacts").as_uri()
 
@@ -237,6 +247,9 @@ def test_mlflow_has_stage_runs_and_nested_sweep_runs(pipeline):
         assert row["tags.prefect.flow_run_id"], stage
     evaluate_id = runs.loc[runs["tags.nnsf.stage"] == "evaluate", "run_id"].iloc[0]
     assert _artifact_files(client, evaluate_id, ".png"), "evaluate logged no figure"
+
+    styles_id = runs.loc[runs["tags.nnsf.stage"] == "styles", "run_id"].iloc[0]
+    assert _artifact_files(client, styles_id, "styles.npz"), "styles logged no model file"
 
     parent = runs.loc[runs["tags.nnsf.stage"] == "sweep", "run_id"].iloc[0]
     children = mlflow.search_runs(experiment_names=[EXPERIMENT],
@@ -343,6 +356,24 @@ def _wait_for(probe, seconds: float, proc: subprocess.Popen):
             pytest.fail(f"serve exited early:\n{proc.stdout.read()[-3000:]}")
         time.sleep(1)
     pytest.fail(f"timed out after {seconds} s")
+
+
+def test_changing_animate_style_reruns_only_animate(pipeline):
+    import cv2
+
+    params = yaml.safe_load((pipeline.root / "params.yaml").read_text())
+    params["animate"]["style"] = "olga"
+    (pipeline.root / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    status = run(DVC + ["status", "--json"], pipeline.root, pipeline.env)
+    assert set(json.loads(status.stdout)) == {"animate"}
+    rerun = run(FLOWS + ["repro"], pipeline.root, pipeline.env, timeout=600)
+    assert rerun.returncode == 0, rerun.stdout[-3000:] + rerun.stderr[-3000:]
+    assert stages_run(rerun.stdout) == {"animate"}
+    made = json.loads((pipeline.root / "reports/animate/animate.json").read_text())
+    assert made["style"] == "olga" and made["frames"] == 6
+    cap = cv2.VideoCapture(str(pipeline.root / "reports/animate/animation.mp4"))
+    assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == 6
+    cap.release()
 
 
 def test_changing_alpha_reruns_only_its_dependents(pipeline):

@@ -934,6 +934,44 @@ class StyleTranslator(BaseEstimator):
         style_name = self._check_style(style_name, "source")
         return self.encode(X_clip, style_name) @ self.style_bases_[style_name] + self.style_offsets_[style_name]
 
+    # ------------------------------------------------------- new clips, files
+    def translate_unseen(self, X_clip, target_style, source_style=None) -> np.ndarray:
+        """Features ``(n, d)`` of a clip of a style the model was not fitted on, in ``target_style``.
+
+        With ``source_style`` (a fitted style) this is :meth:`translate`.
+        Without, the clip is encoded with the pooled basis U₀ (no offset),
+        the style-neutral reading, and recombined with the target's basis and
+        offset: X̂ = V U_t + b_t, plus the clip's residual X − V U₀ with
+        ``keep_residual``.  The clip keeps its frames and timing.
+        """
+        check_is_fitted(self, "style_bases_")
+        if source_style is not None:
+            return self.translate(X_clip, source_style, target_style)
+        X_clip = self._check_X(X_clip, "StyleTranslator.translate_unseen")
+        target_style = self._check_style(target_style, "target")
+        V = self.encode(X_clip, None)
+        X_hat = V @ self.style_bases_[target_style] + self.style_offsets_[target_style]
+        if self.keep_residual:
+            X_hat += X_clip - V @ self.components_
+        return X_hat
+
+    def save(self, path, *, unifier=None, features_sha256=None, source="") -> Path:
+        """Write the fitted translator to one ``.npz`` (:mod:`nnsf.factor.style_model`); returns the path."""
+        from nnsf.factor.style_model import save_model
+
+        return save_model(self, path, unifier=unifier, features_sha256=features_sha256, source=source)
+
+    @classmethod
+    def load(cls, path) -> "StyleTranslator":
+        """A translator read from a file written by :meth:`save`.
+
+        Raises :class:`nnsf.errors.InputError` naming the file and what is
+        wrong (not a model, another format version, an array missing).
+        """
+        from nnsf.factor.style_model import load_model
+
+        return load_model(path)[0]
+
 
 # --------------------------------------------------------------------------- #
 # Back to pixels, and a quick look

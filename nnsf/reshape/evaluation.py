@@ -54,7 +54,7 @@ The Kenney real-frame check (:mod:`nnsf.reshape.kenney`) writes
 
 Run as a stage (:func:`reshape_eval`) or a script::
 
-    python -m nnsf.reshape.evaluation [--data ../shared/data] [--out reports]
+    python -m nnsf.reshape.evaluation --data DATA [--out reports]
 """
 from __future__ import annotations
 
@@ -293,7 +293,7 @@ def figure_widths(table: pd.DataFrame, path: Path) -> None:
         fig.savefig(tmp, format="png")
 
 
-def run(data_root=Path("../shared/data"), out_dir=Path("reports"), characters=CHARACTERS, motions=MOTIONS,
+def run(data_root, out_dir=Path("reports"), characters=CHARACTERS, motions=MOTIONS,
         n_vertices: int = 800, max_frames: int = 240, subkeys_per_limb: int = 4, kenney_annotations=None,
         mapper=None, azimuth=None, kenney_characters=None, kenney_vertices: int = 300) -> dict:
     """Evaluate and write the report files (module docstring); returns the summary dict.
@@ -410,7 +410,7 @@ def _safe_item(item: dict) -> dict:
         return {"item": f"{Path(item['character']).name} x {Path(item['motion']).stem}", "error": str(exc)}
 
 
-def reshape_eval(params: dict, data_root=Path("../shared/data"), out_dir=Path("reports"),
+def reshape_eval(params: dict, data_root, out_dir=Path("reports"),
                  kenney_annotations=Path("tests/data/kenney"), mapper=None):
     """Stage wrapper of :func:`run`; reads ``reshape_eval.{characters, motions, n_vertices, max_frames,
     subkeys_per_limb}`` (defaults: the module's constants, 800, 240, 4).  Raises one
@@ -459,7 +459,8 @@ def reshape_eval(params: dict, data_root=Path("../shared/data"), out_dir=Path("r
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description="Reshaping evaluation (SPEC §6.5-6.6)")
-    ap.add_argument("--data", type=Path, default=Path("../shared/data"))
+    ap.add_argument("--data", type=Path, required=True,
+                    help="folder holding animated-drawings/, bandai-namco-1/ and kenney-toon/")
     ap.add_argument("--out", type=Path, default=Path("reports"))
     ap.add_argument("--kenney", type=Path, default=Path("tests/data/kenney"))
     ap.add_argument("--vertices", type=int, default=800)

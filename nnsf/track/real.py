@@ -1,6 +1,6 @@
 """Tracking on real cartoon frames: the Kenney toon walk cycles, scored against alpha silhouettes.
 
-The frames (96×128 RGBA, exact alpha) stay in the shared data folder; the
+The frames (96×128 RGBA, exact alpha) are read from the folder given with --data; the
 keyframe annotations (walk0 and walk7, format v1) are hand-made files in
 ``tests/data/kenney/<character>.annotation.json``.  Frames are composited
 over a plain white background (as :func:`nnsf.frames.clips.read_clip` does)
@@ -201,7 +201,7 @@ def kenney_report(data_root, annotations_dir, out_dir, tol: float = 1.5, **optio
 
     data_root, out_dir = Path(data_root), Path(out_dir)
     if not data_root.is_dir():
-        raise InputError(data_root, "folder", "the kenney-toon folder of the shared data")
+        raise InputError(data_root, "folder", "the Kenney toon characters folder (female_adventurer/, robot/, ...)")
     table, tracked = track_kenney(data_root, annotations_dir, tol=tol, **options)
     if table.empty:
         raise InputError(annotations_dir, "annotations",

@@ -1,0 +1,104 @@
+"""End to end `nnsf animate`: a 10 s BVH clip at 30 fps onto a 512 px drawing, time per part.
+
+The drawing is AnimatedDrawings' char1 scaled so its longer side is 512 px
+(the built-in stick figure at 512 px when ``../shared/data`` is absent); the
+motion is the first 10 s of a Bandai-Namco walk (a synthetic 300-frame walk
+when absent), projected in the ``auto`` view and translated into a style of a
+model fitted on the embedded synthetic set (a small fit, not timed).  Parts:
+load (character + BVH + projection), translate, retarget, deform (mesh, rig
+and ARAP of every frame), render, encode (MP4).  Prints the fastest of
+``--repeat`` runs per part and the total; target: 10 s for the 300 frames.
+
+    .venv/bin/python benchmarks/bench_animate.py [--repeat 2] [--vertices 800] [--seconds 10]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+
+
+def _character(folder: Path):
+    from nnsf.animation import read_character
+    from nnsf.reshape.character import Character, stick_figure
+
+    src = DATA / "animated-drawings" / "characters" / "char1"
+    if not src.is_dir():
+        return stick_figure(height=512), "stick figure (512 px)"
+    ch = read_character(src)
+    s = 512.0 / max(ch.shape)
+    size = (int(round(ch.shape[1] * s)), int(round(ch.shape[0] * s)))
+    tex = cv2.resize(ch.texture, size, interpolation=cv2.INTER_AREA)
+    mask = cv2.resize(ch.mask.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
+    return Character(name="char1", texture=tex, mask=mask, keypoints=ch.keypoints * s,
+                     source=str(src)), f"char1 scaled to {size[0]}x{size[1]} px"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--vertices", type=int, default=800)
+    ap.add_argument("--seconds", type=float, default=10.0)
+    args = ap.parse_args(argv)
+
+    from nnsf.animation import Motion, animate_files, read_motion_spec
+    from nnsf.datasets import contract, synthetic
+    from nnsf.factor.style_model import StyleModel, fit_model, unify_table
+
+    fps = 30.0
+    n = int(round(args.seconds * fps))
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        raw = contract.validate(synthetic.generate(characters=4, clips_per_cell=1, frames=24, seed=0), "syn")
+        table, unifier = unify_table(raw, 0.5)
+        fit_model(table, unifier, dict(n_components=8, max_iter=60, align_iter=40), tmp / "m.npz")
+        model = StyleModel.load(tmp / "m.npz")
+        bvh = DATA / "bandai-namco-1" / "data" / "dataset-1_walk_normal_001.bvh"
+        best: dict[str, float] = {}
+        best_cpu: dict[str, float] = {}
+        for _ in range(args.repeat):
+            t, c = time.perf_counter(), time.process_time()
+            if bvh.is_file():
+                motion = read_motion_spec(bvh, view="auto", fps=fps)
+                what = f"{bvh.name}, view {motion.view}"
+                if len(motion.points) < n:  # loop the clip to the requested length
+                    k = -(-n // len(motion.points))
+                    motion.points = np.concatenate([motion.points] * k)[:n]
+                    motion.depth = np.concatenate([motion.depth] * k)[:n]
+            else:
+                motion = Motion("walk", synthetic.clip_points("max", "walk", n), fps)
+                what = "synthetic walk"
+            motion.points, motion.depth = motion.points[:n], None if motion.depth is None else motion.depth[:n]
+            ch, ch_what = _character(tmp)
+            load, load_cpu = time.perf_counter() - t, time.process_time() - c
+            res = animate_files(ch, motion, style="olga", model=model, out=tmp / "a.mp4",
+                                n_vertices=args.vertices, progress=False, outputs={"mp4": tmp / "a.mp4"})
+            res.seconds["load"] += load
+            res.seconds["total"] += load
+            res.cpu_seconds["load"] += load_cpu
+            res.cpu_seconds["total"] += load_cpu
+            for k, v in res.seconds.items():
+                best[k] = min(best.get(k, np.inf), v)
+                best_cpu[k] = min(best_cpu.get(k, np.inf), res.cpu_seconds[k])
+        cap = cv2.VideoCapture(str(tmp / "a.mp4"))
+        frames = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+        cap.release()
+    print(f"bench_animate: {res.frames} frames ({args.seconds:g} s at {fps:g} fps) of {what} onto {ch_what}, "
+          f"{args.vertices} vertices requested; {os.cpu_count()} cores, load average "
+          f"{os.getloadavg()[0]:.1f}; fastest of {args.repeat}")
+    print("  part       wall s  ms/frame   CPU s (this process; wall - CPU is time waiting for a core)")
+    for k in ("load", "translate", "retarget", "deform", "render", "encode", "total"):
+        print(f"  {k:9s} {best[k]:7.2f}  {1000 * best[k] / res.frames:7.1f}   {best_cpu[k]:7.2f}")
+    print(f"  target: 10 s wall for the {res.frames} frames; the MP4 holds {frames} frames")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

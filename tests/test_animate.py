@@ -1,0 +1,404 @@
+"""Saved style models, `nnsf translate()`, views, `nnsf styles` and `nnsf animate` (issue 13).
+
+Self-contained: the model is fitted on a small embedded synthetic set, the
+drawn character is the built-in stick figure written out in AnimatedDrawings'
+format.  Tests on the real AnimatedDrawings / Bandai-Namco / Kenney files
+read ``../shared/data`` and skip when it is absent.
+"""
+from __future__ import annotations
+
+import json
+import zipfile
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+from nnsf import cli
+from nnsf.datasets import contract, synthetic
+from nnsf.errors import InputError
+from nnsf.skeleton import JOINT_INDEX, JOINTS
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+AD = DATA / "animated-drawings"
+BN = DATA / "bandai-namco-1" / "data"
+needs_shared = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared data absent ({DATA})")
+
+#: AnimatedDrawings joint -> our key point, for writing a char_cfg.yaml.
+AD_FROM_OURS = {"root": "pelvis", "hip": "pelvis", "torso": "thorax", "neck": "neck",
+                "right_shoulder": "r_shoulder", "right_elbow": "r_elbow", "right_hand": "r_wrist",
+                "left_shoulder": "l_shoulder", "left_elbow": "l_elbow", "left_hand": "l_wrist",
+                "right_hip": "r_hip", "right_knee": "r_knee", "right_foot": "r_ankle",
+                "left_hip": "l_hip", "left_knee": "l_knee", "left_foot": "l_ankle"}
+
+
+# --------------------------------------------------------------------------- fixtures
+@pytest.fixture(scope="module")
+def model_file(tmp_path_factory):
+    from nnsf.factor.style_model import fit_model, unify_table
+
+    raw = contract.validate(synthetic.generate(characters=3, clips_per_cell=1, frames=16, seed=0), "syn")
+    raw = raw[raw["motion"].isin(["walk", "wave", "jump"])].reset_index(drop=True)
+    table, unifier = unify_table(raw, 0.5)
+    path = tmp_path_factory.mktemp("model") / "styles.npz"
+    tr = fit_model(table, unifier, dict(n_components=4, max_iter=40, align_iter=20, random_state=0), path)
+    return path, tr, table
+
+
+def write_ad_folder(folder: Path, height: int = 200, drop=None, move=None) -> Path:
+    """The stick figure as an AnimatedDrawings folder (texture.png, mask.png, char_cfg.yaml)."""
+    from nnsf.reshape.character import stick_figure
+
+    ch = stick_figure(height=height)
+    folder.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(folder / "texture.png"), cv2.cvtColor(ch.texture, cv2.COLOR_RGBA2BGRA))
+    cv2.imwrite(str(folder / "mask.png"), ch.mask.astype(np.uint8) * 255)
+    skel = []
+    for name, ours in AD_FROM_OURS.items():
+        if name == drop:
+            continue
+        loc = [int(round(v)) for v in ch.keypoints[JOINT_INDEX[ours]]]
+        if name == move:
+            loc = [ch.mask.shape[1] + 40, loc[1]]
+        skel.append({"name": name, "loc": loc, "parent": None})
+    (folder / "char_cfg.yaml").write_text(yaml.safe_dump(
+        {"width": ch.mask.shape[1], "height": ch.mask.shape[0], "skeleton": skel}))
+    return folder
+
+
+def run_cli(argv, capsys):
+    code = cli.main([str(a) for a in argv])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+# --------------------------------------------------------------------------- the model file
+def test_save_load_translates_bit_for_bit(model_file):
+    from nnsf.factor.style_model import StyleModel, translate
+    from nnsf.factor.translate import StyleTranslator
+
+    path, tr, table = model_file
+    loaded = StyleTranslator.load(path)
+    with np.load(path, allow_pickle=False) as z:      # no pickled object anywhere
+        assert "meta" in z.files
+    X = contract.features(table[table["clip"] == table["clip"].iloc[0]])
+    for style in tr.styles_:
+        assert np.array_equal(tr.translate_unseen(X, style), loaded.translate_unseen(X, style))
+        assert np.array_equal(tr.translate(X, tr.styles_[0], style), loaded.translate(X, tr.styles_[0], style))
+        assert np.array_equal(tr.synthesize("walk", style), loaded.synthesize("walk", style))
+    P = synthetic.clip_points("max", "walk", 20)
+    m = StyleModel.load(path)
+    assert np.array_equal(translate(P, "olga", m), translate(P, "olga", path))
+    meta = m.meta
+    assert meta["styles"] == ["bruno", "olga", "pip"] and meta["version"] == 1
+    assert meta["params"]["items"]  # the params that made it
+    assert meta["unifier"]["characters"].keys() == {"bruno", "olga", "pip"}
+
+
+def test_translate_returns_the_callers_coordinates(model_file):
+    """Scaling and shifting the input scales and shifts the output: the unification is undone."""
+    from nnsf import translate
+
+    path, _, _ = model_file
+    P = synthetic.clip_points("max", "walk", 20)
+    out = translate(P, "pip", path)
+    assert out.shape == P.shape and not np.allclose(out, P)
+    big = translate(10.0 * P + [300.0, -50.0], "pip", path)
+    np.testing.assert_allclose(big, 10.0 * out + [300.0, -50.0], rtol=1e-9, atol=1e-7)
+    assert np.array_equal(translate(P, "none", path), P)
+
+
+def _rewrite(path: Path, out: Path, meta_change=None, drop=None):
+    with np.load(path, allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files}
+    meta = json.loads(str(arrays["meta"][()]))
+    if meta_change:
+        meta.update(meta_change)
+    arrays["meta"] = np.array(json.dumps(meta))
+    if drop:
+        del arrays[drop]
+    np.savez(out, **arrays)
+    return out
+
+
+def test_model_file_errors_name_the_file_and_what_is_wrong(model_file, tmp_path):
+    from nnsf.factor.style_model import StyleModel
+
+    path, _, _ = model_file
+    bad = tmp_path / "corrupt.npz"
+    bad.write_bytes(path.read_bytes()[:500])
+    with pytest.raises(InputError, match=r"corrupt\.npz: file: expected a readable \.npz style model"):
+        StyleModel.load(bad)
+    with pytest.raises(InputError, match=r"v2\.npz: meta\.version: expected format version 1.*got 2"):
+        StyleModel.load(_rewrite(path, tmp_path / "v2.npz", {"version": 2}))
+    with pytest.raises(InputError, match=r"missing\.npz: array a3: .*missing"):
+        StyleModel.load(_rewrite(path, tmp_path / "missing.npz", drop="a3"))
+    text = tmp_path / "text.npz"
+    text.write_text("not a zip")
+    with pytest.raises(InputError, match="text.npz: file"):
+        StyleModel.load(text)
+    assert zipfile.is_zipfile(path)
+
+
+# --------------------------------------------------------------------------- views
+def test_auto_view_side_for_a_walk_front_for_a_wave():
+    from nnsf.datasets.views import pick_view, view_variances
+
+    t = np.linspace(0, 2 * np.pi, 60)
+    rest = np.random.default_rng(0).normal(size=(17, 3))
+    walk = np.repeat(rest[None], 60, axis=0)
+    walk[:, [3, 6], 2] += np.stack([np.sin(t), -np.sin(t)], axis=1) * 0.5    # ankles forward/back (z)
+    wave = np.repeat(rest[None], 60, axis=0)
+    wave[:, 16, 0] += 0.5 * np.sin(3 * t)                                    # a wrist across the body (x)
+
+    def front(P):  # the front view's image x, y and depth (elevation 0)
+        return np.stack([P[..., 0], -P[..., 1]], -1), -P[..., 2]
+
+    assert pick_view(*front(walk)) == "side"
+    assert pick_view(*front(wave)) == "front"
+    diag = np.repeat(rest[None], 60, axis=0)
+    diag[:, 16, 0] += 0.5 * np.sin(t)
+    diag[:, 16, 2] -= 0.5 * np.sin(t)      # along x - z: the 45° image axis
+    var = view_variances(*front(diag))
+    assert max(var, key=var.get) == "three-quarter"
+
+
+@needs_shared
+def test_auto_view_on_real_clips():
+    from nnsf.datasets.views import load_clip_in_view
+
+    _, walk = load_clip_in_view(BN / "dataset-1_walk_normal_001.bvh", "auto")
+    _, wave = load_clip_in_view(AD / "bvh" / "fair1" / "wave_hello.bvh", "auto")
+    assert (walk, wave) == ("side", "front")
+
+
+def test_bad_view_is_a_one_line_error(tmp_path, capsys):
+    params = Path(__file__).resolve().parents[1] / "params.yaml"
+    p = yaml.safe_load(params.read_text())
+    p["dataset"]["bvh"]["view"] = "diagonal"
+    (tmp_path / "params.yaml").write_text(yaml.safe_dump(p))
+    code, _, err = run_cli(["check", "--params", tmp_path / "params.yaml"], capsys)
+    assert code == 2 and err.count("\n") == 1 and "dataset.bvh.view" in err and "three-quarter" in err
+    code, _, err = run_cli(["animate", "--character", "pip", "--motion", "synthetic:max/walk/8",
+                            "--view", "diagonal", "--out", tmp_path / "a.mp4"], capsys)
+    assert code == 2 and err.count("\n") == 1 and "--view" in err and not (tmp_path / "a.mp4").exists()
+
+
+# --------------------------------------------------------------------------- nnsf animate
+def _frames(path: Path) -> int:
+    cap = cv2.VideoCapture(str(path))
+    n = 0
+    while cap.read()[0]:
+        n += 1
+    cap.release()
+    return n
+
+
+def test_animate_an_animated_drawings_folder_end_to_end(model_file, tmp_path, capsys):
+    path, _, _ = model_file
+    char = write_ad_folder(tmp_path / "stick")
+    out = tmp_path / "out" / "stick.mp4"
+    code, stdout, err = run_cli(["animate", "--character", char, "--motion", "synthetic:max/jump/16",
+                                 "--style", "olga", "--model", path, "--out", out, "--vertices", "300"], capsys)
+    assert code == 0, err
+    assert _frames(out) == 16
+    sheet = cv2.imread(str(out.with_name("stick_sheet.png")))
+    assert sheet is not None and sheet.shape[0] > 50
+    for part in ("load", "translate", "retarget", "deform", "render", "encode"):
+        assert f"{part} " in stdout
+    assert str(out) in stdout and "rendered frame 16/16" in err
+    gif = tmp_path / "out" / "stick.gif"
+    assert run_cli(["animate", "--character", char / "char_cfg.yaml", "--motion", "synthetic:max/wave/8",
+                    "--out", gif, "--vertices", "300"], capsys)[0] == 0
+    from PIL import Image
+    assert Image.open(gif).n_frames == 8
+    frames = tmp_path / "out" / "frames"
+    assert run_cli(["animate", "--character", char, "--motion", "synthetic:max/wave/6", "--out", frames,
+                    "--vertices", "300", "--fps", "12"], capsys)[0] == 0
+    # 6 frames of the built-in 24 fps clip last 0.25 s: 3 frames at 12 fps
+    assert len(list(frames.glob("*.png"))) == 3
+
+
+def test_animate_a_png_with_a_joints_yaml(tmp_path, capsys):
+    from nnsf.reshape.character import stick_figure
+
+    ch = stick_figure(height=160)
+    cv2.imwrite(str(tmp_path / "hero.png"), cv2.cvtColor(ch.texture, cv2.COLOR_RGBA2BGRA))
+    joints = {j: [float(x), float(y)] for j, (x, y) in zip(JOINTS, ch.keypoints) if j != "spine"}
+    (tmp_path / "hero.yaml").write_text(yaml.safe_dump({"name": "hero", "joints": joints}))
+    out = tmp_path / "hero.mp4"
+    code, _, err = run_cli(["animate", "--character", tmp_path / "hero.png", "--motion", "synthetic:max/walk/10",
+                            "--out", out, "--vertices", "300"], capsys)
+    assert code == 0, err
+    assert _frames(out) == 10
+    # the YAML alone, naming its image
+    (tmp_path / "hero2.yaml").write_text(yaml.safe_dump({"image": "hero.png", "joints": joints}))
+    assert run_cli(["animate", "--character", tmp_path / "hero2.yaml", "--motion", "synthetic:max/walk/4",
+                    "--out", tmp_path / "h2.gif", "--vertices", "300"], capsys)[0] == 0
+
+
+def test_animate_a_feature_matrix_csv(tmp_path, capsys):
+    """Any 17-point clip in the contract: here one synthetic clip of a multi-clip table."""
+    table = contract.validate(synthetic.generate(characters=2, clips_per_cell=1, frames=10, seed=0), "syn")
+    csv = tmp_path / "motion.csv"
+    contract.write_table(csv, table[table["motion"].isin(["walk", "wave"])])
+    clip = sorted(table.loc[table["motion"] == "wave", "clip"])[0]
+    out = tmp_path / "csv.mp4"
+    code, stdout, err = run_cli(["animate", "--character", "pip", "--motion", csv, "--clip", clip,
+                                 "--out", out, "--vertices", "300"], capsys)
+    assert code == 0, err
+    assert _frames(out) == 10 and f"of {clip} at 24 fps" in err
+
+
+def _bad(capsys, argv, *needles, out=None):
+    code, stdout, err = run_cli(argv, capsys)
+    assert code == 2, (code, err)
+    assert err.startswith("error: ") and err.count("\n") == 1, err
+    for n in needles:
+        assert str(n) in err, (n, err)
+    if out is not None:
+        assert not Path(out).exists() and not Path(out).with_name(Path(out).stem + "_sheet.png").exists()
+    return err
+
+
+def test_bad_input_one_line_exit_2_nothing_written(model_file, tmp_path, capsys):
+    path, _, _ = model_file
+    out = tmp_path / "o.mp4"
+    base = ["animate", "--motion", "synthetic:max/walk/8", "--out", out, "--vertices", "300"]
+    # a character folder without a mask
+    f = write_ad_folder(tmp_path / "nomask")
+    (f / "mask.png").unlink()
+    _bad(capsys, base + ["--character", f], "nomask", "mask.png", out=out)
+    # an empty mask
+    f = write_ad_folder(tmp_path / "empty")
+    cv2.imwrite(str(f / "mask.png"), np.zeros(cv2.imread(str(f / "mask.png")).shape[:2], np.uint8))
+    _bad(capsys, base + ["--character", f], "empty", "mask", "empty mask", out=out)
+    # a texture whose size differs from the mask's
+    f = write_ad_folder(tmp_path / "size")
+    tex = cv2.imread(str(f / "texture.png"), cv2.IMREAD_UNCHANGED)
+    cv2.imwrite(str(f / "texture.png"), cv2.resize(tex, (tex.shape[1] + 10, tex.shape[0])))
+    _bad(capsys, base + ["--character", f], "size", "mask", "texture's size", out=out)
+    # a joint outside the image, a missing joint
+    f = write_ad_folder(tmp_path / "outside", move="left_hand")
+    _bad(capsys, base + ["--character", f], "char_cfg.yaml", "skeleton.left_hand.loc", "inside the", out=out)
+    f = write_ad_folder(tmp_path / "missing", drop="left_knee")
+    _bad(capsys, base + ["--character", f], "char_cfg.yaml", "skeleton", "missing joints: left_knee", out=out)
+    # a YAML with a python tag
+    f = write_ad_folder(tmp_path / "tag")
+    (f / "char_cfg.yaml").write_text("width: !!python/object/apply:os.system ['echo hi']\nskeleton: []\n")
+    _bad(capsys, base + ["--character", f], "char_cfg.yaml", "line 1", "python", out=out)
+    png_yaml = tmp_path / "tag.yaml"
+    png_yaml.write_text("joints: !!python/name:os.system\n")
+    _bad(capsys, base + ["--character", png_yaml], "tag.yaml", out=out)
+    # a BVH whose skeleton cannot be mapped
+    bvh = tmp_path / "odd.bvh"
+    bvh.write_text("HIERARCHY\nROOT Blob\n{\n OFFSET 0 0 0\n CHANNELS 3 Xposition Yposition Zposition\n"
+                   " JOINT Tentacle\n {\n  OFFSET 0 10 0\n  CHANNELS 3 Zrotation Xrotation Yrotation\n"
+                   "  End Site\n  {\n   OFFSET 0 5 0\n  }\n }\n}\nMOTION\nFrames: 2\nFrame Time: 0.033333\n"
+                   "0 0 0 0 0 0\n0 0 0 0 0 0\n")
+    char = write_ad_folder(tmp_path / "ok")
+    _bad(capsys, ["animate", "--character", char, "--motion", bvh, "--out", out],
+         "odd.bvh", "joint names", "closest is", out=out)
+    # a style the model does not know (the known ones listed)
+    _bad(capsys, base + ["--character", char, "--style", "zorro", "--model", path],
+         "styles.npz", "--style", "bruno, olga, pip", "zorro", out=out)
+    # a model file of another format version
+    v2 = _rewrite(path, tmp_path / "v2.npz", {"version": 2})
+    _bad(capsys, base + ["--character", char, "--style", "olga", "--model", v2],
+         "v2.npz", "meta.version", out=out)
+    # an unknown motion source, a bad output kind
+    _bad(capsys, base + ["--character", char, "--motion", "synthetic:max/moonwalk"], "moonwalk", out=out)
+    _bad(capsys, ["animate", "--character", char, "--motion", "synthetic:max/walk/4", "--out", tmp_path / "x.avi"],
+         "x.avi", "--out")
+
+
+def test_reshape_eval_and_tracking_real_need_data(capsys):
+    for command in ("reshape-eval", "tracking-real"):
+        with pytest.raises(SystemExit) as exc:
+            cli.main([command])
+        assert exc.value.code == 2
+        assert "--data" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------- real characters
+@needs_shared
+@pytest.mark.parametrize("name", ["char1", "char2", "char3", "char4", "char5"])
+def test_every_animated_drawings_character_loads(name):
+    from nnsf.animation import read_character
+
+    ch = read_character(AD / "characters" / name)
+    assert ch.keypoints.shape == (17, 2) and ch.mask.any()
+
+
+@needs_shared
+def test_char6_is_refused_naming_its_joints():
+    """char6 has four legs and no arms: refused, the joints named, one line."""
+    from nnsf.animation import read_character
+
+    with pytest.raises(InputError) as exc:
+        read_character(AD / "characters" / "char6")
+    text = str(exc.value)
+    assert "char_cfg.yaml: skeleton" in text and "right_hip_b" in text and "left_foot_f" in text
+    assert "missing joints: right_shoulder" in text and "\n" not in text
+
+
+@needs_shared
+def test_char5_maps_the_arm_nearest_the_chest_and_says_so():
+    """char5 has three arms a side: arm 3 (shoulders nearest the chest) drives each arm."""
+    from nnsf.animation import read_character
+    from nnsf.reshape.character import points_in_mask
+
+    ch = read_character(AD / "characters" / "char5")
+    cfg = yaml.safe_load((AD / "characters" / "char5" / "char_cfg.yaml").read_text())
+    loc = {j["name"]: j["loc"] for j in cfg["skeleton"]}
+    assert ch.keypoints[JOINT_INDEX["r_wrist"]].tolist() == loc["right_hand3"]
+    assert ch.keypoints[JOINT_INDEX["l_shoulder"]].tolist() == loc["left_shoulder3"]
+    assert any("right arm 3 drives the right arm; arms 1, 2 move with the body" in n for n in ch.notes)
+    assert points_in_mask(ch.mask, ch.keypoints).all()
+
+
+@needs_shared
+def test_kenney_frame_with_the_hand_made_joints(tmp_path, capsys):
+    png = DATA / "kenney-toon" / "robot" / "robot_idle.png"
+    joints = Path(__file__).resolve().parent / "data" / "kenney" / "robot.keypoints.json"
+    out = tmp_path / "robot.mp4"
+    code, _, err = run_cli(["animate", "--character", png, "--joints", joints, "--motion", "synthetic:max/walk/8",
+                            "--out", out, "--vertices", "200"], capsys)
+    assert code == 0, err
+    assert _frames(out) == 8
+
+
+@needs_shared
+def test_dataset_bvh_view_names_an_azimuth_and_auto_picks_one_for_the_folder(tmp_path):
+    from nnsf import stages
+
+    folder = tmp_path / "bvh"
+    folder.mkdir()
+    for style in ("normal", "old"):
+        name = f"dataset-1_walk_{style}_001.bvh"
+        (folder / name).symlink_to(BN / name)
+    base = {"seed": 0, "dataset": {"name": "bvh", "path": str(folder), "bvh": {
+        "fps": 15, "azimuth": 90.0, "elevation": 0.0, "facing": "normalise", "center": True,
+        "complete_grid": True}}}
+    by_azimuth = stages.data(base, out_dir=tmp_path / "a")
+    side = {**base, "dataset": {**base["dataset"], "bvh": {**base["dataset"]["bvh"], "azimuth": 0.0,
+                                                              "view": "side"}}}
+    stages.data(side, out_dir=tmp_path / "b")
+    auto = {**base, "dataset": {**base["dataset"], "bvh": {**base["dataset"]["bvh"], "view": "auto"}}}
+    result = stages.data(auto, out_dir=tmp_path / "c")
+    a, b, c = (contract.read_table(tmp_path / d / "keypoints.csv") for d in "abc")
+    assert a.equals(b) and a.equals(c)            # a walk: auto takes the side view
+    assert result.params["bvh_view"] == "side" and by_azimuth.params["bvh_azimuth"] == 90.0
+
+
+def test_the_model_records_the_view_its_styles_were_learned_in():
+    from nnsf.factor.style_model import dataset_view
+
+    bvh = {"name": "bvh", "bvh": {"azimuth": 0.0}}
+    assert dataset_view({"dataset": {"name": "synthetic"}}) is None
+    assert dataset_view({"dataset": bvh}) == "front"
+    assert dataset_view({"dataset": {**bvh, "bvh": {"azimuth": 90.0, "view": None}}}) == "side"
+    assert dataset_view({"dataset": {**bvh, "bvh": {"azimuth": 30.0}}}) == "azimuth 30"
+    assert dataset_view({"dataset": {**bvh, "bvh": {"azimuth": 0.0, "view": "auto"}}}) == "auto"
