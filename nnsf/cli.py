@@ -1,6 +1,8 @@
 """The ``nnsf`` command: each pipeline stage as a plain command, without orchestration.
 
     nnsf frames|track|tracking|data|features|factorize|evaluate|isomap|heldout [--params FILE]
+    nnsf track [--export-cvat DIR] [--corrections FILE.xml [--clip CLIP]]
+                                        tracks out to CVAT; corrected frames back in as keyframes
     nnsf sweep [--params FILE]          every sweep point in turn, a CSV on stdout
     nnsf check [--params FILE]          validate params.yaml and exit
     nnsf translate --clip CLIP --style STYLE [--out DIR]
@@ -42,6 +44,13 @@ def _parser() -> argparse.ArgumentParser:
     for name in STAGES + ("sweep", "check"):
         p = sub.add_parser(name, help=f"the {name} stage" if name in STAGES else None)
         p.add_argument("--params", default="params.yaml", help="parameters file (default: params.yaml)")
+        if name == "track":
+            p.add_argument("--corrections", type=Path, default=None, metavar="FILE.xml",
+                           help="a CVAT for video 1.1 file of corrected tracks: its corrected frames "
+                                "become keyframes and only the intervals they touch are re-tracked")
+            p.add_argument("--clip", default=None, help="the clip of --corrections (default: its task name)")
+            p.add_argument("--export-cvat", type=Path, default=None, metavar="DIR",
+                           help="also write DIR/<clip>.xml (CVAT for video 1.1) of every clip's tracks")
 
     p = sub.add_parser("translate", help="one clip's motion performed in another style")
     p.add_argument("--params", default="params.yaml")
@@ -147,6 +156,24 @@ def main(argv: list[str] | None = None) -> int:
             print(f"tracking-real: keyframe ceiling = {summary['ceiling']:.3f}; "
                   f"wrote {args.out / 'tracking_kenney.json'}")
             return 0
+        elif args.command == "track" and (args.corrections or args.export_cvat):
+            from nnsf.track.correct import apply_corrections, export_clips
+
+            if args.corrections is not None:
+                done = apply_corrections(params, args.corrections, stages.FRAMES_DIR,
+                                         stages.TRACKS_DIR, clip=args.clip)
+                print(f"track: {done['clip']}: corrected frames {done['corrected_frames']}; "
+                      f"re-tracked intervals {done['resolved_intervals']}; wrote {done['curves']}")
+                from nnsf.frames.stage import keypoints_from_tracks
+
+                result = keypoints_from_tracks(params, frames_dir=stages.FRAMES_DIR,
+                                               tracks_dir=stages.TRACKS_DIR,
+                                               out_dir=stages.TRACKED_DIR)
+            else:
+                result = stages.track(params)
+            if args.export_cvat is not None:
+                out = export_clips(stages.FRAMES_DIR, stages.TRACKS_DIR, args.export_cvat)
+                print(f"track: wrote {len(out)} CVAT for video 1.1 files to {args.export_cvat}/")
         else:
             result = getattr(stages, args.command)(params)
         _print_metrics(args.command, result.metrics)

@@ -98,7 +98,7 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "track.samples": _int(3),
     "track.levels": _int(1),
     "track.max_iter": _int(1),
-    "track.init": _choice(("linear", "lk")),
+    "track.init": _choice(("linear", "lk", "flow")),
     "track.lk_end": _choice(("blend", "none")),
     "track.eval_clips": _int(1),
     "track.edit_tol_px": _num(0, strict=True),
