@@ -11,8 +11,9 @@
                                         a drawn character performing a motion clip
     nnsf reshape-eval [--data DIR] [--out DIR]
                                         the reshaping evaluation on the shared drawn characters
-    nnsf tracking-real [--data DIR] [--out DIR]
-                                        the trackers on the Kenney toon walk cycles vs their silhouettes
+    nnsf tracking-real [--data DIR] [--out DIR] [--lpc DIR]
+                                        the trackers on the Kenney toon walk cycles (or the LPC
+                                        sprite sheets' walk rows) vs their silhouettes
 
 The same stages run as Prefect flows with MLflow logging through
 ``python -m flows <stage>`` (what ``dvc repro`` calls).  Exit codes: 0 done,
@@ -84,6 +85,10 @@ def _parser() -> argparse.ArgumentParser:
                    help="hand-made keyframe annotations, <character>.annotation.json")
     p.add_argument("--out", type=Path, default=Path("reports"))
     p.add_argument("--tol", type=float, default=1.5, help="px from the silhouette boundary that counts as on it")
+    p.add_argument("--lpc", type=Path, default=None, metavar="DIR",
+                   help="instead: the LPC sprite sheets' walk rows in DIR (the lpc-bodies folder)")
+    p.add_argument("--lpc-annotations", type=Path, default=Path("tests/data/lpc"),
+                   help="hand-made LPC keyframe annotations, <body>.annotation.json")
     return parser
 
 
@@ -144,8 +149,14 @@ def main(argv: list[str] | None = None) -> int:
             from nnsf.track.real import kenney_report
             from nnsf.track.stage import track_options
 
-            summary = kenney_report(args.data, args.annotations, args.out, tol=args.tol,
-                                    **track_options(params))
+            if args.lpc is not None:
+                from nnsf.track.lpc import lpc_report
+
+                summary = lpc_report(args.lpc, args.lpc_annotations, args.out, tol=args.tol,
+                                     **track_options(params))
+            else:
+                summary = kenney_report(args.data, args.annotations, args.out, tol=args.tol,
+                                        **track_options(params))
             for tracker, score in summary["trackers"].items():
                 extra = ""
                 if tracker in summary.get("coverage", {}):
@@ -153,8 +164,9 @@ def main(argv: list[str] | None = None) -> int:
                              f"{summary['length_ratio'][tracker]:.3f}")
                 print(f"tracking-real: {tracker} = {score:.3f} of outline samples within {args.tol:g} px "
                       f"of the silhouette{extra}")
+            name = "tracking_lpc.json" if args.lpc is not None else "tracking_kenney.json"
             print(f"tracking-real: keyframe ceiling = {summary['ceiling']:.3f}; "
-                  f"wrote {args.out / 'tracking_kenney.json'}")
+                  f"wrote {args.out / name}")
             return 0
         elif args.command == "track" and (args.corrections or args.export_cvat):
             from nnsf.track.correct import apply_corrections, export_clips
