@@ -275,7 +275,8 @@ def linear_init(P: np.ndarray, fixed: np.ndarray) -> np.ndarray:
 
 def solve_interval(pyramid: list[LevelImages], P: np.ndarray, fixed: np.ndarray,
                    opts: TrackOptions, use_image_terms: bool = True,
-                   levels: int | None = None, frame0: np.ndarray | None = None) -> np.ndarray:
+                   levels: int | None = None, frame0: np.ndarray | None = None,
+                   motion_prior: np.ndarray | None = None) -> np.ndarray:
     """Solve the space-time problem of G curves over one interval, coarse to fine.
 
     pyramid : the interval's frames as from :func:`build_pyramid`, finest first
@@ -286,6 +287,8 @@ def solve_interval(pyramid: list[LevelImages], P: np.ndarray, fixed: np.ndarray,
     levels  : how many pyramid levels to use (default all of ``pyramid``).
     frame0  : (G,) index in ``pyramid`` of each curve's first frame (default 0),
               so curves of several intervals of equal length solve together.
+    motion_prior : optional (G, T, C, 2) full-resolution track (the flow init)
+              whose frame-to-frame motion the velocity term takes as its zero.
     Returns (G, T, C, 2) full-resolution control points.
     """
     P = np.asarray(P, np.float64).copy()
@@ -300,7 +303,9 @@ def solve_interval(pyramid: list[LevelImages], P: np.ndarray, fixed: np.ndarray,
         Pl = _to_level(P, L.scale)
         prob = SpaceTimeProblem(L, Pl, fixed, w, n_samples=opts.n_samples, K=opts.K,
                                 use_image_terms=use_image_terms, frame0=frame0,
-                                length_anchor=opts.length_anchor)
+                                length_anchor=opts.length_anchor,
+                                motion_prior=None if motion_prior is None
+                                else _to_level(motion_prior, L.scale))
         if opts.solver == "lm":
             x, _ = levenberg_marquardt(prob, prob.x0(), max_iter=opts.max_nfev, ftol=opts.ftol,
                                       max_step=opts.max_step)
@@ -419,16 +424,17 @@ class ClipTracker:
         opts = self.opts
         if self.method == "lk":
             return self.lk(P, fixed, frame0, opts.lk_end)
+        prior = None
         if not warm:
             if opts.init == "lk":
                 P = self.lk(P, fixed, frame0, "blend")
             elif opts.init == "flow":
-                P = flow_init(*self.flows, P, fixed, frame0)
+                P = prior = flow_init(*self.flows, P, fixed, frame0)
             else:
                 P = linear_init(P, fixed)
         return solve_interval(self.pyramid, P, fixed, opts,
                               use_image_terms=(self.method == "ours"),
-                              levels=1 if warm else None, frame0=frame0)
+                              levels=1 if warm else None, frame0=frame0, motion_prior=prior)
 
 
 def assemble(T: int, names: list[str], kfs: dict, batches: list[Batch],
