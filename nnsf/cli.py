@@ -1,6 +1,8 @@
 """The ``nnsf`` command: each pipeline stage as a plain command, without orchestration.
 
     nnsf frames|track|tracking|data|features|factorize|evaluate|isomap|heldout [--params FILE]
+    nnsf track [--export-cvat DIR] [--corrections FILE.xml [--clip CLIP]]
+                                        tracks out to CVAT; corrected frames back in as keyframes
     nnsf sweep [--params FILE]          every sweep point in turn, a CSV on stdout
     nnsf check [--params FILE]          validate params.yaml and exit
     nnsf translate --clip CLIP --style STYLE [--out DIR]
@@ -15,8 +17,9 @@
     nnsf reshape-eval --data DIR [--out DIR]
                                         the reshaping evaluation on drawn characters (AnimatedDrawings,
                                         Bandai-Namco, Kenney folders under DIR)
-    nnsf tracking-real --data DIR [--out DIR]
-                                        the trackers on the Kenney toon walk cycles vs their silhouettes
+    nnsf tracking-real --data DIR [--out DIR] [--lpc DIR]
+                                        the trackers on the Kenney toon walk cycles (or the LPC
+                                        sprite sheets' walk rows) vs their silhouettes
 
 The same stages run as Prefect flows with MLflow logging through
 ``python -m flows <stage>`` (what ``dvc repro`` calls).  Exit codes: 0 done,
@@ -53,6 +56,13 @@ def _parser() -> argparse.ArgumentParser:
     for name in STAGES + ("sweep", "check"):
         p = sub.add_parser(name, help=f"the {name} stage" if name in STAGES else None)
         p.add_argument("--params", default="params.yaml", help="parameters file (default: params.yaml)")
+        if name == "track":
+            p.add_argument("--corrections", type=Path, default=None, metavar="FILE.xml",
+                           help="a CVAT for video 1.1 file of corrected tracks: its corrected frames "
+                                "become keyframes and only the intervals they touch are re-tracked")
+            p.add_argument("--clip", default=None, help="the clip of --corrections (default: its task name)")
+            p.add_argument("--export-cvat", type=Path, default=None, metavar="DIR",
+                           help="also write DIR/<clip>.xml (CVAT for video 1.1) of every clip's tracks")
 
     p = sub.add_parser("translate", help="one clip's motion performed in another style")
     p.add_argument("--params", default="params.yaml")
@@ -109,12 +119,17 @@ def _parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("tracking-real", help="the trackers on real cartoon frames (Kenney toon walk cycles)")
     p.add_argument("--params", default="params.yaml")
-    p.add_argument("--data", type=Path, required=True,
-                   help="the Kenney toon characters folder (female_adventurer/, robot/, ...)")
+    p.add_argument("--data", type=Path, default=None,
+                   help="the Kenney toon characters folder (female_adventurer/, robot/, ...); "
+                        "required unless --lpc is given")
     p.add_argument("--annotations", type=Path, default=Path("tests/data/kenney"),
                    help="hand-made keyframe annotations, <character>.annotation.json")
     p.add_argument("--out", type=Path, default=Path("reports"))
     p.add_argument("--tol", type=float, default=1.5, help="px from the silhouette boundary that counts as on it")
+    p.add_argument("--lpc", type=Path, default=None, metavar="DIR",
+                   help="instead: the LPC sprite sheets' walk rows in DIR (the lpc-bodies folder)")
+    p.add_argument("--lpc-annotations", type=Path, default=Path("tests/data/lpc"),
+                   help="hand-made LPC keyframe annotations, <body>.annotation.json")
     return parser
 
 
@@ -212,8 +227,17 @@ def main(argv: list[str] | None = None) -> int:
             from nnsf.track.real import kenney_report
             from nnsf.track.stage import track_options
 
-            summary = kenney_report(args.data, args.annotations, args.out, tol=args.tol,
-                                    **track_options(params))
+            if args.lpc is None and args.data is None:
+                raise InputError("nnsf tracking-real", "--data",
+                                 "the Kenney toon characters folder (or --lpc DIR for the LPC sheets)")
+            if args.lpc is not None:
+                from nnsf.track.lpc import lpc_report
+
+                summary = lpc_report(args.lpc, args.lpc_annotations, args.out, tol=args.tol,
+                                     **track_options(params))
+            else:
+                summary = kenney_report(args.data, args.annotations, args.out, tol=args.tol,
+                                        **track_options(params))
             for tracker, score in summary["trackers"].items():
                 extra = ""
                 if tracker in summary.get("coverage", {}):
@@ -221,9 +245,28 @@ def main(argv: list[str] | None = None) -> int:
                              f"{summary['length_ratio'][tracker]:.3f}")
                 print(f"tracking-real: {tracker} = {score:.3f} of outline samples within {args.tol:g} px "
                       f"of the silhouette{extra}")
+            name = "tracking_lpc.json" if args.lpc is not None else "tracking_kenney.json"
             print(f"tracking-real: keyframe ceiling = {summary['ceiling']:.3f}; "
-                  f"wrote {args.out / 'tracking_kenney.json'}")
+                  f"wrote {args.out / name}")
             return 0
+        elif args.command == "track" and (args.corrections or args.export_cvat):
+            from nnsf.track.correct import apply_corrections, export_clips
+
+            if args.corrections is not None:
+                done = apply_corrections(params, args.corrections, stages.FRAMES_DIR,
+                                         stages.TRACKS_DIR, clip=args.clip)
+                print(f"track: {done['clip']}: corrected frames {done['corrected_frames']}; "
+                      f"re-tracked intervals {done['resolved_intervals']}; wrote {done['curves']}")
+                from nnsf.frames.stage import keypoints_from_tracks
+
+                result = keypoints_from_tracks(params, frames_dir=stages.FRAMES_DIR,
+                                               tracks_dir=stages.TRACKS_DIR,
+                                               out_dir=stages.TRACKED_DIR)
+            else:
+                result = stages.track(params)
+            if args.export_cvat is not None:
+                out = export_clips(stages.FRAMES_DIR, stages.TRACKS_DIR, args.export_cvat)
+                print(f"track: wrote {len(out)} CVAT for video 1.1 files to {args.export_cvat}/")
         else:
             result = getattr(stages, args.command)(params)
         _print_metrics(args.command, result.metrics)

@@ -171,7 +171,7 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "track.samples": _int(3, 200),
     "track.levels": _int(1, 8),
     "track.max_iter": _int(1, 10000),
-    "track.init": _choice(("linear", "lk")),
+    "track.init": _choice(("linear", "lk", "flow")),
     "track.lk_end": _choice(("blend", "none")),
     "track.eval_clips": _int(1, 1000),
     "track.edit_tol_px": _num(0, 1000, strict=True),

@@ -65,7 +65,7 @@ def test_a_bad_clip_is_reported_and_the_others_are_kept(frames_dir, tmp_path):
 
 
 def test_bad_track_params_name_the_field(frames_dir, tmp_path):
-    for key, value in (("w_sketch", -1.0), ("window", 2.5), ("method", "snake"), ("init", "flow")):
+    for key, value in (("w_sketch", -1.0), ("window", 2.5), ("method", "snake"), ("init", "spline")):
         params = {**PARAMS, "track": {**TRACK, key: value}}
         with pytest.raises(InputError, match=f"track.{key}"):
             track_clips(params, frames_dir, tmp_path / "tracks")

@@ -226,7 +226,8 @@ class SpaceTimeProblem:
 
     def __init__(self, images: LevelImages, P0: np.ndarray, fixed: np.ndarray, weights: Weights,
                  n_samples: int = 12, K: int = 3, use_image_terms: bool = True,
-                 frame0: np.ndarray | None = None, length_anchor: float = 4.0):
+                 frame0: np.ndarray | None = None, length_anchor: float = 4.0,
+                 motion_prior: np.ndarray | None = None):
         P0 = np.asarray(P0, dtype=np.float64)
         self.G, self.T, self.C, _ = P0.shape
         self.frame0 = np.zeros(self.G, np.intp) if frame0 is None else \
@@ -255,6 +256,13 @@ class SpaceTimeProblem:
         spk = np.maximum(np.linalg.norm(D1k, axis=-1), 1e-3)               # (G, 2, n)
         lam = (np.arange(1, self.T - 1) / (self.T - 1.0))[None, :, None]
         self.ell = (1 - lam) * spk[:, :1] + lam * spk[:, 1:]               # (G, T-2, n)
+        # the velocity term penalises the change of each sample between frames minus
+        # that of ``motion_prior`` (e.g. the flow init): motion is then judged against
+        # the flow, not against standing still, which punished fast limbs (a jump)
+        self.vref = None
+        if motion_prior is not None:
+            S0 = np.einsum("nc,gtcd->gtnd", self.B0, np.asarray(motion_prior, np.float64))
+            self.vref = S0[:, :-1] - S0[:, 1:]                            # (G, T-1, n, 2)
         self._pattern = None
         # Kn[n, (j, d), (a, d')] = Bs[a, n, j] δ(d, d'): maps a ribbon row's (u, v) to columns
         Bs = np.stack([self.B0, self.B1])                                 # (2, n, C)
@@ -321,7 +329,10 @@ class SpaceTimeProblem:
 
         # velocity and curvature (linear)
         for M, s, V in ((B0, sV, S), (B2, sC, D2)):
-            r = (s * (V[:, :-1] - V[:, 1:])).reshape(G, T - 1, 2 * n)
+            dv = V[:, :-1] - V[:, 1:]
+            if V is S and self.vref is not None:
+                dv = dv - self.vref
+            r = (s * dv).reshape(G, T - 1, 2 * n)
             J = lin(M, s) if jacobian else None
             out.append(Block(r, J, 0, None if J is None else -J))
         # length (see the module notes): (n-1)(|c_t'| - |c_{t+1}'|) between adjacent

@@ -13,18 +13,19 @@
   below 1 flags shrinking tracks);
 * key-point PCK at 0.05 × torso length (key points derived from the tracked
   curves by :mod:`nnsf.frames.keypoints`);
-* the simulated user's edit ratio (the paper's Fig. 4a): the user snaps the
-  worst control point of a curve to the truth, which becomes a hard
-  constraint, and the tracker re-solves; edits are counted until every
+* the simulated user's edit ratio (the paper's Fig. 4a): the correction
+  loop of :mod:`nnsf.track.correct` — the user corrects the worst frame of
+  each interval (the control points off by more than ``tol`` px), it
+  becomes a keyframe, the touched intervals are re-tracked — until every
   control point of the in-between frames is within ``tol`` px of the truth.
-  ratio = edits / (control points × in-between frames).
+  ratio = edited control points / (control points × in-between frames).
 """
 from __future__ import annotations
 
 import numpy as np
 
 from nnsf.track import curves
-from nnsf.track.solve import ClipTracker, TrackOptions, assemble, plan
+from nnsf.track.solve import ClipTracker, TrackOptions, plan
 
 
 def project_to_polyline(points: np.ndarray, polyline: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -175,60 +176,35 @@ def pck(pred: np.ndarray, truth: np.ndarray, torso: np.ndarray, alpha: float = 0
 
 def edit_ratio(frames: np.ndarray, annotation, truth: np.ndarray, names_truth: list[str],
                method: str, tol: float = 2.0, max_edits: int = 20, **options) -> dict:
-    """The simulated user's edit ratio for one clip and tracker.
+    """The simulated user's edit ratio for one clip and tracker (the paper's Fig. 4a).
 
     frames : (T, H, W, 3) uint8; truth : (T, N_truth, S, 2) dense true side
     curves named ``names_truth``; method : "ours" | "agarwala" | "lk".
-    Every (interval, curve) is tracked, then in rounds: each curve whose worst
-    in-between control point is more than ``tol`` px from its true curve gets
-    one edit (that point snapped to the nearest true point and made a hard
-    constraint), and all edited curves are re-solved together (warm start,
-    full resolution).  A curve is given at most ``max_edits`` edits; control
-    points still off after that are counted as one more edit each (the user
-    would have to fix each of them by hand), so the figure stays comparable
-    between trackers.
+    The user runs the correction loop of :func:`nnsf.track.correct.simulate_user`:
+    each round corrects the worst frame of every keyframe interval that
+    still has a control point more than ``tol`` px off (moving only those
+    points onto the true curve), the corrected frames become keyframes and
+    the touched intervals are re-tracked, until every in-between control
+    point is within ``tol``.  ``max_edits`` caps the rounds (points still
+    off then count one edit each, so the figure stays comparable).
+    ratio = edits / (control points × in-between frames).
     Returns ``{"edit_ratio", "edits", "control_points", "capped_curves",
-    "names", "tracked", "control"}``: ``tracked`` is the tracker's result
-    before any edit and ``control`` the edited one, both (T, N, P, 2) in
-    ``names`` order (as :func:`nnsf.track.solve.track_clip` returns).
+    "corrected_frames", "rounds", "names", "tracked", "control"}``:
+    ``tracked`` is the tracker's result before any correction and
+    ``control`` the corrected one, both (T, N, P, 2) in ``names`` order (as
+    :func:`nnsf.track.solve.track_clip` returns); ``capped_curves`` counts
+    the curves with control points still off when the cap stopped the loop.
     """
+    from nnsf.track.correct import simulate_user
+
     opts = TrackOptions.from_kwargs(**options)
     tracker = ClipTracker(frames, method, opts)
     names, kfs, batches = plan(annotation)
-    solved, first = [], []
-    edits_total = 0
-    slots = 0
-    capped = 0
-    for b in batches:
-        G, Tn, C, _ = b.P.shape
-        t_idx = b.frame0[:, None] + np.arange(Tn)[None, :]             # (G, Tn)
-        cidx = np.array([names_truth.index(n) for _, _, n in b.jobs])
-        tru = truth[t_idx, cidx[:, None]]                               # (G, Tn, S, 2)
-        P = tracker.solve(b.P, b.fixed, b.frame0)
-        first.append(P.copy())
-        fixed = b.fixed.copy()
-        edits = np.zeros(G, np.intp)
-        slots += G * C * (Tn - 2)
-        for _ in range(max_edits + 1):
-            dist, near = project_to_polyline(P, tru)                    # (G, Tn, C)
-            dist = np.where(fixed, 0.0, dist)
-            worst = dist.reshape(G, -1).max(1)
-            need = (worst > tol) & (edits < max_edits)
-            if not need.any():
-                break
-            arg = dist.reshape(G, -1).argmax(1)
-            g = np.flatnonzero(need)
-            t, c = np.unravel_index(arg[g], (Tn, C))
-            P[g, t, c] = near[g, t, c]
-            fixed[g, t, c] = True
-            edits[g] += 1
-            P[g] = tracker.solve(P[g], fixed[g], b.frame0[g], warm=True)
-        dist, _ = project_to_polyline(P, tru)
-        left = (np.where(fixed, 0.0, dist) > tol).reshape(G, -1).sum(1)
-        capped += int((left > 0).sum())
-        edits_total += int(edits.sum() + left.sum())
-        solved.append(P)
-    return {"edit_ratio": edits_total / slots if slots else float("nan"), "edits": edits_total,
-            "control_points": slots, "capped_curves": capped, "names": names,
-            "tracked": assemble(len(frames), names, kfs, batches, first),
-            "control": assemble(len(frames), names, kfs, batches, solved)}
+    slots = sum(b.P.shape[0] * b.P.shape[2] * (b.P.shape[1] - 2) for b in batches)
+    n_points = [max(len(kf[n]) for kf in kfs.values() if n in kf) for n in names]
+    tru = np.asarray(truth)[:, [names_truth.index(n) for n in names]]
+    res = simulate_user(tracker, names, kfs, tru, n_points, tol=tol, max_rounds=max_edits)
+    return {"edit_ratio": res["edits"] / slots if slots else float("nan"), "edits": res["edits"],
+            "control_points": slots, "capped_curves": res["left_curves"],
+            "corrected_frames": res["corrected_frames"], "rounds": res["rounds"], "names": names,
+            "tracked": res["tracked"], "control": res["control"]}

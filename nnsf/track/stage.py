@@ -176,6 +176,7 @@ def _evaluate_item(item: dict) -> dict:
                 "length_ratio": length_ratio(control, ann.keyframe_indices), "pck": score,
                 "edit_ratio": res["edit_ratio"], "edits": res["edits"],
                 "control_points": res["control_points"], "capped_curves": res["capped_curves"],
+                "corrected_frames": res["corrected_frames"], "rounds": res["rounds"],
                 "control": control if item["keep"] else None, "names": names}
     except InputError as exc:
         return {"ok": False, "clip": clip, "method": method, "error": str(exc)}
@@ -227,7 +228,8 @@ def evaluate_tracking(params: dict, frames_dir=FRAMES_DIR, reports=REPORTS, mapp
                           "length_ratio": r["length_ratio"], "pck": r["pck"],
                           "edit_ratio": r["edit_ratio"], "edits": r["edits"],
                           "control_points": r["control_points"],
-                          "capped_curves": r["capped_curves"]})
+                          "capped_curves": r["capped_curves"],
+                          "corrected_frames": r["corrected_frames"], "rounds": r["rounds"]})
         if not mine:
             continue
         allerr = np.concatenate([r["errors"] for r in mine])
@@ -240,6 +242,8 @@ def evaluate_tracking(params: dict, frames_dir=FRAMES_DIR, reports=REPORTS, mapp
                       "length_ratio": float(np.mean([r["length_ratio"] for r in mine])),
                       "pck": float(np.mean([r["pck"] for r in mine])),
                       "edit_ratio": edits / slots if slots else float("nan"),
+                      "edits": edits, "corrected_frames": sum(r["corrected_frames"] for r in mine),
+                      "rounds": max(r["rounds"] for r in mine),
                       "clips": len(mine)}
     figure = reports / "figures" / "tracking_overlay.png"
     keep = [r for r in ok if r["control"] is not None]
