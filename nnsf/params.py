@@ -24,8 +24,8 @@ LABELS = ("motion", "character")
 TRACKERS = ("ours", "agarwala", "lk")
 #: Camera views of projected motion capture (nnsf.datasets.views).
 VIEW_CHOICES = ("front", "side", "three-quarter", "auto")
-TRANSLATION_METHODS = ("nnsf", "nnsf_smooth", "nnsf_nosmooth", "nnsf_swapped", "nnsf_beta0", "nnsf_refit", "bilinear", "offset",
-                       "identity", "real")
+TRANSLATION_METHODS = ("nnsf", "nnsf_smooth", "nnsf_nosmooth", "nnsf_swapped", "nnsf_beta0", "nnsf_refit", "bilinear", "mgpm", "cbgpm",
+                       "offset", "identity", "real")
 
 
 def _optional_str():

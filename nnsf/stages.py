@@ -168,6 +168,8 @@ OUTPUT_FOLDERS = {
     "heldout": (REPORTS, REPORTS / "plots", REPORTS / "figures"),
     "translate": (TRANSLATION_DIR,),
     "reshape": (REPORTS / "reshape",),
+    "styles": (MODEL_PATH.parent,),
+    "animate": (REPORTS / "animate",),
 }
 
 

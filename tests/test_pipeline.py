@@ -120,10 +120,13 @@ translation:
   max_iter: 20
   align_iter: 20
   bilinear_rank: 1
+  gp_rank: 2
+  gp_phase_bins: 2
+  gp_max_iter: 10
   max_sources: 0
   max_cells: 2
   examples: 1
-  methods: [nnsf, bilinear, identity]
+  methods: [nnsf, bilinear, mgpm, cbgpm, identity]
   content_clip: auto
   style: auto
 reshape:

@@ -25,7 +25,10 @@ PARAMS = Path(__file__).resolve().parents[1] / "params.yaml"
 CASES = [(stage, str(folder), []) for stage, folders in stages.OUTPUT_FOLDERS.items()
          if stage in cli.STAGES for folder in folders]
 CASES += [(command, "blocked/out", ["--out", "blocked/out"])
-          for command in ("translate", "reshape", "reshape-eval", "tracking-real")]
+          for command in ("translate", "reshape")]
+# The evaluations on external data also need --data (any existing folder: the output check comes first).
+CASES += [(command, "blocked/out", ["--data", ".", "--out", "blocked/out"])
+          for command in ("reshape-eval", "tracking-real")]
 
 
 def _files(root: Path) -> set[str]:
@@ -46,7 +49,7 @@ def test_nnsf_command_with_an_unwritable_output_folder(command, folder, extra, t
                                                        monkeypatch, capsys):
     (tmp_path / "params.yaml").write_text(PARAMS.read_text())
     # The file blocks the folder itself (or, for --out, its parent).
-    _block(tmp_path, folder if not extra else str(Path(folder).parent))
+    _block(tmp_path, folder if "--out" not in extra else str(Path(folder).parent))
     before = _files(tmp_path)
     monkeypatch.chdir(tmp_path)
     code = cli.main([command, *extra])

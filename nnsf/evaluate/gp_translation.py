@@ -1,4 +1,4 @@
-"""The two Gaussian-process baselines as held-out style translators (SPEC §6.3).
+"""The two Gaussian-process baselines as held-out style translators (docs/method.md §15.5).
 
 The held-out evaluation (:func:`nnsf.evaluate.translation.evaluate_cell`) hides
 one (style, content) cell, fits every method on the rest and translates each

@@ -64,6 +64,7 @@ from sklearn.preprocessing import StandardScaler
 
 from nnsf.datasets.contract import COLUMNS, features
 from nnsf.errors import InputError
+from nnsf.evaluate.gp_translation import GP_TRANSLATION_METHODS, fit_gp_translator, gp_translate, translation_gp_params
 from nnsf.evaluate.judges import FAMILIES as JUDGE_FAMILIES
 from nnsf.evaluate.judges import Judges
 from nnsf.factor.baselines import BilinearModel
@@ -83,7 +84,7 @@ __all__ = [
 #: ceiling.
 METHODS: tuple[str, ...] = (
     "nnsf", "nnsf_smooth", "nnsf_nosmooth", "nnsf_swapped", "nnsf_beta0", "nnsf_refit", "bilinear",
-    "bilinear_template", "offset", "identity", "real",
+    "bilinear_template", "mgpm", "cbgpm", "offset", "identity", "real",
 )
 
 #: StyleTranslator parameters of every NNSF method (on top of ``translator_params``).
@@ -400,7 +401,7 @@ def evaluate_cell(table: pd.DataFrame, style: str, content: str, *,
                   methods=METHODS,
                   translator_params: dict | None = None, variants: dict | None = None,
                   bilinear_rank: int | None = 1, bilinear_residual: bool = True, max_sources: int | None = None,
-                  truth=None, margin: float = 0.5, seed: int = 0,
+                  gp_params: dict | None = None, truth=None, margin: float = 0.5, seed: int = 0,
                   return_examples: bool = False):
     """Hide one (style, content) cell, synthesise it from the rest, score every method.
 
@@ -425,6 +426,10 @@ def evaluate_cell(table: pd.DataFrame, style: str, content: str, *,
         frame under the source style, rendered in the target style).
         ``bilinear_template`` -- the same model's cell template A^t b^c, held
         for as many frames as the source clip has.
+        ``mgpm``, ``cbgpm`` -- the Gaussian-process baselines
+        (:mod:`nnsf.evaluate.gp_translation`) fitted on the remaining rows with
+        ``gp_params`` (``rank``, ``phase_bins``, ``max_iter``), each source
+        clip rendered in the target style plus its residual.
         ``offset`` -- the source clip plus the mean pose offset from its style
         to the target's (:func:`style_offset`).
         ``identity`` -- the source clip unchanged (in unified features it is
@@ -533,6 +538,9 @@ def evaluate_cell(table: pd.DataFrame, style: str, content: str, *,
         # Contents only the target style performs carry no shared content vector.
         own = ~others & np.isin(mo_train, bilinear.classes_)
         bilinear.adapt_style(X[own], mo_train[own], style)
+    gp_models = {m: fit_gp_translator(m, X, mo_train, ch_train, clip_of_row, seed=seed,
+                                      **(gp_params or {"rank": 8, "phase_bins": 3, "max_iter": 50}))
+                 for m in methods if m in GP_TRANSLATION_METHODS}
     fit_seconds = time.perf_counter() - t_start
 
     sums = {m: dict(dtw=0.0, bone=0.0, truth=0.0, n_pairs=0, n_truth=0, style=0, content=0, n=0,
@@ -567,6 +575,8 @@ def evaluate_cell(table: pd.DataFrame, style: str, content: str, *,
                     X_hats[m] += Xs - bilinear.inverse_transform(B, np.full(len(Xs), s_src))
             elif m == "bilinear_template":
                 X_hats[m] = np.tile(bilinear.cell_template(style, content), (len(Xs), 1))
+            elif m in gp_models:
+                X_hats[m] = gp_translate(gp_models[m], Xs, s_src, style, content)
             elif m in baselines:
                 X_hats[m] = baselines[m](Xs, s_src)
         synth = {m: v for m, v in X_hats.items()}
@@ -700,7 +710,7 @@ def per_style(results: pd.DataFrame) -> pd.DataFrame:
 # --------------------------------------------------------------------------- #
 #: Methods of the held-out stage, in table order (``real`` is the ceiling row).
 STAGE_METHODS: tuple[str, ...] = ("nnsf", "nnsf_smooth", "nnsf_nosmooth", "nnsf_swapped", "nnsf_beta0",
-                                  "nnsf_refit", "bilinear", "offset", "identity", "real")
+                                  "nnsf_refit", "bilinear", "mgpm", "cbgpm", "offset", "identity", "real")
 
 #: Summary metrics of ``reports/heldout.json`` per method: name there -> column.
 SUMMARY_METRICS: dict[str, str] = {
@@ -857,6 +867,8 @@ def heldout(params: dict, features_csv=Path("data/features/features.csv"), repor
     _check_translator(params, tp)
 
     table = contract.read_table(features_csv)
+    gp = [m for m in methods if m in GP_TRANSLATION_METHODS]
+    gp_params = translation_gp_params(params, table, gp) if gp else None
     truth = None
     if require(params, "dataset.name") == "synthetic":
         if unifier_json is None:        # a table in pixels: the generator's pixels are the truth
@@ -873,7 +885,7 @@ def heldout(params: dict, features_csv=Path("data/features/features.csv"), repor
     show = set(_pick(cells, n_examples)) if n_examples > 0 else set()
     variants = {m: dict(DEFAULT_VARIANTS.get(m, {})) for m in methods if m.startswith("nnsf")}
     kw = dict(methods=methods, translator_params=tp, variants=variants, bilinear_rank=bilinear_rank,
-              max_sources=max_sources or None, truth=truth, margin=margin, seed=seed)
+              max_sources=max_sources or None, gp_params=gp_params, truth=truth, margin=margin, seed=seed)
     jobs = [CellJob(table, s, c, {**kw, "return_examples": (s, c) in show}) for s, c in cells]
     outs = mapper(run_cell, jobs)
 
