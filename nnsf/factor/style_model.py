@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from nnsf.errors import InputError
+from nnsf.io import DIGITS
 
 FORMAT = "nnsf.style_model"
 VERSION = 1
@@ -147,11 +148,17 @@ class _Reader:
 
 # ----------------------------------------------------------------------------- files
 def save_model(translator, path, *, unifier=None, features_sha256: str | None = None,
-               source: str = "", view: str | None = None) -> Path:
-    """Write a fitted translator (and the unifier of its training characters) to ``path``, atomically."""
+               source: str = "", view: str | None = None, digits: int | None = None) -> Path:
+    """Write a fitted translator (and the unifier of its training characters) to ``path``, atomically.
+
+    ``digits=None`` keeps every bit, so a loaded model translates exactly as
+    the fitted one.  The ``styles`` stage passes 6 significant digits
+    (:data:`nnsf.io.DIGITS`) instead, so that the versioned file, and DVC's
+    hash of it, is the same on every machine whatever BLAS noise the fit had.
+    """
     from sklearn.utils.validation import check_is_fitted
 
-    from nnsf.io import write_npz
+    from nnsf.io import round_floats, write_npz
 
     check_is_fitted(translator, "style_bases_")
     w = _Writer()
@@ -169,7 +176,9 @@ def save_model(translator, path, *, unifier=None, features_sha256: str | None = 
         "view": view,
         "state": state,
     }
-    write_npz(path, meta=np.array(json.dumps(meta, sort_keys=True)), **w.arrays)
+    if digits is not None:
+        meta = round_floats(meta, digits)
+    write_npz(path, digits=digits, meta=np.array(json.dumps(meta, sort_keys=True)), **w.arrays)
     return Path(path)
 
 
@@ -337,7 +346,8 @@ def fit_model(table, unifier, translator_params: dict, out, *, features_sha256=N
     # One BLAS thread: the products are thin (34 columns), see stages.factorize.
     with threadpool_limits(limits=1, user_api="blas"):
         tr = StyleTranslator(**translator_params).fit(X, motions, chars, clips)
-    save_model(tr, out, unifier=unifier, features_sha256=features_sha256, source=source, view=view)
+    save_model(tr, out, unifier=unifier, features_sha256=features_sha256, source=source, view=view,
+               digits=DIGITS)
     return tr
 
 
