@@ -109,7 +109,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--fps", type=float, default=None, help="frames per second (default: the motion's)")
     p.add_argument("--vertices", type=int, default=800, help="mesh vertices (100..6000)")
 
-    p = sub.add_parser("reshape-eval", help="reshaping evaluation on drawn characters (SPEC §6.5-6.6)")
+    p = sub.add_parser("reshape-eval", help="reshaping evaluation on drawn characters (docs/method.md §15.7)")
     p.add_argument("--params", default="params.yaml")
     p.add_argument("--data", type=Path, required=True,
                    help="folder holding animated-drawings/, bandai-namco-1/ and kenney-toon/")

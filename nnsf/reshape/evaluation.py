@@ -458,7 +458,7 @@ def reshape_eval(params: dict, data_root, out_dir=Path("reports"),
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description="Reshaping evaluation (SPEC §6.5-6.6)")
+    ap = argparse.ArgumentParser(description="Reshaping evaluation (docs/method.md §15.7)")
     ap.add_argument("--data", type=Path, required=True,
                     help="folder holding animated-drawings/, bandai-namco-1/ and kenney-toon/")
     ap.add_argument("--out", type=Path, default=Path("reports"))
