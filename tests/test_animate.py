@@ -413,3 +413,34 @@ def test_the_model_records_the_view_its_styles_were_learned_in():
     assert dataset_view({"dataset": {**bvh, "bvh": {"azimuth": 90.0, "view": None}}}) == "side"
     assert dataset_view({"dataset": {**bvh, "bvh": {"azimuth": 30.0}}}) == "azimuth 30"
     assert dataset_view({"dataset": {**bvh, "bvh": {"azimuth": 0.0, "view": "auto"}}}) == "auto"
+
+
+@pytest.mark.slow
+def test_the_stage_model_file_has_the_same_bytes_whatever_the_hash_seed(tmp_path):
+    """Two processes with different string-hash seeds write byte-identical style models.
+
+    A dict built from a set of style names once took the set's per-process order,
+    so ``models/styles.npz`` (and its hash in dvc.lock) changed from run to run.
+    """
+    import os
+    import subprocess
+    import sys
+
+    script = (
+        "import sys\n"
+        "from nnsf.datasets import contract, synthetic\n"
+        "from nnsf.factor.style_model import fit_model, unify_table\n"
+        "raw = contract.validate(synthetic.generate(characters=4, clips_per_cell=1, frames=12, seed=0), 'syn')\n"
+        "raw = raw[raw['motion'].isin(['walk', 'wave', 'jump'])].reset_index(drop=True)\n"
+        "table, unifier = unify_table(raw, 0.5)\n"
+        "fit_model(table, unifier, dict(n_components=4, max_iter=20, align_iter=10, random_state=0), sys.argv[1])\n"
+    )
+    outs = []
+    for seed in ("1", "2"):
+        out = tmp_path / f"styles-{seed}.npz"
+        env = dict(os.environ, PYTHONHASHSEED=seed)
+        done = subprocess.run([sys.executable, "-c", script, str(out)], env=env, capture_output=True,
+                              text=True, timeout=300)
+        assert done.returncode == 0, done.stderr[-2000:]
+        outs.append(out.read_bytes())
+    assert outs[0] == outs[1]

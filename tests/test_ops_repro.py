@@ -73,8 +73,10 @@ def reference(tmp_path_factory, mlflow_template, prefect_api):
 def test_a_stage_killed_while_writing_leaves_nothing_finished_and_repro_recovers(
         tmp_path, mlflow_template, prefect_api, reference):
     root, env = _small_clone(tmp_path, "killed", mlflow_template, prefect_api)
-    first_output = root / "reports" / "cv_folds.csv"      # evaluate writes this first ...
-    last_output = root / "reports" / "metrics.json"       # ... and this last
+    # evaluate writes its set into a staging folder and publishes it as a whole (nnsf/publish.py):
+    # the first staged file appearing means the writing has begun, and nothing is published yet.
+    first_output = root / "reports" / ".evaluate.staging" / "cv_folds.csv"
+    last_output = root / "reports" / "metrics.json"       # published with the rest of the set
     log = tmp_path / "killed.log"
     with process_group(FLOWS + ["repro"], env, root, log) as proc:
         wait_for(lambda: first_output.exists(), 600, "evaluate to start writing", proc, log,

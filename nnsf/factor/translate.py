@@ -366,7 +366,9 @@ def _style_tempo(clips: dict) -> dict:
     for (s, c), lst in clips.items():
         if len(n_styles[c]) >= 2:
             ratios.setdefault(s, []).extend(len(x) / np.mean(by_content[c]) for x in lst)
-    return {s: float(np.median(ratios[s])) if s in ratios else 1.0 for s in {s for s, _ in clips}}
+    # Sorted, not a set's order: a set of strings iterates in a per-process hash order, which
+    # would make the saved model's bytes differ from run to run.
+    return {s: float(np.median(ratios[s])) if s in ratios else 1.0 for s in sorted({s for s, _ in clips})}
 
 
 # --------------------------------------------------------------------------- #
