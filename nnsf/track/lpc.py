@@ -90,6 +90,7 @@ def lpc_report(data_root, annotations_dir, out_dir, tol: float = 1.5, **options)
     from nnsf.frames.annotation import read_annotation
     from nnsf.io import write_csv, write_json
     from nnsf.track.figures import tracking_overlay
+    from nnsf.track.real import silhouette_summary
 
     data_root, out_dir = Path(data_root), Path(out_dir)
     if not data_root.is_dir():
@@ -98,14 +99,7 @@ def lpc_report(data_root, annotations_dir, out_dir, tol: float = 1.5, **options)
     if table.empty:
         raise InputError(annotations_dir, "annotations",
                          "at least one <body>.annotation.json for a sheet in " + str(data_root))
-    summary = {
-        "tol_px": tol,
-        "characters": sorted(table["character"].unique()),
-        "trackers": {m: float(g["score"].mean()) for m, g in table.groupby("tracker")},
-        "coverage": {m: float(g["coverage"].mean()) for m, g in table.groupby("tracker")},
-        "length_ratio": {m: float(g["length_ratio"].mean()) for m, g in table.groupby("tracker")},
-        "ceiling": float(table.groupby("character")["keyframe_score"].first().mean()),
-    }
+    summary = silhouette_summary(table, tol)
     write_csv(out_dir / "tracking_lpc.csv", table)
     write_json(out_dir / "tracking_lpc.json", summary)
     first = summary["characters"][0]

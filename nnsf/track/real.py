@@ -184,6 +184,25 @@ def track_kenney(data_root, annotations_dir, methods=("ours", "agarwala", "lk"),
     return pd.DataFrame(rows), tracked
 
 
+def silhouette_summary(table, tol: float) -> dict:
+    """Per tracker, the means over characters of a silhouette-scored table (Kenney, LPC).
+
+    ``table`` has one row per (character, tracker) with ``score`` (share of
+    outline samples within ``tol`` px of the silhouette), ``coverage``,
+    ``length_ratio`` and ``keyframe_score`` (the annotated keyframes' own
+    score: the ceiling).  Returns the JSON summary of the real-frame reports.
+    """
+    by = table.groupby("tracker")
+    return {
+        "tol_px": tol,
+        "characters": sorted(table["character"].unique()),
+        "trackers": {m: float(g["score"].mean()) for m, g in by},
+        "coverage": {m: float(g["coverage"].mean()) for m, g in by},
+        "length_ratio": {m: float(g["length_ratio"].mean()) for m, g in by},
+        "ceiling": float(table.groupby("character")["keyframe_score"].first().mean()),
+    }
+
+
 def kenney_report(data_root, annotations_dir, out_dir, tol: float = 1.5, **options) -> dict:
     """Track the Kenney walk cycles with the three trackers and write the report files.
 
@@ -206,14 +225,7 @@ def kenney_report(data_root, annotations_dir, out_dir, tol: float = 1.5, **optio
     if table.empty:
         raise InputError(annotations_dir, "annotations",
                          "at least one <character>.annotation.json for a character in " + str(data_root))
-    summary = {
-        "tol_px": tol,
-        "characters": sorted(table["character"].unique()),
-        "trackers": {m: float(g["score"].mean()) for m, g in table.groupby("tracker")},
-        "coverage": {m: float(g["coverage"].mean()) for m, g in table.groupby("tracker")},
-        "length_ratio": {m: float(g["length_ratio"].mean()) for m, g in table.groupby("tracker")},
-        "ceiling": float(table.groupby("character")["keyframe_score"].first().mean()),
-    }
+    summary = silhouette_summary(table, tol)
     write_csv(out_dir / "tracking_kenney.csv", table)
     write_json(out_dir / "tracking_kenney.json", summary)
     first = summary["characters"][0]
