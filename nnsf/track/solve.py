@@ -36,9 +36,10 @@ from scipy.optimize import least_squares
 from nnsf.track.energy import (
     LevelImages, SpaceTimeProblem, Weights, build_pyramid, levenberg_marquardt,
 )
+from nnsf.track.limbs import limb_init, side_pairs
 
 METHODS = ("ours", "agarwala", "lk")
-INITS = ("linear", "lk", "flow")
+INITS = ("linear", "lk", "flow", "limb")
 LK_ENDS = ("blend", "none")
 SOLVERS = ("lm", "scipy")
 
@@ -54,6 +55,18 @@ class TrackOptions:
     adjacent-frame term alone, 0.84 there); ``K``
     is the ribbon half-width in samples of 1 px (of each pyramid level);
     ``levels`` the pyramid depth (1 = full resolution only).
+
+    ``init`` starts the solver from ``linear`` interpolation, the blended
+    ``lk`` track, dense ``flow`` (:func:`flow_init`) or ``limb``
+    (:func:`nnsf.track.limbs.limb_init`: each limb as a rigid body, checked by
+    its colours; for "ours" only, as it uses the per-limb colour model
+    Agarwala's tracker lacks: "agarwala" runs ``flow`` then).  Three terms
+    of "ours" build on it: ``edge_gate`` (px) keeps the edge term, and where
+    the limb start is confident the ribbon terms, to samples that lie within
+    that distance of an image edge in both keyframes (0 = everywhere), and
+    ``slide`` weighs the anchor of each sample's position ALONG its curve to
+    the limb start, times the start's confidence (see
+    :class:`nnsf.track.energy.SpaceTimeProblem`).
     """
 
     velocity: float = 3.0
@@ -78,10 +91,12 @@ class TrackOptions:
     lk_levels: int = 3
     lk_end: str = "blend"
     length_anchor: float = 4.0
+    edge_gate: float = 0.0
+    slide: float = 0.0
 
     def __post_init__(self):
         for name in ("velocity", "length", "curvature", "edge", "sketch", "colour", "length_anchor",
-                     "colour_sigma", "edge_sigma", "edge_cap", "max_step"):
+                     "colour_sigma", "edge_sigma", "edge_cap", "max_step", "edge_gate", "slide"):
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0:
                 raise ValueError(f"track option {name} must be a finite number >= 0, got {v!r}")
@@ -276,7 +291,9 @@ def linear_init(P: np.ndarray, fixed: np.ndarray) -> np.ndarray:
 def solve_interval(pyramid: list[LevelImages], P: np.ndarray, fixed: np.ndarray,
                    opts: TrackOptions, use_image_terms: bool = True,
                    levels: int | None = None, frame0: np.ndarray | None = None,
-                   motion_prior: np.ndarray | None = None) -> np.ndarray:
+                   motion_prior: np.ndarray | None = None,
+                   prior_confidence: np.ndarray | None = None, edge_gate: float = 0.0,
+                   slide: float = 0.0) -> np.ndarray:
     """Solve the space-time problem of G curves over one interval, coarse to fine.
 
     pyramid : the interval's frames as from :func:`build_pyramid`, finest first
@@ -289,6 +306,8 @@ def solve_interval(pyramid: list[LevelImages], P: np.ndarray, fixed: np.ndarray,
               so curves of several intervals of equal length solve together.
     motion_prior : optional (G, T, C, 2) full-resolution track (the flow init)
               whose frame-to-frame motion the velocity term takes as its zero.
+    prior_confidence, edge_gate, slide : see :class:`nnsf.track.energy.SpaceTimeProblem`
+              (``edge_gate`` in full-resolution px).
     Returns (G, T, C, 2) full-resolution control points.
     """
     P = np.asarray(P, np.float64).copy()
@@ -305,7 +324,9 @@ def solve_interval(pyramid: list[LevelImages], P: np.ndarray, fixed: np.ndarray,
                                 use_image_terms=use_image_terms, frame0=frame0,
                                 length_anchor=opts.length_anchor,
                                 motion_prior=None if motion_prior is None
-                                else _to_level(motion_prior, L.scale))
+                                else _to_level(motion_prior, L.scale),
+                                prior_confidence=prior_confidence,
+                                edge_gate=edge_gate * L.scale, slide=slide)
         if opts.solver == "lm":
             x, _ = levenberg_marquardt(prob, prob.x0(), max_iter=opts.max_nfev, ftol=opts.ftol,
                                       max_step=opts.max_step)
@@ -396,9 +417,10 @@ class ClipTracker:
         self.method, self.opts = method, opts
         self.gray = None
         self.pyramid = None
-        if method == "lk" or opts.init in ("lk", "flow"):
+        if method == "lk" or opts.init in ("lk", "flow", "limb"):
             self.gray = np.stack([cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in frames])
-        self.flows = dense_flows(self.gray) if method != "lk" and opts.init == "flow" else None
+        self.flows = dense_flows(self.gray) if method != "lk" and opts.init in ("flow", "limb") \
+            else None
         if method != "lk":
             self.pyramid = build_pyramid(frames, opts.levels, opts.colour_sigma, opts.edge_sigma,
                                          opts.edge_cap, edge_close=opts.edge_close)
@@ -413,28 +435,37 @@ class ClipTracker:
         return out
 
     def solve(self, P: np.ndarray, fixed: np.ndarray, frame0: np.ndarray,
-              warm: bool = False) -> np.ndarray:
+              warm: bool = False, names=None) -> np.ndarray:
         """Track one batch: (G, T, C, 2) with hard constraints under ``fixed``.
 
-        ``warm=False`` initialises the free points (linear or LK) and solves
+        ``warm=False`` initialises the free points (``opts.init``) and solves
         coarse to fine; ``warm=True`` (re-solve after an edit) starts from
         ``P`` as given and solves at full resolution only (LK re-tracks from
-        every anchor, which is its re-solve).
+        every anchor, which is its re-solve).  ``names`` (G,) are the rows'
+        curve names: the ``limb`` start pairs ``<group>.a`` with ``<group>.b``
+        of the same interval (without names every row starts by ``flow``).
         """
         opts = self.opts
         if self.method == "lk":
             return self.lk(P, fixed, frame0, opts.lk_end)
-        prior = None
+        ours = self.method == "ours"
+        prior = conf = None
         if not warm:
             if opts.init == "lk":
                 P = self.lk(P, fixed, frame0, "blend")
-            elif opts.init == "flow":
+            elif opts.init == "limb" and ours and names is not None:
+                pairs = side_pairs([(int(f), n) for f, n in zip(frame0, names)])
+                P, conf = limb_init(*self.flows, self.pyramid[0].colour, P, fixed, frame0, pairs,
+                                    lambda P_, f_, k_: flow_init(*self.flows, P_, f_, k_))
+                prior = P
+            elif opts.init in ("flow", "limb"):
                 P = prior = flow_init(*self.flows, P, fixed, frame0)
             else:
                 P = linear_init(P, fixed)
-        return solve_interval(self.pyramid, P, fixed, opts,
-                              use_image_terms=(self.method == "ours"),
-                              levels=1 if warm else None, frame0=frame0, motion_prior=prior)
+        return solve_interval(self.pyramid, P, fixed, opts, use_image_terms=ours,
+                              levels=1 if warm else None, frame0=frame0, motion_prior=prior,
+                              prior_confidence=conf, edge_gate=opts.edge_gate if ours else 0.0,
+                              slide=opts.slide if conf is not None else 0.0)
 
 
 def assemble(T: int, names: list[str], kfs: dict, batches: list[Batch],
@@ -468,5 +499,18 @@ def track_clip(frames: np.ndarray, annotation, method: str = "ours", **options) 
     opts = TrackOptions.from_kwargs(**options)
     tracker = ClipTracker(frames, method, opts)
     names, kfs, batches = plan(annotation)
-    solved = [tracker.solve(b.P, b.fixed, b.frame0) for b in batches]
+    solved = [tracker.solve(b.P, b.fixed, b.frame0, names=[n for _, _, n in b.jobs])
+              for b in batches]
     return assemble(len(frames), names, kfs, batches, solved)
+
+
+def interpolate_clip(annotation, n_frames: int) -> np.ndarray:
+    """No tracking: every curve interpolated linearly in t between consecutive keyframes.
+
+    The do-nothing floor the trackers are compared with; same layout as
+    :func:`track_clip` (``(T, N, P, 2)``, NaN where :func:`track_clip` has NaN).
+    """
+    names, kfs, batches = plan(annotation)
+    return assemble(int(n_frames), names, kfs, batches,
+                    [linear_init(b.P, b.fixed) for b in batches])
+
