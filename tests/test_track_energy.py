@@ -32,7 +32,7 @@ def _problem(image_terms=True, seed=0, gated=False):
     prob = SpaceTimeProblem(lev, P, fixed, Weights(), n_samples=9, K=2,
                             use_image_terms=image_terms, **extra)
     if gated:
-        assert 0 < prob.edge_w.sum() < prob.edge_w.size         # the gate keeps some samples
+        assert 0 < prob.on_edge.sum() < prob.on_edge.size       # the gate keeps some samples
     return prob, prob.x0() + rng.normal(0, 0.3, prob.n_unknowns)
 
 
@@ -152,8 +152,10 @@ def test_edge_gate_and_slide_anchor_residuals_against_their_definitions():
     # edge gate: samples off an edge (> 1.5 px) in either keyframe carry no edge residual
     Sk = np.einsum("nc,gtcd->gtnd", B0, prob.P0[:, [0, -1]])
     ek = bilinear(prob.images.edge, prob._t([0, T - 1], 1), Sk, grad=False)[..., 0]
-    keep = (ek.max(1) <= 1.5).astype(float)
-    np.testing.assert_array_equal(prob.edge_w, keep)
+    on = ek.max(1) <= 1.5
+    np.testing.assert_array_equal(prob.on_edge, on)
+    # off the edges the residuals are scaled by 1 - the start's mean in-between confidence
+    keep = np.where(on, 1.0, 1.0 - conf[:, 1:-1].mean(1)[:, None])
     e = bilinear(prob.images.edge, prob._t(np.arange(1, T - 1), 1), S[:, 1:-1], grad=False)[..., 0]
     assert any(r.shape == e.shape and np.allclose(r, keep[:, None] * e) for r in extra)
-    assert 0 < keep.sum() < keep.size
+    assert 0 < on.sum() < on.size

@@ -46,13 +46,13 @@ inner side of the far arm) has no edge of its own, so the term pulls it to
 the occluder's.  ``edge_gate`` keeps the edge residual of sample i only if
 the keyframes' curves lie within ``edge_gate`` px of an edge at i in BOTH
 keyframes (the edge term alone, started at the truth: PCK 0.857 without the
-gate, 0.977 with it); the velocity term's bias is the motion prior's
+gate, 0.977 with it), or in as far as the start is not trusted; the velocity term's bias is the motion prior's
 business (it measures motion against the start's).  The same hidden sides are dragged by the ribbon
 terms towards whatever covers them (the near arm passing over the torso's
-hidden side), so off-edge samples also lose their ribbon residuals, in
-proportion to the start's confidence (a confident start needs no image
-evidence where there is none; an unconfident one, e.g. on the Kenney walks
-where both limb tracks miss the far keyframe by 7 px, still needs it).
+hidden side), so off-edge samples lose their ribbon residuals too.  Both
+only in proportion to the start's confidence: a confident start needs no
+image evidence where there is none; an unconfident one (the Kenney walks,
+where both limb tracks miss the far keyframe by 7 px) still needs it.
 Along its own outline a sample sees the same colours and the same edge
 wherever it slides, so nothing in the image fixes its place along the
 curve, which is what the key points are read from (the curve ends): the
@@ -256,9 +256,9 @@ class SpaceTimeProblem:
         as its zero.
     prior_confidence : optional (G, T) confidence in [0, 1] of that start
         (:func:`nnsf.track.limbs.limb_init`); default 1.
-    edge_gate : px of this level; > 0 keeps the edge residual only at samples
-        within that distance of an edge in both keyframes, and scales the
-        ribbon residuals of the other samples by 1 - the mean confidence.
+    edge_gate : px of this level; > 0 scales the edge and ribbon residuals of
+        samples NOT within that distance of an edge in both keyframes by
+        1 - the start's mean confidence (0 with no start: dropped).
     slide : weight of the slide anchor to ``motion_prior`` (0: none).
 
     The unknown vector ``x`` holds the free entries of P (``P[free]`` order).
@@ -293,20 +293,24 @@ class SpaceTimeProblem:
         self.n_unknowns = int(self.free.sum())
         conf = None if prior_confidence is None else \
             np.asarray(prior_confidence, np.float64).reshape(self.G, self.T)
-        # per-sample scale of the edge residuals (G, n) and of the ribbon residuals (G, n)
-        self.edge_w = np.ones((self.G, self.n))
+        # the edge gate: per sample, whether the keyframes' curves lie on an edge there in both
+        # keyframes (on_edge), and the scale of its edge and ribbon residuals (G, n): 1 on an
+        # edge, else 1 - the start's mean confidence (a confident start needs no image
+        # evidence where there is none; a poor one still does)
+        self.on_edge = np.ones((self.G, self.n), bool)
+        self.gate = np.ones((self.G, self.n))
         if edge_gate > 0:
             Sk = np.einsum("nc,gtcd->gtnd", self.B0, self.P0[:, [0, -1]])
             ek = bilinear(images.edge, self._t([0, self.T - 1], 1), Sk, grad=False)[..., 0]
-            self.edge_w = (ek.max(1) <= edge_gate).astype(np.float64)
+            self.on_edge = ek.max(1) <= edge_gate
+            c = np.ones(self.G) if conf is None else conf[:, 1:-1].mean(1)
+            self.gate = np.where(self.on_edge, 1.0, 1.0 - c[:, None])
         self.rib_w = None
         if self.image_terms:
             self.kappa = self._colour_targets()
             if edge_gate > 0:
-                c = np.ones(self.G) if conf is None else conf[:, 1:-1].mean(1)
-                ew = self.edge_w + (1 - self.edge_w) * (1 - c[:, None])
                 self.rib_w = np.ascontiguousarray(np.broadcast_to(
-                    ew[:, None, :, None, None], (self.G, 1, self.n, 2 * self.K, 1)))
+                    self.gate[:, None, :, None, None], (self.G, 1, self.n, 2 * self.K, 1)))
         self.length_anchor = float(length_anchor)
         D1k = np.einsum("nc,gtcd->gtnd", self.B1, self.P0[:, [0, -1]])
         spk = np.maximum(np.linalg.norm(D1k, axis=-1), 1e-3)               # (G, 2, n)
@@ -429,7 +433,7 @@ class SpaceTimeProblem:
         # edge, in-between frames
         # e (G, T-2, n, 1), ge (G, T-2, n, 1, 2)
         tt = self._t(np.arange(1, T - 1), 1)
-        ew = np.sqrt(self.edge_w)[:, None, :]                              # (G, 1, n)
+        ew = self.gate[:, None, :]                                         # (G, 1, n)
         if jacobian:
             e, ge = bilinear(self.images.edge, tt, S[:, 1:-1])
             J = (sE * ew[..., None, None] * ge[..., 0, None, :] * B0[None, None, :, :, None]
