@@ -15,8 +15,9 @@ of the flow start's errors, each measured on the first four rendered clips
 * flat-coloured cartoon limbs that move further than their width defeat
   dense flow (DIS, Farneback, DeepFlow, TV-L1, RLOF and PCAFlow all leave
   7-15 % of limb steps more than 3 px off); a search over rigid motions
-  scored by the limb's own colours cuts the share with more than 1.5 px
-  from 20 % to 8 %;
+  scored by the limb's own colours cut the share with more than 1.5 px
+  from 20 % to 8 % (measured with a first, slower version of the search:
+  finer grid, larger template);
 * a limb hidden behind another part at one keyframe is lost when carried
   from there, and the plain blend of the two directions (weights 1-λ, λ)
   spreads that loss over the whole interval.  The direction that misses
@@ -36,9 +37,11 @@ from nnsf.track.curves import basis
 #: across-limb fractions (0 = side a, 1 = side b) of the flow samples (inside the limb)
 INSIDE = (0.2, 0.35, 0.5, 0.65, 0.8)
 #: ... and of the appearance template (inside, the outline strokes and a little beyond)
-TEMPLATE = (-0.15, 0.0, 0.2, 0.35, 0.5, 0.65, 0.8, 1.0, 1.15)
+TEMPLATE = (-0.15, 0.0, 0.25, 0.5, 0.75, 1.0, 1.15)
 COARSE_ANGLES = np.radians(np.arange(-20.0, 20.1, 5.0))
-FINE_ANGLES = np.radians(np.arange(-4.0, 4.1, 1.0))
+FINE_ANGLES = np.radians(np.arange(-4.0, 4.1, 2.0))
+FINEST_ANGLES = np.radians([-1.0, 0.0, 1.0])
+COARSE_BLUR = 1.5
 
 
 
@@ -137,9 +140,18 @@ def search_rigid(img: np.ndarray, q: np.ndarray, ref: np.ndarray, w: np.ndarray,
     D = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
     Rk = np.repeat(Rs, len(D), 0)
     tk = c1 + np.tile(D, (len(Rs), 1)) - Rk @ c
-    pts = np.matmul(q[None], Rk.transpose(0, 2, 1)) + tk[:, None]
-    d = ((sample_image(img, pts) - ref) ** 2).sum(-1)
-    cost = (np.minimum(d, tau * tau) * w).sum(1) / w.sum()
+    # candidate k moves sample m to Rk q_m + tk: the remap maps, one row per candidate
+    qx, qy = q[:, 0][None].astype(np.float32), q[:, 1][None].astype(np.float32)
+    R32, t32 = Rk.astype(np.float32), tk.astype(np.float32)
+    mx = R32[:, 0, :1] * qx + R32[:, 0, 1:] * qy + t32[:, :1]
+    my = R32[:, 1, :1] * qx + R32[:, 1, 1:] * qy + t32[:, 1:]
+    moved = cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    diff = moved - np.asarray(ref, np.float32)[None]                      # (K, M, 3)
+    d = diff[..., 0] * diff[..., 0]                  # three products: 3x faster than einsum here
+    for ch in range(1, diff.shape[-1]):
+        d += diff[..., ch] * diff[..., ch]
+    np.minimum(d, np.float32(tau * tau), out=d)
+    cost = d @ (np.asarray(w, np.float32) / np.float32(w.sum()))
     k = int(np.argmin(cost))
     return Rk[k], tk[k], float(cost[k])
 
@@ -175,10 +187,13 @@ def limb_init(fwd: np.ndarray, bwd: np.ndarray, colour: np.ndarray, P: np.ndarra
        the keyframe's colours rather than the previous frame's keeps small
        errors from piling up (mid-interval error of a limb swinging out and
        back, toy clip of the tests: 3.0 -> 0.6 px).  A fine search (±1.5 px by
-       0.5, ±4° by 1) polishes the flow's motion; if that still costs more
-       than ``search_cost``, a grid search (±10 px by 2, ±20° by 5) around it,
-       polished the same way, replaces it when it costs less than
-       ``search_gain`` times as much (a limb passing over another of its
+       0.5 and ±4° by 2, then ±0.5 px and ±1° by 1) polishes the flow's
+       motion; if that still costs more than ``search_cost``, a grid search
+       (±9 px by 3, ±20° by 5: each grid point within the fine search's reach
+       of its neighbours) around it, on frames blurred further (σ 1.5 px) so
+       that the true motion's basin is wider than the grid step, polished the
+       same way, replaces it when
+       it costs less than ``search_gain`` times as much (a limb passing over another of its
        colour makes even the true motion cost something; the margin keeps
        the search from following the other part).
 
@@ -198,12 +213,24 @@ def limb_init(fwd: np.ndarray, bwd: np.ndarray, colour: np.ndarray, P: np.ndarra
     out = fallback(P, fixed, frame0) if (pairs < 0).any() else P.copy()
     conf = np.zeros((G, T))
     Wa_in, Wb_in = limb_weights(C, 12, INSIDE)
-    Wa, Wb = limb_weights(C, 14, TEMPLATE, extend=2)
+    Wa, Wb = limb_weights(C, 10, TEMPLATE, extend=2)
     lam = (np.arange(T) / (T - 1.0))[:, None, None]
+    blurred: dict[int, np.ndarray] = {}
+
+    def blur(t):
+        """Frame t blurred further (σ = COARSE_BLUR px): the coarse search's wider basins."""
+        if t not in blurred:
+            blurred[t] = cv2.GaussianBlur(colour[t], (0, 0), COARSE_BLUR)
+        return blurred[t]
+
+    def polish(img, q, ref, w, R, tr):
+        R, tr, _ = search_rigid(img, q, ref, w, R, tr, 1.5, 0.5, FINE_ANGLES, tau)
+        return search_rigid(img, q, ref, w, R, tr, 0.5, 0.5, FINEST_ANGLES, tau)
 
     def carry(a0, b0, steps, there, back, key):
         ref_in = sample_image(colour[key], Wa_in @ a0 + Wb_in @ b0)
         ref_key = sample_image(colour[key], Wa @ a0 + Wb @ b0)
+        ref_key_b = sample_image(blur(key), Wa @ a0 + Wb @ b0)
         A, B = np.empty((T, C, 2)), np.empty((T, C, 2))
         A[0], B[0] = a0, b0
         u = np.full(T, 1e-3)          # u[k+1]: how doubtful step k is (0 clean .. 1 lost)
@@ -222,16 +249,17 @@ def limb_init(fwd: np.ndarray, bwd: np.ndarray, colour: np.ndarray, P: np.ndarra
             ref = sample_image(colour[src], qt)
             w = (np.linalg.norm(ref - ref_key, axis=1) <= colour_tol).astype(np.float64)
             seen = w.mean()
-            if w.sum() < 0.2 * len(w):           # mostly covered: match what is there
+            covered = w.sum() < 0.2 * len(w)
+            if covered:                          # mostly covered: match what is there
                 w[:] = 1.0
             else:                                # match the keyframe's colours: no drift
                 ref = ref_key
-            R, tr, cost = search_rigid(colour[dst], qt, ref, w, R, tr, 1.5, 0.5, FINE_ANGLES, tau)
+            R, tr, cost = polish(colour[dst], qt, ref, w, R, tr)
             if cost > search_cost:
-                R2, tr2, _ = search_rigid(colour[dst], qt, ref, w, R, tr, 10.0, 2.0,
+                ref_b = sample_image(blur(src), qt) if covered else ref_key_b
+                R2, tr2, _ = search_rigid(blur(dst), qt, ref_b, w, R, tr, 9.0, 3.0,
                                           COARSE_ANGLES, tau)
-                R2, tr2, c2 = search_rigid(colour[dst], qt, ref, w, R2, tr2, 1.5, 0.5,
-                                           FINE_ANGLES, tau)
+                R2, tr2, c2 = polish(colour[dst], qt, ref, w, R2, tr2)
                 if c2 < search_gain * cost:
                     R, tr, cost = R2, tr2, c2
             a, b = a @ R.T + tr, b @ R.T + tr
