@@ -174,3 +174,9 @@ def test_bad_new_options_raise(bad):
     from nnsf.track.solve import TrackOptions
     with pytest.raises(ValueError, match="track option"):
         TrackOptions.from_kwargs(**bad)
+
+
+def test_edge_closing_is_off_on_small_drawings():
+    from nnsf.track.solve import edge_close
+    assert edge_close(2, (256, 256)) == 2 and edge_close(2, (128, 160)) == 2
+    assert edge_close(2, (128, 96)) == 0 and edge_close(2, (64, 64)) == 0

@@ -57,7 +57,7 @@ class TrackOptions:
     adjacent-frame term alone, 0.84 there); ``K``
     is the ribbon half-width in samples of 1 px (of each pyramid level);
     ``levels`` the pyramid depth (1 = full resolution only); ``edge_close``
-    the edge map's closing radius in px of a 256-px frame (:func:`edge_close`).
+    the edge map's closing radius (px; none on frames under 128 px, :func:`edge_close`).
 
     ``init`` starts the solver from ``linear`` interpolation, the blended
     ``lk`` track, dense ``flow`` (:func:`flow_init`) or ``limb``
@@ -406,19 +406,20 @@ def plan(annotation) -> tuple[list[str], dict[int, dict[str, np.ndarray]], list[
 
 
 def edge_close(radius: int, size: tuple[int, int]) -> int:
-    """The edge map's closing radius for frames of ``size`` (H, W): ``radius`` is px of 256-px frames.
+    """The edge map's closing radius for frames of ``size`` (H, W): ``radius``, or 0 below 128 px.
 
     The closing merges the two Canny lines on either side of a drawn stroke
-    (3 px wide on the 256-px renders).  On small drawings the strokes are
-    one pixel and the parts a few px apart, and a 2-px closing merged the
-    outlines of neighbouring parts (the legs of the 64-px LPC sprites): the
-    edge term then pulled curves between them, and Agarwala's tracker, which
-    has no colour terms to resist it, kept 0.50 of the LPC outline samples
-    within 1.5 px of the silhouette against 0.92 for interpolating the
-    keyframes without tracking.  Scaled (rounded down) with the frame: 256 px
-    and larger keep the radius; the 96×128 Kenney and 64×64 LPC frames get 0.
+    (2-3 px wide on the rendered and toy clips).  On small drawings the
+    strokes are one pixel and the parts a few px apart, and a 2-px closing
+    merged the outlines of neighbouring parts (the legs of the 64-px LPC
+    sprites): the edge term then pulled curves into the gaps between them,
+    and Agarwala's tracker, which has no colour terms to resist it, kept 0.50
+    of the LPC outline samples within 1.5 px of the silhouette against 0.92
+    for interpolating the keyframes without tracking (0.975 without the
+    closing).  Frames smaller than 128 px (the 96×128 Kenney frames, the
+    64×64 LPC tiles) get no closing; larger ones keep ``radius``.
     """
-    return int(radius * min(size) / 256)
+    return int(radius) if min(size) >= 128 else 0
 
 
 class ClipTracker:
