@@ -125,7 +125,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--annotations", type=Path, default=Path("tests/data/kenney"),
                    help="hand-made keyframe annotations, <character>.annotation.json")
     p.add_argument("--out", type=Path, default=Path("reports"))
-    p.add_argument("--tol", type=float, default=1.5, help="px from the silhouette boundary that counts as on it")
+    p.add_argument("--tol", type=float, default=None,
+                   help="px from the silhouette boundary that counts as on it "
+                        "(default 1.5 for Kenney, 1.0 for the LPC pixel art)")
     p.add_argument("--lpc", type=Path, default=None, metavar="DIR",
                    help="instead: the LPC sprite sheets' walk rows in DIR (the lpc-bodies folder)")
     p.add_argument("--lpc-annotations", type=Path, default=Path("tests/data/lpc"),
@@ -231,11 +233,13 @@ def main(argv: list[str] | None = None) -> int:
                 raise InputError("nnsf tracking-real", "--data",
                                  "the Kenney toon characters folder (or --lpc DIR for the LPC sheets)")
             if args.lpc is not None:
-                from nnsf.track.lpc import lpc_report
+                from nnsf.track.lpc import TOL, lpc_report
 
+                args.tol = TOL if args.tol is None else args.tol
                 summary = lpc_report(args.lpc, args.lpc_annotations, args.out, tol=args.tol,
                                      **track_options(params))
             else:
+                args.tol = 1.5 if args.tol is None else args.tol
                 summary = kenney_report(args.data, args.annotations, args.out, tol=args.tol,
                                         **track_options(params))
             for tracker, score in summary["trackers"].items():

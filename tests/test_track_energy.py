@@ -9,7 +9,7 @@ from nnsf.track.energy import (
 )
 
 
-def _problem(image_terms=True, seed=0):
+def _problem(image_terms=True, seed=0, gated=False):
     rng = np.random.default_rng(seed)
     T, H, W = 5, 64, 64
     frames = np.zeros((T, H, W, 3), np.uint8)
@@ -25,14 +25,20 @@ def _problem(image_terms=True, seed=0):
     P = P.repeat(2, 0) + rng.normal(0, 1, (2, T, 4, 2))
     fixed = np.zeros((2, T, 4), bool)
     fixed[0, 2, 1] = True                     # an extra hard constraint (a user's edit)
+    extra = {}
+    if gated:      # edge gate, slide anchor to a start with a confidence per frame
+        extra = dict(edge_gate=1.5, slide=50.0, motion_prior=P + rng.normal(0, 0.5, P.shape),
+                     prior_confidence=rng.uniform(0.2, 1.0, (2, T)))
     prob = SpaceTimeProblem(lev, P, fixed, Weights(), n_samples=9, K=2,
-                            use_image_terms=image_terms)
+                            use_image_terms=image_terms, **extra)
+    if gated:
+        assert 0 < prob.on_edge.sum() < prob.on_edge.size       # the gate keeps some samples
     return prob, prob.x0() + rng.normal(0, 0.3, prob.n_unknowns)
 
 
-@pytest.mark.parametrize("image_terms", [True, False])
-def test_jacobian_matches_finite_differences(image_terms):
-    prob, x = _problem(image_terms)
+@pytest.mark.parametrize("image_terms,gated", [(True, False), (False, False), (True, True)])
+def test_jacobian_matches_finite_differences(image_terms, gated):
+    prob, x = _problem(image_terms, gated=gated)
     J = prob.jacobian(x).toarray()
     eps = 1e-6
     Jn = np.empty_like(J)
@@ -43,8 +49,9 @@ def test_jacobian_matches_finite_differences(image_terms):
     assert np.abs(J - Jn).max() < 1e-5 * max(1.0, np.abs(Jn).max())
 
 
-def test_normal_equations_equal_jtj_of_the_sparse_jacobian():
-    prob, x = _problem()
+@pytest.mark.parametrize("gated", [False, True])
+def test_normal_equations_equal_jtj_of_the_sparse_jacobian(gated):
+    prob, x = _problem(gated=gated)
     r = prob.residuals(x)
     J = prob.jacobian(x).toarray()
     cost, g, Hd, Ho = prob.normal_equations(x)
@@ -119,3 +126,36 @@ def test_length_residuals_are_px_of_curve_length_and_anchored_to_the_keyframes()
     loose = SpaceTimeProblem(lev, P, fixed, w, n_samples=n, K=1, use_image_terms=False,
                              length_anchor=0.0)
     assert loose.cost(x).sum() == pytest.approx(0.5 * n * 2.0 * 2 * 10.0 ** 2, rel=1e-9)
+
+
+def test_edge_gate_and_slide_anchor_residuals_against_their_definitions():
+    from nnsf.track import curves
+    from nnsf.track.energy import bilinear
+    base, x = _problem()
+    rng = np.random.default_rng(5)
+    T = base.T
+    prior = base.P0 + rng.normal(0, 0.5, base.P0.shape)
+    conf = rng.uniform(0.2, 1.0, (2, T))
+    prob = SpaceTimeProblem(base.images, base.P0, base.fixed, Weights(), n_samples=9, K=2,
+                            edge_gate=1.5, slide=50.0, motion_prior=prior, prior_confidence=conf)
+    P = prob.controls(x)
+    B0, B1, _ = curves.basis(prob.C, prob.n)
+    # slide: the offset from the start along the start's unit tangent, times sqrt(w·c)
+    S, Sp = np.einsum("nc,gtcd->gtnd", B0, P), np.einsum("nc,gtcd->gtnd", B0, prior)
+    D1p = np.einsum("nc,gtcd->gtnd", B1, prior)
+    tp = D1p / np.linalg.norm(D1p, axis=-1, keepdims=True)
+    want = np.sqrt(50.0 * conf[:, 1:-1])[..., None] * ((S - Sp) * tp).sum(-1)[:, 1:-1]
+    plain = [b.r for b in base.blocks(x, jacobian=False)]
+    extra = [b.r for b in prob.blocks(x, jacobian=False)]
+    assert len(extra) == len(plain) + 1
+    assert any(r.shape == want.shape and np.allclose(r, want) for r in extra)
+    # edge gate: samples off an edge (> 1.5 px) in either keyframe carry no edge residual
+    Sk = np.einsum("nc,gtcd->gtnd", B0, prob.P0[:, [0, -1]])
+    ek = bilinear(prob.images.edge, prob._t([0, T - 1], 1), Sk, grad=False)[..., 0]
+    on = ek.max(1) <= 1.5
+    np.testing.assert_array_equal(prob.on_edge, on)
+    # off the edges the residuals are scaled by 1 - the start's mean in-between confidence
+    keep = np.where(on, 1.0, 1.0 - conf[:, 1:-1].mean(1)[:, None])
+    e = bilinear(prob.images.edge, prob._t(np.arange(1, T - 1), 1), S[:, 1:-1], grad=False)[..., 0]
+    assert any(r.shape == e.shape and np.allclose(r, keep[:, None] * e) for r in extra)
+    assert 0 < on.sum() < on.size

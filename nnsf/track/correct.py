@@ -233,7 +233,8 @@ def solve_intervals(tracker, names: list[str], kfs: dict, control: np.ndarray,
         sel = np.array([only is None or (k0, k1) in only for k0, k1, _ in b.jobs], bool)
         if not sel.any():
             continue
-        P = tracker.solve(b.P[sel], b.fixed[sel], b.frame0[sel])
+        P = tracker.solve(b.P[sel], b.fixed[sel], b.frame0[sel],
+                          names=[n for (_, _, n), s in zip(b.jobs, sel) if s])
         C = P.shape[2]
         for g, (k0, k1, name) in enumerate(j for j, s in zip(b.jobs, sel) if s):
             out[k0:k1 + 1, names.index(name), :C] = P[g]

@@ -8,6 +8,7 @@ the tracker's mean error there.
 """
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +23,7 @@ TRACKER_STYLE: dict[str, dict] = {
     "lk": {"color": "#ff7f0e", "label": "pyramidal LK"},
 }
 FAIL_COLOUR = "#e600e6"
+MIN_WIDTH = 6.4      # in: room for the title line and a legend of two columns
 
 
 def _samples(control: np.ndarray, n: int) -> np.ndarray:
@@ -58,7 +60,10 @@ def tracking_overlay(frames: np.ndarray, tracked: dict[str, np.ndarray], truth: 
     aspect = (y1 - y0 + 1) / max(x1 - x0 + 1, 1)
     ncol, nrow = len(show), len(methods)
     pw = 2.6
-    fig = new_figure(pw * ncol + 0.2, pw * aspect * nrow + 1.0)
+    # the title and the legend need about MIN_WIDTH in: with one or two columns of panels
+    # the figure is widened (the panels keep their size) instead of cutting them at both edges
+    width = max(pw * ncol + 0.2, MIN_WIDTH)
+    fig = new_figure(width, pw * aspect * nrow + 1.3)
     axes = fig.subplots(nrow, ncol, squeeze=False)
     for r, m in enumerate(methods):
         style = TRACKER_STYLE.get(m, {"color": f"C{r}", "label": m})
@@ -94,8 +99,9 @@ def tracking_overlay(frames: np.ndarray, tracked: dict[str, np.ndarray], truth: 
         handles += [Line2D([], [], color="black", lw=0.8, ls=(0, (2, 2)), label="true contour"),
                     Line2D([], [], color=FAIL_COLOUR, ls="none", marker="x",
                            label=f"failure (> {fail_px:g} px from truth)")]
-    fig.legend(handles=handles, loc="outside lower center", ncol=min(len(handles), 3), fontsize=8,
-               frameon=False)
+    fig.legend(handles=handles, loc="outside lower center", ncol=min(len(handles), 3 if ncol > 1 else 2),
+               fontsize=8, frameon=False)
     if title:
-        fig.suptitle(title, fontsize=10)
+        # about 13 characters of 10-pt text per inch of figure
+        fig.suptitle(textwrap.fill(title, max(int(width * 13), 30)), fontsize=10)
     return save_figure(fig, path)

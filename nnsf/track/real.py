@@ -29,6 +29,8 @@ from scipy.spatial import cKDTree
 
 from nnsf.track import curves
 
+#: the rows of the real-frame reports: the three trackers and the do-nothing floor
+REPORTED = ("ours", "agarwala", "lk", "linear")
 CHARACTERS = ("female_adventurer", "female_person", "male_adventurer", "male_person", "robot",
               "zombie")
 _UP = 4  # upsampling factor for the sub-pixel silhouette boundary
@@ -157,11 +159,13 @@ def track_kenney(data_root, annotations_dir, methods=("ours", "agarwala", "lk"),
     skipped.  Returns a table (character, tracker, score over the in-between
     frames, keyframe score = the annotation's own score, coverage and
     length ratio, see the module notes) and
-    ``{(character, tracker): (T, N, P, 2) control}`` for figures.
+    ``{(character, tracker): (T, N, P, 2) control}`` for figures.  The
+    method ``"linear"`` is no tracker: the keyframes interpolated linearly
+    (:func:`nnsf.track.solve.interpolate_clip`), the floor a tracker must beat.
     """
     from nnsf.frames.annotation import read_annotation
     from nnsf.track.metrics import length_ratio
-    from nnsf.track.solve import track_clip
+    from nnsf.track.solve import interpolate_clip, track_clip
 
     rows, tracked = [], {}
     for ch in characters:
@@ -173,7 +177,8 @@ def track_kenney(data_root, annotations_dir, methods=("ours", "agarwala", "lk"),
         inb = np.ones(len(frames), bool)
         inb[ann.keyframe_indices] = False
         for m in methods:
-            control = track_clip(frames, ann, m, **options)
+            control = interpolate_clip(ann, len(frames)) if m == "linear" else \
+                track_clip(frames, ann, m, **options)
             tracked[(ch, m)] = control
             rows.append({"character": ch, "tracker": m,
                          "score": score_silhouette(control[inb], alpha[inb], tol),
@@ -206,7 +211,8 @@ def silhouette_summary(table, tol: float) -> dict:
 def kenney_report(data_root, annotations_dir, out_dir, tol: float = 1.5, **options) -> dict:
     """Track the Kenney walk cycles with the three trackers and write the report files.
 
-    Writes ``<out_dir>/tracking_kenney.csv`` (character × tracker scores),
+    Writes ``<out_dir>/tracking_kenney.csv`` (character × tracker scores, plus
+    the ``linear`` interpolation of the keyframes as the floor),
     ``<out_dir>/tracking_kenney.json`` (per tracker: mean score over the
     characters under ``trackers``, mean coverage and length ratio under
     ``coverage`` and ``length_ratio``, and the mean keyframe ceiling) and
@@ -221,7 +227,7 @@ def kenney_report(data_root, annotations_dir, out_dir, tol: float = 1.5, **optio
     data_root, out_dir = Path(data_root), Path(out_dir)
     if not data_root.is_dir():
         raise InputError(data_root, "folder", "the Kenney toon characters folder (female_adventurer/, robot/, ...)")
-    table, tracked = track_kenney(data_root, annotations_dir, tol=tol, **options)
+    table, tracked = track_kenney(data_root, annotations_dir, methods=REPORTED, tol=tol, **options)
     if table.empty:
         raise InputError(annotations_dir, "annotations",
                          "at least one <character>.annotation.json for a character in " + str(data_root))
@@ -233,7 +239,8 @@ def kenney_report(data_root, annotations_dir, out_dir, tol: float = 1.5, **optio
     frames, _ = read_rgba(data_root / first, ann.frames)
     inb = [t for t in range(len(frames)) if t not in set(ann.keyframe_indices)]
     show = [inb[i] for i in np.unique(np.linspace(0, len(inb) - 1, 4).round().astype(int))]
-    tracking_overlay(frames, {m: c for (ch, m), c in tracked.items() if ch == first}, None, show,
+    tracking_overlay(frames, {m: c for (ch, m), c in tracked.items() if ch == first and m != "linear"},
+                     None, show,
                      out_dir / "figures" / "tracking_kenney.png", crop_margin=200,
                      title=f"{first} (Kenney toon): tracked outlines between keyframes "
                            f"{ann.keyframe_indices}")

@@ -22,7 +22,7 @@ import pandas as pd
 
 from nnsf.errors import InputError
 from nnsf.io import atomic_dir, read_npz, write_csv, write_json, write_npz
-from nnsf.params import require
+from nnsf.params import checked, require
 
 FRAMES_DIR = Path("data/frames")
 TRACKS_DIR = Path("data/tracks")
@@ -43,6 +43,11 @@ OPTION_PARAMS: dict[str, tuple[str, str, float]] = {
     "levels": ("levels", "int", 1),
     "max_iter": ("max_nfev", "int", 1),
 }
+#: the same for keys that may be absent (then 0: the term is off, as before they existed)
+OPTIONAL_PARAMS: dict[str, tuple[str, str, float]] = {
+    "w_slide": ("slide", "num", 0.0),
+    "edge_gate": ("edge_gate", "num", 0.0),
+}
 
 
 def _map(mapper, fn, items) -> list:
@@ -58,6 +63,8 @@ def track_options(params: dict) -> dict:
     out = {name: require(params, f"track.{key}") for key, (name, _, _) in OPTION_PARAMS.items()}
     out["init"] = require(params, "track.init")
     out["lk_end"] = require(params, "track.lk_end")
+    for key, (name, _, _) in OPTIONAL_PARAMS.items():     # absent in older params files: off
+        out[name] = checked(params, f"track.{key}", 0.0)
     return out
 
 
