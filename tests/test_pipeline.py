@@ -68,6 +68,8 @@ track:
   w_edge: 1.0
   w_sketch: 100.0
   w_colour: 100.0
+  w_slide: 10.0
+  edge_gate: 1.0
   window: 3
   samples: 8
   levels: 1
@@ -141,6 +143,7 @@ reshape:
   fps: 12
   max_frames: 6
   formats: [png, gif, mp4]
+  depth_overrides: []
 animate:
   character: pip
   motion: synthetic:max/walk/6
