@@ -178,8 +178,12 @@ def main(argv: list[str] | None = None) -> int:
             stages.check_outputs(args.command, [args.out])
         elif args.command in ("reshape-eval", "tracking-real"):
             stages.check_outputs(args.command, [args.out, args.out / "figures"])
+        elif args.command == "styles":
+            stages.check_outputs(args.command, [Path(args.out).parent])
         elif args.command != "sweep":  # `nnsf sweep` writes its table to stdout only
             stages.check_outputs(args.command)
+            if args.command == "track" and args.export_cvat is not None:
+                stages.check_outputs(args.command, [args.export_cvat])
         if args.command == "sweep":
             import pandas as pd
 
