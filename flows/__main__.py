@@ -42,6 +42,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0 if argv else 2
     command, rest = argv[0], argv[1:]
     try:
+        _settle_publications()
         if command in STAGES and os.environ.get("NNSF_STAGE_SERVER"):
             # Under `python -m flows repro`: the long-lived process that has Prefect and
             # MLflow imported runs this stage in a child of its own (flows.stage_server).
@@ -79,6 +80,26 @@ def main(argv: list[str] | None = None) -> int:
             raise
         error_line(f"{command}: {one_line(err)} (set NNSF_DEBUG=1 for the traceback)")
         return 1
+
+
+def _settle_publications() -> None:
+    """Finish or drop the output sets a killed stage left half-published (nnsf/publish.py).
+
+    Every command does this first, in the project root, so a set interrupted by
+    a kill is the old or the new one again before any stage or reader runs.
+    Only a staging folder present costs an import: the listing alone is what
+    the stages' recorded imports (and so their dvc.yaml deps) see.
+    """
+    reports = project.root() / "reports"
+    try:
+        pending = any(e.name.startswith(".") and ".staging" in e.name for e in os.scandir(reports))
+    except OSError:
+        return
+    if pending:
+        from nnsf.publish import recover_all
+
+        for note in recover_all(reports):
+            print(f"nnsf: note: {note}", file=sys.stderr)
 
 
 def _is_input_error(err: BaseException) -> bool:

@@ -11,6 +11,7 @@ import os
 import shutil
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import pytest
@@ -18,6 +19,69 @@ import pytest
 import flows  # noqa: F401  (telemetry switches before anything else is imported)
 
 PROJECT = Path(__file__).resolve().parents[1]
+
+# --------------------------------------------------------------------------- spawn guard
+#: Audit events (PEP 578) of starting a process: a command, a fork, a spawn.
+_SPAWN_EVENTS = {"subprocess.Popen", "os.fork", "os.forkpty", "os.posix_spawn", "os.system",
+                 "os.exec", "os.spawn", "_posixsubprocess.fork_exec"}
+_GUARDED: dict = {"test": None, "thread": None, "started": []}
+
+
+def _spawn_audit(event: str, args) -> None:
+    test = _GUARDED["test"]
+    if test is None or event not in _SPAWN_EVENTS or threading.get_ident() != _GUARDED["thread"]:
+        return
+    what = event
+    if event in ("subprocess.Popen", "_posixsubprocess.fork_exec") and args[1]:
+        what = " ".join(str(a) for a in list(args[1])[:3])
+    _GUARDED["started"].append(what)
+    raise RuntimeError(f"{test} starts a process ({what}) but is not marked slow: mark it "
+                       "@pytest.mark.slow (README, Tests), or run the code in this process")
+
+
+sys.addaudithook(_spawn_audit)
+
+
+def _watch_fork_exec() -> None:
+    """Also watch ``_posixsubprocess.fork_exec``, which multiprocessing's spawn and
+    joblib's loky workers call directly (it raises no audit event of its own)."""
+    import _posixsubprocess
+
+    real = _posixsubprocess.fork_exec
+
+    def fork_exec(*args, **kwargs):
+        _spawn_audit("_posixsubprocess.fork_exec", (None, args[0] if args else ()))
+        return real(*args, **kwargs)
+
+    _posixsubprocess.fork_exec = fork_exec
+
+
+_watch_fork_exec()
+
+
+@pytest.fixture(autouse=True)
+def _quick_tests_start_no_process(request):
+    """Every test that starts a process is marked slow, so ``-m "not slow"`` starts none.
+
+    A test without the marker fails as soon as it starts one (from its own thread:
+    ``subprocess``, ``os.fork``, ``os.system``, ``os.posix_spawn``).  Module and
+    session fixtures are not watched: a test that needs a server is marked slow.
+    """
+    if request.node.get_closest_marker("slow") is not None:
+        yield
+        return
+    _GUARDED.update(test=request.node.nodeid, thread=threading.get_ident(), started=[])
+    try:
+        yield
+    finally:
+        started = list(_GUARDED["started"])
+        _GUARDED.update(test=None, thread=None, started=[])
+    if started:
+        pytest.fail(f"{request.node.nodeid} started a process ({started[0]}) but is not marked slow",
+                    pytrace=False)
+
+
+# --------------------------------------------------------------------------- projects and servers
 #: What a fresh clone holds that the pipeline needs (no data, models, reports,
 #: stores or environments).
 SOURCES = ("nnsf", "flows", "dvc.yaml", "params.yaml", "pyproject.toml", ".dvcignore",

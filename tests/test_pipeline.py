@@ -196,6 +196,25 @@ def test_cold_repro_runs_every_stage_and_writes_every_output(pipeline):
             assert isinstance(metrics, dict) and metrics, path
 
 
+def test_each_multi_file_report_stage_published_exactly_its_outputs(pipeline):
+    """factorize, evaluate, isomap, heldout and tracking publish their files as one set
+    (nnsf/publish.py): each manifest verifies and lists every other declared output."""
+    from nnsf.publish import verify
+
+    reports = pipeline.root / "reports"
+    for name, stage in dvc_yaml(pipeline.root)["stages"].items():
+        outputs = set(declared(stage.get("outs")) + declared(stage.get("metrics")))
+        manifest = f"reports/{name}.manifest.json"
+        if manifest not in outputs:
+            continue
+        published = {p.resolve().relative_to(pipeline.root.resolve()).as_posix()
+                     for p in verify(reports, name).values()}
+        assert published == outputs - {manifest}, name
+    assert {p.name for p in reports.glob("*.manifest.json")} == {
+        f"{s}.manifest.json" for s in ("factorize", "evaluate", "isomap", "heldout", "tracking")}
+    assert not [p for p in reports.iterdir() if p.name.startswith(".")]   # nothing staged left
+
+
 def test_plot_data_has_the_declared_columns(pipeline):
     precision = pd.read_csv(pipeline.root / "reports/plots/precision_vs_rank.csv")
     assert {"rank", "nnsf", "nnsc", "nmf", "bilinear"} <= set(precision.columns)
