@@ -39,6 +39,11 @@ def _spawn_audit(event: str, args) -> None:
                        "@pytest.mark.slow (README, Tests), or run the code in this process")
 
 
+# joblib counts the physical cores once per process by running `lscpu`: done here, before any
+# test, so that a test using scikit-learn does not start that process.
+from joblib.externals.loky.backend.context import cpu_count  # noqa: E402
+
+cpu_count(only_physical_cores=True)
 sys.addaudithook(_spawn_audit)
 
 
