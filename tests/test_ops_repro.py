@@ -9,7 +9,8 @@
   threads, Haswell kernels, no AVX-512: test_determinism.SETUPS).
 
 Every project here is a clone of HEAD with the small params committed; the
-uninterrupted cold repro is made once (module fixture) and is the reference
+uninterrupted cold repro is made once per session (conftest.small_pipeline, a
+committed copy of the sources, shared with test_pipeline) and is the reference
 of both tests.  Slow (minutes): they run the real pipeline several times.
 """
 from __future__ import annotations
@@ -24,20 +25,13 @@ from pathlib import Path
 import pytest
 import yaml
 
-from conftest import PROJECT, git, project_env, run
+from conftest import PROJECT, git, lock_hashes, project_env, run
 from test_ops_support import process_group, wait_for
 
 pytestmark = pytest.mark.slow
 
 FLOWS = [sys.executable, "-m", "flows"]
 DVC = [sys.executable, "-m", "dvc"]
-
-
-def lock_hashes(root: Path) -> dict[str, dict[str, str]]:
-    """Stage -> {output path: md5} from dvc.lock."""
-    lock = yaml.safe_load((root / "dvc.lock").read_text())
-    return {stage: {o["path"]: o["md5"] for o in body.get("outs", [])}
-            for stage, body in lock["stages"].items()}
 
 
 def small_params() -> str:
@@ -60,14 +54,10 @@ def _small_clone(base: Path, name: str, mlflow_template: Path, prefect_api: str,
 
 
 @pytest.fixture(scope="module")
-def reference(tmp_path_factory, mlflow_template, prefect_api):
-    """dvc.lock output hashes of one uninterrupted cold repro of the small pipeline."""
-    base = tmp_path_factory.mktemp("repro-reference")
-    root, env = _small_clone(base, "reference", mlflow_template, prefect_api,
-                             {"OPENBLAS_NUM_THREADS": "1"})
-    done = run(FLOWS + ["repro"], root, env, timeout=1800)
-    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
-    return lock_hashes(root)
+def reference(small_pipeline):
+    """dvc.lock output hashes of one uninterrupted cold repro of the small pipeline (one OpenBLAS
+    thread): conftest.small_pipeline, the cold repro test_pipeline inspects."""
+    return small_pipeline.reference
 
 
 def test_a_stage_killed_while_writing_leaves_nothing_finished_and_repro_recovers(

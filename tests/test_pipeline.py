@@ -2,7 +2,9 @@
 
 Real DVC, real Prefect flows against the session's Prefect server, a real
 sqlite MLflow store.  The tests of this module share one reproduced project
-and run in file order; the last one changes ``nnsf.alpha``.
+(``conftest.small_pipeline``, made once per session for this module and
+test_ops_repro) and run in file order; the last ones change ``nnsf.alpha``
+and ``animate.style``.
 """
 from __future__ import annotations
 
@@ -160,20 +162,10 @@ def stages_run(output: str) -> set[str]:
 
 
 @pytest.fixture(scope="module")
-def pipeline(tmp_path_factory, prefect_api, mlflow_template):
-    """A copy of the project with SMALL_PARAMS, reproduced once from scratch."""
-    base = tmp_path_factory.mktemp("e2e")
-    root, env = new_project(base / "project", mlflow_template, prefect_api)
-    (root / "params.yaml").write_text(SMALL_PARAMS)
-    git(root, "commit", "-q", "-am", "small params")
-    env["NNSF_RECORD_IMPORTS"] = str(base / "imports")
-    started = time.perf_counter()
-    cold = run(FLOWS + ["repro"], root, env, timeout=900)
-    seconds = time.perf_counter() - started
-    assert cold.returncode == 0, cold.stdout[-4000:] + cold.stderr[-4000:]
-    print(f"cold repro of the small pipeline: {seconds:.1f} s")
-    return SimpleNamespace(root=root, env=env, cold=cold, seconds=seconds,
-                           imports=base / "imports", mlflow_uri=env["MLFLOW_TRACKING_URI"])
+def pipeline(small_pipeline):
+    """A copy of the project with SMALL_PARAMS, reproduced once from scratch (conftest.small_pipeline,
+    shared with test_ops_repro, which only reads its reference hashes)."""
+    return small_pipeline
 
 
 def dvc_yaml(root: Path) -> dict:
