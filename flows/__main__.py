@@ -131,7 +131,7 @@ def run_stage_command(stage: str, args: list[str]) -> int:
         from flows import runners
         from flows.sweep import sweep
 
-        configured = runners.configured(sweep)  # validates NNSF_TASK_RUNNER before the flow starts
+        configured = runners.configured(sweep, stage)  # validates NNSF_TASK_RUNNER before the flow starts
         quiet_prefect_console()
         state = configured(params, return_state=True)
     else:
@@ -141,7 +141,7 @@ def run_stage_command(stage: str, args: list[str]) -> int:
         if stage in FAN_OUT:
             from flows import runners
 
-            stage_flow = runners.configured(stage_flow)  # validates NNSF_TASK_RUNNER first
+            stage_flow = runners.configured(stage_flow, stage)  # validates NNSF_TASK_RUNNER first
         quiet_prefect_console()
         state = stage_flow(params, return_state=True)
 

@@ -39,11 +39,15 @@ def _spawn_audit(event: str, args) -> None:
                        "@pytest.mark.slow (README, Tests), or run the code in this process")
 
 
-# joblib counts the physical cores once per process by running `lscpu`: done here, before any
-# test, so that a test using scikit-learn does not start that process.
+# Two libraries ask the system once per process by running a command: joblib counts the
+# physical cores (`lscpu`), the platform module the processor (`uname -p`, for Prefect and
+# Dask).  Done here, before any test, so that a quick test using them starts no process.
+import platform  # noqa: E402
+
 from joblib.externals.loky.backend.context import cpu_count  # noqa: E402
 
 cpu_count(only_physical_cores=True)
+platform.processor()
 sys.addaudithook(_spawn_audit)
 
 

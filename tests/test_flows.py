@@ -248,6 +248,27 @@ def test_task_runner_is_chosen_in_one_place(monkeypatch):
         runners.task_runner()
 
 
+def test_each_fan_out_gets_its_runner_and_the_environment_overrides_the_rule(monkeypatch):
+    """The rule (flows/runners.py, README): processes for the held-out cells (few, large items),
+    threads for every other fan-out; NNSF_TASK_RUNNER, when set, decides for all of them."""
+    from prefect.task_runners import ProcessPoolTaskRunner, ThreadPoolTaskRunner
+
+    from flows.stage_flows import FAN_OUT, FLOWS
+
+    monkeypatch.delenv("NNSF_TASK_RUNNER", raising=False)
+    monkeypatch.setenv("NNSF_WORKERS", "2")
+    chosen = {stage: runners.kind(stage) for stage in (*FAN_OUT, "sweep")}
+    assert chosen == {"evaluate": "threads", "frames": "threads", "track": "threads",
+                      "tracking": "threads", "heldout": "processes", "sweep": "threads"}
+    heldout = runners.configured(FLOWS["heldout"], "heldout")
+    assert isinstance(heldout.task_runner, ProcessPoolTaskRunner)
+    assert isinstance(runners.configured(FLOWS["evaluate"], "evaluate").task_runner, ThreadPoolTaskRunner)
+    for name, cls in (("threads", ThreadPoolTaskRunner), ("processes", ProcessPoolTaskRunner)):
+        monkeypatch.setenv("NNSF_TASK_RUNNER", name)
+        assert {runners.kind(stage) for stage in chosen} == {name}
+        assert isinstance(runners.configured(FLOWS["heldout"], "heldout").task_runner, cls)
+
+
 def test_pipeline_report_names_stages_and_changed_metrics():
     status = {"factorize": [{"changed deps": {"params.yaml": {"nnsf.alpha": 0.1}}}]}
     diff = {"reports/metrics.json": {"nnsf_precision": {"old": 0.5, "new": 0.6, "diff": 0.1},
