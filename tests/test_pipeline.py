@@ -18,13 +18,12 @@ import time
 import urllib.error
 import urllib.request
 from pathlib import Path
-from types import SimpleNamespace
 
 import pandas as pd
 import pytest
 import yaml
 
-from conftest import git, new_project, run
+from conftest import run
 
 pytestmark = pytest.mark.slow
 
