@@ -95,13 +95,26 @@ def main(argv=None):
         for setup in args.setups.split(","):
             runner, n = setup.split(":")
             out = args.out / f"reports-{runner}-{n}"
+            cpu0, wall0 = _cpu_seconds(), time.perf_counter()
             seconds = run_setup(params, args.out / "features" / "features.csv", out, runner, int(n))
+            wall, cpu = time.perf_counter() - wall0, _cpu_seconds() - cpu0
             digest = hashlib.md5((out / "heldout.csv").read_bytes()).hexdigest()
             first_time = first_time or seconds
             first_hash = first_hash or digest
+            # CPU of this process and of the workers it has reaped (process pools and Dask
+            # clusters are shut down with the flow): on a shared machine, "cores" is what the
+            # set-up got, which caps its speed-up.
             print(f"{runner:>9} x {n}: {seconds:7.1f} s  speed-up {first_time / seconds:4.2f}x  "
-                  f"heldout.csv {'identical' if digest == first_hash else 'DIFFERS'} ({digest[:8]})",
+                  f"heldout.csv {'identical' if digest == first_hash else 'DIFFERS'} ({digest[:8]}); "
+                  f"flow with runner start/stop {wall:.1f} s, CPU {cpu:.1f} s, cores {cpu / wall:.2f}",
                   flush=True)
+
+
+def _cpu_seconds() -> float:
+    import resource
+
+    return sum(r.ru_utime + r.ru_stime for r in (resource.getrusage(resource.RUSAGE_SELF),
+                                                 resource.getrusage(resource.RUSAGE_CHILDREN)))
 
 
 if __name__ == "__main__":
