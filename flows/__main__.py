@@ -182,9 +182,13 @@ def _record_imports(stage: str, root: Path) -> None:
             rel = Path(path).resolve().relative_to(root)
         except ValueError:
             continue
-        # The stage server only forks the stage's process: orchestration like DVC itself.
-        if rel.parts[0] in ("nnsf", "flows") and rel.as_posix() != "flows/stage_server.py":
+        if rel.parts[0] in ("nnsf", "flows"):
             files.add(rel.as_posix())
+    # What the fan-out's items loaded in worker processes (the held-out cells' process pool).
+    runners = sys.modules.get("flows.runners")        # loaded by the stages that fan out
+    files |= {f for f in getattr(runners, "WORKER_FILES", ()) if (root / f).is_file()}
+    # The stage server only forks the stage's process: orchestration like DVC itself.
+    files.discard("flows/stage_server.py")
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
     (out / f"{stage}.txt").write_text("".join(f"{f}\n" for f in sorted(files)))

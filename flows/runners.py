@@ -206,10 +206,13 @@ def prefect_mapper(task_name: str, retries: int = RETRIES,
 
         items = list(items)
         labels = [name(item) if name else f"[{i}]" for i, item in enumerate(items)]
-        base = task(fn, name=task_name, retries=retries, retry_delay_seconds=retry_delay_seconds,
+        recording = bool(os.environ.get("NNSF_RECORD_IMPORTS"))
+        base = task(_recorded if recording else fn, name=task_name, retries=retries,
+                    retry_delay_seconds=retry_delay_seconds,
                     retry_condition_fn=_retry_unless_bad_input, cache_policy=NO_CACHE,
                     persist_result=False)
-        futures = [base.with_options(task_run_name=_escape(f"{task_name} {label}")).submit(item)
+        futures = [base.with_options(task_run_name=_escape(f"{task_name} {label}"))
+                   .submit((fn, item) if recording else item)
                    for label, item in zip(labels, items)]
         position = {f.task_run_id: i for i, f in enumerate(futures)}
         results: list = [None] * len(items)
@@ -218,6 +221,9 @@ def prefect_mapper(task_name: str, retries: int = RETRIES,
             i = position[future.task_run_id]
             try:
                 results[i] = future.result()
+                if recording:
+                    results[i], files = results[i]
+                    WORKER_FILES.update(files)
             except BaseException as err:  # noqa: BLE001  (reported by name below)
                 if isinstance(err, (KeyboardInterrupt, SystemExit)):
                     raise
@@ -233,6 +239,38 @@ def prefect_mapper(task_name: str, retries: int = RETRIES,
         return results
 
     return mapper
+
+
+#: The project's module files that fan-out items loaded in worker processes (process pool,
+#: Dask), collected only under ``NNSF_RECORD_IMPORTS``: what the stage ran beyond the modules
+#: of its own process (flows.__main__ writes both; the pipeline test compares them with deps).
+WORKER_FILES: set[str] = set()
+
+
+def project_files() -> set[str]:
+    """The project's module files (``nnsf/…``, ``flows/…``, relative POSIX paths) loaded here."""
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    files = set()
+    for module in list(sys.modules.values()):
+        path = getattr(module, "__file__", None)
+        if not path:
+            continue
+        try:
+            rel = Path(path).resolve().relative_to(root)
+        except ValueError:
+            continue
+        if rel.parts[0] in ("nnsf", "flows"):
+            files.add(rel.as_posix())
+    return files
+
+
+def _recorded(call):
+    """``fn(item)`` and the project files loaded in the process that ran it (a worker's, too)."""
+    fn, item = call
+    return fn(item), project_files()
 
 
 def local_mapper(fn: Callable[[Any], Any], items: Iterable[Any]) -> list:
