@@ -42,6 +42,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0 if argv else 2
     command, rest = argv[0], argv[1:]
     try:
+        _settle_publications()
         if command in STAGES and os.environ.get("NNSF_STAGE_SERVER"):
             # Under `python -m flows repro`: the long-lived process that has Prefect and
             # MLflow imported runs this stage in a child of its own (flows.stage_server).
@@ -81,6 +82,26 @@ def main(argv: list[str] | None = None) -> int:
         return 1
 
 
+def _settle_publications() -> None:
+    """Finish or drop the output sets a killed stage left half-published (nnsf/publish.py).
+
+    Every command does this first, in the project root, so a set interrupted by
+    a kill is the old or the new one again before any stage or reader runs.
+    Only a staging folder present costs an import: the listing alone is what
+    the stages' recorded imports (and so their dvc.yaml deps) see.
+    """
+    reports = project.root() / "reports"
+    try:
+        pending = any(e.name.startswith(".") and ".staging" in e.name for e in os.scandir(reports))
+    except OSError:
+        return
+    if pending:
+        from nnsf.publish import recover_all
+
+        for note in recover_all(reports):
+            print(f"nnsf: note: {note}", file=sys.stderr)
+
+
 def _is_input_error(err: BaseException) -> bool:
     # Only code that imported nnsf.errors can have raised an InputError.
     errors = sys.modules.get("nnsf.errors")
@@ -110,7 +131,7 @@ def run_stage_command(stage: str, args: list[str]) -> int:
         from flows import runners
         from flows.sweep import sweep
 
-        configured = runners.configured(sweep)  # validates NNSF_TASK_RUNNER before the flow starts
+        configured = runners.configured(sweep, stage)  # validates NNSF_TASK_RUNNER before the flow starts
         quiet_prefect_console()
         state = configured(params, return_state=True)
     else:
@@ -120,7 +141,7 @@ def run_stage_command(stage: str, args: list[str]) -> int:
         if stage in FAN_OUT:
             from flows import runners
 
-            stage_flow = runners.configured(stage_flow)  # validates NNSF_TASK_RUNNER first
+            stage_flow = runners.configured(stage_flow, stage)  # validates NNSF_TASK_RUNNER first
         quiet_prefect_console()
         state = stage_flow(params, return_state=True)
 
@@ -161,9 +182,13 @@ def _record_imports(stage: str, root: Path) -> None:
             rel = Path(path).resolve().relative_to(root)
         except ValueError:
             continue
-        # The stage server only forks the stage's process: orchestration like DVC itself.
-        if rel.parts[0] in ("nnsf", "flows") and rel.as_posix() != "flows/stage_server.py":
+        if rel.parts[0] in ("nnsf", "flows"):
             files.add(rel.as_posix())
+    # What the fan-out's items loaded in worker processes (the held-out cells' process pool).
+    runners = sys.modules.get("flows.runners")        # loaded by the stages that fan out
+    files |= {f for f in getattr(runners, "WORKER_FILES", ()) if (root / f).is_file()}
+    # The stage server only forks the stage's process: orchestration like DVC itself.
+    files.discard("flows/stage_server.py")
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
     (out / f"{stage}.txt").write_text("".join(f"{f}\n" for f in sorted(files)))

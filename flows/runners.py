@@ -8,18 +8,31 @@ per-cell evaluation) goes through two functions:
   ``nnsf`` stage functions accept: one Prefect task run per item, on the
   running flow's task runner, results in the items' order.
 
-``NNSF_TASK_RUNNER`` selects the runner:
+Each fan-out gets the runner that suits its items (:data:`DEFAULTS`, the rule
+below); ``NNSF_TASK_RUNNER`` set to one of these names overrides it for all:
 
-- ``threads`` (default): :class:`prefect.task_runners.ThreadPoolTaskRunner`.
-  Threads start at once and copy nothing.  numpy releases the GIL inside
-  its products, but the default dataset's fits are small (about 9,000 x 34)
-  and hold it between them, so two threads gain little over one there
-  (README, Benchmarks); Dask or processes pay off for larger items.
-- ``processes``: :class:`prefect.task_runners.ProcessPoolTaskRunner`.
+- ``threads``: :class:`prefect.task_runners.ThreadPoolTaskRunner`.  Threads
+  start at once and copy nothing.  numpy releases the GIL inside its
+  products, but the default dataset's fits are small (about 9,000 x 34) and
+  hold it between them, so two threads gain little over one there (README,
+  Benchmarks).
+- ``processes``: :class:`prefect.task_runners.ProcessPoolTaskRunner`.  Each
+  worker process pays its start-up (imports, about 3-6 s) once and each item
+  is pickled to it, but the workers share no GIL.
 - ``dask``: ``prefect_dask.DaskTaskRunner``.  ``NNSF_DASK_ADDRESS``
   (``tcp://host:8786``) submits to an existing Dask scheduler; without it a
   local cluster of ``NNSF_WORKERS`` single-threaded worker processes lives
   for the flow run.
+
+The rule (measured: README, Fan-out): **processes for few, large items**,
+items that each compute for seconds in Python and numpy between BLAS calls
+(a held-out cell refits eleven methods on the remaining clips: 4-30 s), where
+a worker's start-up and a copy of its input are small beside the item and a
+shared GIL is what limits threads; **threads for many small items** (CV fits
+and sweep points of 0.03-1 s, clips to render or track), where a process
+pool's start-up would cost more than it saves.  Dask is never the default:
+on one machine it ships each held-out cell's input through its scheduler and
+was the slowest; use it for more machines.
 
 ``NNSF_WORKERS`` sets the number of local workers (default: the number of
 cores).  No pool or scheduler of our own: retries, task states and the UI's
@@ -50,9 +63,17 @@ def workers() -> int:
                else (os.cpu_count() or 1))
 
 
-def kind() -> str:
-    """The configured runner name (validated)."""
-    name = os.environ.get("NNSF_TASK_RUNNER", "threads")
+#: The runner of each fan-out (by stage) when ``NNSF_TASK_RUNNER`` is not set; the rule is in
+#: the module docstring.  Every other fan-out (evaluate's CV fits, the sweep's points, frames,
+#: track and tracking's clips) runs on :data:`DEFAULT`.
+DEFAULTS = {"heldout": "processes"}
+DEFAULT = "threads"
+
+
+def kind(fan_out: str | None = None) -> str:
+    """The runner name for ``fan_out`` (a stage name): ``NNSF_TASK_RUNNER`` if set (validated),
+    else the fan-out's default (:data:`DEFAULTS`)."""
+    name = os.environ.get("NNSF_TASK_RUNNER") or DEFAULTS.get(fan_out, DEFAULT)
     if name not in CHOICES:
         raise InputError("environment", "NNSF_TASK_RUNNER", "one of " + ", ".join(CHOICES), name)
     return name
@@ -63,9 +84,9 @@ def dask_address() -> str | None:
     return os.environ.get("NNSF_DASK_ADDRESS") or None
 
 
-def task_runner():
-    """A fresh task runner as configured by the environment."""
-    name, n = kind(), workers()
+def task_runner(fan_out: str | None = None):
+    """A fresh task runner for ``fan_out`` (a stage name), as the rule and the environment say."""
+    name, n = kind(fan_out), workers()
     if name == "threads":
         from prefect.task_runners import ThreadPoolTaskRunner
 
@@ -88,13 +109,13 @@ def task_runner():
                                           "processes": True, "dashboard_address": None})
 
 
-def configured(flow_obj):
-    """``flow_obj`` with the configured task runner (a copy; the original is unchanged).
+def configured(flow_obj, fan_out: str | None = None):
+    """``flow_obj`` with the task runner of ``fan_out`` (a copy; the original is unchanged).
 
     Call it when the flow is about to run (not at import), so the environment
-    of that run decides: ``configured(sweep)(params)``.
+    of that run decides: ``configured(stage_flows.heldout, "heldout")(params)``.
     """
-    return flow_obj.with_options(task_runner=task_runner())
+    return flow_obj.with_options(task_runner=task_runner(fan_out))
 
 
 class FanOutError(RuntimeError):
@@ -185,10 +206,13 @@ def prefect_mapper(task_name: str, retries: int = RETRIES,
 
         items = list(items)
         labels = [name(item) if name else f"[{i}]" for i, item in enumerate(items)]
-        base = task(fn, name=task_name, retries=retries, retry_delay_seconds=retry_delay_seconds,
+        recording = bool(os.environ.get("NNSF_RECORD_IMPORTS"))
+        base = task(_recorded if recording else fn, name=task_name, retries=retries,
+                    retry_delay_seconds=retry_delay_seconds,
                     retry_condition_fn=_retry_unless_bad_input, cache_policy=NO_CACHE,
                     persist_result=False)
-        futures = [base.with_options(task_run_name=_escape(f"{task_name} {label}")).submit(item)
+        futures = [base.with_options(task_run_name=_escape(f"{task_name} {label}"))
+                   .submit((fn, item) if recording else item)
                    for label, item in zip(labels, items)]
         position = {f.task_run_id: i for i, f in enumerate(futures)}
         results: list = [None] * len(items)
@@ -197,6 +221,9 @@ def prefect_mapper(task_name: str, retries: int = RETRIES,
             i = position[future.task_run_id]
             try:
                 results[i] = future.result()
+                if recording:
+                    results[i], files = results[i]
+                    WORKER_FILES.update(files)
             except BaseException as err:  # noqa: BLE001  (reported by name below)
                 if isinstance(err, (KeyboardInterrupt, SystemExit)):
                     raise
@@ -212,6 +239,38 @@ def prefect_mapper(task_name: str, retries: int = RETRIES,
         return results
 
     return mapper
+
+
+#: The project's module files that fan-out items loaded in worker processes (process pool,
+#: Dask), collected only under ``NNSF_RECORD_IMPORTS``: what the stage ran beyond the modules
+#: of its own process (flows.__main__ writes both; the pipeline test compares them with deps).
+WORKER_FILES: set[str] = set()
+
+
+def project_files() -> set[str]:
+    """The project's module files (``nnsf/…``, ``flows/…``, relative POSIX paths) loaded here."""
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    files = set()
+    for module in list(sys.modules.values()):
+        path = getattr(module, "__file__", None)
+        if not path:
+            continue
+        try:
+            rel = Path(path).resolve().relative_to(root)
+        except ValueError:
+            continue
+        if rel.parts[0] in ("nnsf", "flows"):
+            files.add(rel.as_posix())
+    return files
+
+
+def _recorded(call):
+    """``fn(item)`` and the project files loaded in the process that ran it (a worker's, too)."""
+    fn, item = call
+    return fn(item), project_files()
 
 
 def local_mapper(fn: Callable[[Any], Any], items: Iterable[Any]) -> list:

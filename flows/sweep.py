@@ -146,7 +146,7 @@ def sweep(params: dict, point_fn: str | None = None, reuse: bool = True):
     keys = sweep_keys(params, points, features_csv)
     parent = log.start_run("sweep", {"nnsf.stage": "sweep"})
     log.log(parent, params={f"sweep.{k}": v for k, v in params.get("sweep", {}).items()}
-            | {"points": len(points), "task_runner": runners.kind(),
+            | {"points": len(points), "task_runner": runners.kind("sweep"),
                "workers": runners.workers()})
     started = time.perf_counter()
     try:
@@ -257,7 +257,7 @@ def _reuse_finished(log: ExperimentLog, parent: str, points, keys, figure_dir: P
 @contextlib.contextmanager
 def _one_blas_thread_per_worker():
     """With worker threads, one BLAS thread each: otherwise they oversubscribe the cores."""
-    if runners.kind() != "threads" or runners.workers() < 2:
+    if runners.kind("sweep") != "threads" or runners.workers() < 2:
         yield
         return
     from threadpoolctl import threadpool_limits

@@ -417,6 +417,12 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
 
     views.check_view(view)
     targets = dict(outputs) if outputs is not None else output_targets(out)
+    # Every output folder is checked before any work (a file in the way, a read-only
+    # disk): one line naming the folder, and nothing rendered in vain.
+    from nnsf.io import check_writable
+
+    for folder in sorted({path if kind == "png" else path.parent for kind, path in targets.items()}):
+        check_writable(folder)
     seconds: dict[str, float] = {}
     cpu: dict[str, float] = {}
     t0, c0 = time.perf_counter(), time.process_time()

@@ -165,6 +165,7 @@ def _animate(args) -> int:
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     try:
+        _settle_publications()
         if args.command == "animate":  # needs no params.yaml
             return _animate(args)
         from nnsf import params as params_mod
@@ -180,8 +181,12 @@ def main(argv: list[str] | None = None) -> int:
             stages.check_outputs(args.command, [args.out])
         elif args.command in ("reshape-eval", "tracking-real"):
             stages.check_outputs(args.command, [args.out, args.out / "figures"])
+        elif args.command == "styles":
+            stages.check_outputs(args.command, [Path(args.out).parent])
         elif args.command != "sweep":  # `nnsf sweep` writes its table to stdout only
             stages.check_outputs(args.command)
+            if args.command == "track" and args.export_cvat is not None:
+                stages.check_outputs(args.command, [args.export_cvat])
         if args.command == "sweep":
             import pandas as pd
 
@@ -290,6 +295,18 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except Exception as err:  # a bug or an environment problem
         return _unexpected(args.command, err)
+
+
+def _settle_publications() -> None:
+    """Finish or drop the output sets a killed stage left half-published under ``reports/``.
+
+    Every command does this first (:func:`nnsf.publish.recover_all`), so a set
+    interrupted by a kill is the old or the new one again before anything reads it.
+    """
+    from nnsf.publish import recover_all
+
+    for note in recover_all():
+        print(f"nnsf: note: {note}", file=sys.stderr)
 
 
 def _unexpected(command: str, err: BaseException) -> int:

@@ -5,50 +5,61 @@ with other stages (``reports/``, ``reports/plots/``, ``reports/figures/``),
 so one folder cannot be swapped in.  :func:`publishing` makes the set change
 as one unit instead:
 
-1. the stage writes every output under ``<root>/.<stage>.staging/`` with the
-   paths it will have under ``root`` (each file atomically, :mod:`nnsf.io`);
+1. the stage writes every output under ``<reports>/.<stage>.staging/`` with
+   the paths it will have under its root (``reports`` itself, or a folder
+   above it when the set spans folders: ``factorize`` also writes
+   ``models/nnsf.npz``), each file atomically (:mod:`nnsf.io`).  The
+   staging folder is locked (``flock``) while its stage runs;
 2. **commit**: ``<staging>/.commit.json`` lists every staged file with its
    SHA-256, written atomically.  Before this point the published set is
    untouched; after it the new set will be completed;
-3. the old manifest ``<root>/<stage>.manifest.json`` is removed, and each
+3. the old manifest ``<reports>/<stage>.manifest.json`` is removed, and each
    staged file is renamed onto its place;
 4. the manifest (the journal's list) is written **last**, then the staging
    folder removed.
 
-:func:`recover` finishes or discards an interrupted publication: a staging
-folder without a journal is removed (the old set stands), one with a
-journal is rolled forward (steps 3-4, idempotent).  Every publication starts
-with it, and :func:`verify` (the reader's check) runs it before checking
-that each file the manifest lists is present with its hash.  So after a kill
-at any point, the files are the old set or the new set once anything reads
-or rewrites them; in the short window of step 3 the files on disk are mixed
-but the manifest is absent, so no reader that checks it takes them for a
-finished set.  The manifest holds no times, so reruns are byte-identical.
+:func:`recover` finishes or discards an interrupted publication (a staging
+folder whose lock nobody holds): without a journal it is removed (the old
+set stands); with one it is rolled forward (steps 3-4, idempotent).  It runs
+at the start of every publication, at the start of **every** ``nnsf`` and
+``python -m flows`` command (:func:`recover_all`, on ``reports/``), and in
+:func:`verify`, the reader's check.  So after a kill at any point, the
+files are the old set or the new set as soon as any command of the project
+starts.  Between such a kill inside step 3 (a few renames) and that next
+command, a reader outside the project (an editor, ``dvc metrics show``)
+can find a mix on disk; it is marked by the missing manifest and the
+staging folder with its journal beside it.  A publication in progress is
+never touched (its lock is held), and a killed one's lock is released by
+the kernel.  The manifest holds no times, so reruns are byte-identical.
 """
 from __future__ import annotations
 
 import contextlib
+import errno
 import hashlib
 import json
 import os
 import shutil
+import tempfile
 from pathlib import Path
 from typing import Iterator
 
 from nnsf.errors import InputError
-from nnsf.io import WriteError, _write_error, renamed_write_error, write_json
 
 JOURNAL = ".commit.json"
+#: Where the stages publish (``nnsf.stages.REPORTS``); recovered by every command.
+REPORTS = Path("reports")
+_SUFFIX = ".staging"
 
 
-def manifest_path(root, stage: str) -> Path:
-    """``<root>/<stage>.manifest.json``: the published set of ``stage`` and its hashes."""
-    return Path(root) / f"{stage}.manifest.json"
+def manifest_path(reports, stage: str) -> Path:
+    """``<reports>/<stage>.manifest.json``: the published set of ``stage`` and its hashes."""
+    return Path(reports) / f"{stage}.manifest.json"
 
 
-def staging_path(root, stage: str) -> Path:
-    """``<root>/.<stage>.staging``: where ``stage`` writes its next set."""
-    return Path(root) / f".{stage}.staging"
+def staging_path(reports, stage: str) -> Path:
+    """``<reports>/.<stage>.staging``: where ``stage`` writes its next set."""
+    return Path(reports) / f".{stage}{_SUFFIX}"
 
 
 def _sha256(path: Path) -> str:
@@ -69,86 +80,223 @@ def _staged_files(staging: Path) -> list[str]:
     return sorted(out)
 
 
-def _roll_forward(root: Path, stage: str, journal: dict) -> None:
+# -- the lock: held by the process that writes a staging folder ------------------------------
+
+def _lock(folder: Path, wait: bool) -> int | None:
+    """An open descriptor of ``folder`` with an exclusive ``flock``; None if busy (``wait`` False).
+
+    The lock belongs to the open descriptor: a killed holder's lock is
+    released by the kernel, so a folder nobody holds was left by a dead run.
+    """
+    import fcntl
+
+    while True:
+        try:
+            fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+        except (FileNotFoundError, NotADirectoryError):
+            return None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+        except BlockingIOError:
+            os.close(fd)
+            return None
+        # The holder we waited for may have removed the folder (and another run made
+        # a new one at the same path): the lock counts only on the folder still there.
+        try:
+            same = os.path.samestat(os.fstat(fd), os.stat(folder))
+        except FileNotFoundError:
+            os.close(fd)
+            return None
+        if same:
+            return fd
+        os.close(fd)
+
+
+def _move(src: Path, dst: Path) -> None:
+    from nnsf.io import _write_error
+
+    try:
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(src, dst)
+    except OSError as exc:
+        if exc.errno != errno.EXDEV:
+            raise _write_error(dst, exc) from None
+        # Another file system (a linked folder): copy beside the target, then rename.
+        fd, tmp = tempfile.mkstemp(prefix=f".{dst.name}.", dir=dst.parent)
+        os.close(fd)
+        shutil.copyfile(src, tmp)
+        os.replace(tmp, dst)
+        os.unlink(src)
+
+
+def _roll_forward(reports: Path, stage: str, journal: dict) -> None:
     """Steps 3-4: move the journal's files into place, then write the manifest (idempotent)."""
-    staging = staging_path(root, stage)
-    manifest_path(root, stage).unlink(missing_ok=True)
+    from nnsf.io import write_json
+
+    staging = staging_path(reports, stage)
+    root = reports / journal.get("root", ".")
+    manifest_path(reports, stage).unlink(missing_ok=True)
     for rel in journal["files"]:
-        src, dst = staging / rel, root / rel
+        src = staging / rel
         if src.exists():
-            try:
-                dst.parent.mkdir(parents=True, exist_ok=True)
-                os.replace(src, dst)
-            except OSError as exc:
-                raise _write_error(dst, exc) from None
-    write_json(manifest_path(root, stage), journal)
+            _move(src, root / rel)
+    write_json(manifest_path(reports, stage), journal)
     shutil.rmtree(staging, ignore_errors=True)
 
 
-def recover(root, stage: str) -> str:
-    """Finish or discard an interrupted publication of ``stage`` under ``root``.
-
-    Returns ``"none"`` (nothing was interrupted), ``"discarded"`` (killed
-    before the commit: the staged files are dropped, the old set stands) or
-    ``"completed"`` (killed after it: the new set is moved into place).
-    """
-    root = Path(root)
-    staging = staging_path(root, stage)
-    if not staging.exists():
-        return "none"
+def _settle(reports: Path, stage: str, staging: Path) -> str:
+    """Finish (journal present) or drop (absent) the staging folder we hold the lock of."""
     journal_file = staging / JOURNAL
-    if not journal_file.is_file():
+    if staging.name != staging_path(reports, stage).name or not journal_file.is_file():
         shutil.rmtree(staging, ignore_errors=True)
         return "discarded"
-    journal = json.loads(journal_file.read_text())
-    _roll_forward(root, stage, journal)
+    _roll_forward(reports, stage, json.loads(journal_file.read_text()))
     return "completed"
 
 
+def recover(reports, stage: str, wait: bool = False) -> str:
+    """Finish or discard an interrupted publication of ``stage`` under ``reports``.
+
+    Returns ``"none"`` (nothing was interrupted), ``"discarded"`` (killed
+    before the commit: the staged files are dropped, the old set stands),
+    ``"completed"`` (killed after it: the new set is moved into place) or
+    ``"busy"`` (a run of the stage is publishing now; with ``wait`` True,
+    wait for it instead).
+    """
+    reports = Path(reports)
+    result = "none"
+    # The staging folder, and folders of runs killed before they could rename theirs into place.
+    candidates = [staging_path(reports, stage)]
+    if reports.is_dir():
+        prefix = staging_path(reports, stage).name + "."
+        candidates += sorted(p for p in reports.iterdir() if p.name.startswith(prefix))
+    for staging in candidates:
+        if not staging.exists():
+            continue
+        fd = _lock(staging, wait)
+        if fd is None:
+            if staging.exists():
+                result = "busy"
+            continue
+        try:
+            done = _settle(reports, stage, staging)
+        finally:
+            os.close(fd)
+        if staging == candidates[0]:
+            result = done
+    return result
+
+
+def interrupted(reports=REPORTS) -> list[str]:
+    """The stages with a staging folder under ``reports`` (cheap: one directory listing)."""
+    try:
+        names = [e.name for e in os.scandir(reports) if e.name.startswith(".") and _SUFFIX in e.name]
+    except OSError:
+        return []
+    return sorted({n[1:].split(_SUFFIX)[0] for n in names})
+
+
+def recover_all(reports=REPORTS) -> list[str]:
+    """:func:`recover` every stage with a staging folder under ``reports``; one note per action.
+
+    What every command of the project does first, so a set interrupted by a
+    kill is the old or the new one again before anything reads or writes.
+    Publications in progress are left alone.
+    """
+    notes = []
+    for stage in interrupted(reports):
+        done = recover(reports, stage)
+        if done == "completed":
+            notes.append(f"{manifest_path(reports, stage)}: completed the {stage} stage's "
+                         "interrupted publication (its new outputs are all in place)")
+        elif done == "discarded":
+            notes.append(f"{staging_path(reports, stage)}: removed the {stage} stage's unfinished "
+                         "outputs (killed before they were complete; the previous outputs stand)")
+    return notes
+
+
 @contextlib.contextmanager
-def publishing(root, stage: str) -> Iterator[Path]:
+def publishing(reports, stage: str, root=None) -> Iterator[Path]:
     """Yield the staging folder of ``stage``; publish everything written there as one set.
 
-    Write each output to ``staging / <path relative to root>``.  On an
-    exception nothing is published and the previous set stays as it was.
+    The staging folder mirrors ``root`` (default ``reports``; a folder that
+    contains it, for a set that spans folders): write each output to
+    ``staging / <its path relative to root>``.  On an exception nothing is
+    published and the previous set stays as it was.  A second run of the same
+    stage publishing at the same time waits for the first.
     """
-    root = Path(root)
-    recover(root, stage)
-    staging = staging_path(root, stage)
-    staging.mkdir(parents=True, exist_ok=True)
+    from nnsf.io import WriteError, _write_error, renamed_write_error, write_json
+
+    reports = Path(reports)
+    root = reports if root is None else Path(root)
+    rel_root = os.path.relpath(root, reports)
+    recover(reports, stage, wait=True)
+    staging = staging_path(reports, stage)
+    try:
+        reports.mkdir(parents=True, exist_ok=True)
+        # Made and locked under a name of its own, then renamed: a staging folder
+        # is never visible unlocked while its run lives.
+        new = Path(tempfile.mkdtemp(prefix=staging.name + ".", dir=reports))
+    except OSError as exc:
+        raise _write_error(staging, exc) from None
+    fd = _lock(new, wait=False)
     try:
         try:
-            yield staging
-        except WriteError as exc:  # name the file the user will look for, not its staged copy
-            raise renamed_write_error(exc, staging, root) from None
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
-    files = _staged_files(staging)
-    journal = {"stage": stage, "files": {rel: _sha256(staging / rel) for rel in files}}
-    write_json(staging / JOURNAL, journal)          # the commit point
-    _roll_forward(root, stage, journal)
+            os.rename(new, staging)
+        except OSError:
+            shutil.rmtree(new, ignore_errors=True)
+            raise InputError(staging, "folder", f"no other run of the {stage} stage publishing "
+                             "at the same time", "another run made it") from None
+        try:
+            try:
+                yield staging
+            except WriteError as exc:  # name the file the user will look for, not its staged copy
+                raise renamed_write_error(exc, staging, root) from None
+        except BaseException:
+            shutil.rmtree(staging, ignore_errors=True)
+            raise
+        files = _staged_files(staging)
+        journal = {"stage": stage, **({"root": Path(rel_root).as_posix()} if rel_root != "." else {}),
+                   "files": {rel: _sha256(staging / rel) for rel in files}}
+        write_json(staging / JOURNAL, journal)          # the commit point
+        _roll_forward(reports, stage, journal)
+    finally:
+        if fd is not None:
+            os.close(fd)
 
 
-def verify(root, stage: str) -> dict[str, Path]:
+def final_paths(paths, staging: Path, root: Path) -> list[Path]:
+    """``paths`` written under ``staging``, as the paths they have under ``root`` once published."""
+    out = []
+    for p in paths:
+        p = Path(p)
+        try:
+            out.append(Path(root) / p.relative_to(staging))
+        except ValueError:
+            out.append(p)
+    return out
+
+
+def verify(reports, stage: str) -> dict[str, Path]:
     """The published files of ``stage`` (relative path -> path), checked against its manifest.
 
     Runs :func:`recover` first.  Raises :class:`InputError` naming the
     manifest when it is missing or a file it lists is absent or differs from
     its hash (a set that is not one run's whole output).
     """
-    root = Path(root)
-    recover(root, stage)
-    mpath = manifest_path(root, stage)
+    from nnsf.io import read_json
+
+    reports = Path(reports)
+    recover(reports, stage, wait=True)
+    mpath = manifest_path(reports, stage)
     if not mpath.is_file():
         raise InputError(mpath, "file", f"the manifest of the {stage} stage's outputs "
                          f"(rerun the {stage} stage)")
-    from nnsf.io import read_json
-
     manifest = read_json(mpath)
     files = manifest.get("files")
     if not isinstance(files, dict):
         raise InputError(mpath, "files", "a mapping of output paths to SHA-256 hashes")
+    root = reports / str(manifest.get("root", "."))
     out = {}
     for rel, digest in files.items():
         p = root / rel

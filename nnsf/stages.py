@@ -12,6 +12,7 @@ before anything is written.
 from __future__ import annotations
 
 import itertools
+import os
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -134,7 +135,8 @@ def tracking(params: dict, frames_dir=FRAMES_DIR, reports=REPORTS, mapper=None) 
     """
     from nnsf.track.stage import evaluate_tracking
 
-    return evaluate_tracking(params, frames_dir=frames_dir, reports=reports, mapper=mapper)
+    return _publish("tracking", reports, "tracking.json",
+                    lambda out: evaluate_tracking(params, frames_dir=frames_dir, reports=out, mapper=mapper))
 
 
 def heldout(params: dict, keypoints_csv=RAW_DIR / "keypoints.csv", reports=REPORTS, mapper=None) -> StageResult:
@@ -147,7 +149,35 @@ def heldout(params: dict, keypoints_csv=RAW_DIR / "keypoints.csv", reports=REPOR
     """
     from nnsf.evaluate.translation import heldout as run
 
-    return run(params, features_csv=keypoints_csv, reports=reports, mapper=mapper)
+    return _publish("heldout", reports, "heldout.json",
+                    lambda out: run(params, features_csv=keypoints_csv, reports=out, mapper=mapper))
+
+
+def _publish(stage: str, reports, report: str, write, root=None) -> StageResult:
+    """``write(staging)`` inside :func:`nnsf.publish.publishing`: the files it writes are one set.
+
+    Returns its result with the artifacts at their published paths.  A stage
+    that reports failed items (clips, cells) writes its report, then raises
+    an :class:`InputError`: if ``report`` (a path relative to the staging
+    folder) was written, the set is published before the error goes on.
+    """
+    from nnsf.publish import final_paths, publishing
+
+    late = None
+    root = Path(reports if root is None else root)
+    with publishing(reports, stage, root=root) as out:
+        try:
+            result = write(out)
+        except InputError as err:
+            if not (out / report).is_file():
+                raise
+            late = err
+    if late is not None:
+        raise late
+    result.artifacts = final_paths(result.artifacts, out, root)
+    for child in result.runs.values():
+        child.artifacts = final_paths(child.artifacts, out, root)
+    return result
 
 
 TRANSLATION_DIR = REPORTS / "translation"
@@ -523,23 +553,34 @@ def factorize(params: dict, features_csv=FEATURES_CSV, model=MODEL_PATH, reports
         "train_precision": _macro_precision(y, train_pred),
         "v_sparsity": float(np.mean(V < 1e-6 * V.max())),
     }
-    write_npz(
-        model, U=U, V=V, V_encoded=encoded, W=W, classes=est.classes_.astype(str),
-        objective=est.objective_,
-        clip=table["clip"].to_numpy(str), character=table["character"].to_numpy(str),
-        motion=table["motion"].to_numpy(str), label=np.array(label),
-    )
-    reports = Path(reports)
-    figs = [
-        objective_figure(est.objective_, reports / "figures" / "objective.png"),
-        basis_figure(U, V, reports / "figures" / "basis.png"),
-    ]
-    # Files hold only what the inputs determine; wall time goes to MLflow.
-    write_json(reports / "factorize.json", {"rank": rank, "label": label, **metrics})
-    return StageResult(
-        params={"rank": rank, "max_iter": max_iter, "seed": seed, "label": label, **kw},
-        metrics={**metrics, "fit_seconds": round(seconds, 3)}, artifacts=figs,
-    )
+    # The model and the reports are published as one set (nnsf.publish), under the
+    # folder that holds both; the manifest is reports/factorize.manifest.json.
+    model, reports = Path(model), Path(reports)
+    root = Path(os.path.commonpath([model.parent.absolute(), reports.absolute()]))
+
+    def write(out: Path) -> StageResult:
+        write_npz(
+            out / model.absolute().relative_to(root), U=U, V=V, V_encoded=encoded, W=W,
+            classes=est.classes_.astype(str), objective=est.objective_,
+            clip=table["clip"].to_numpy(str), character=table["character"].to_numpy(str),
+            motion=table["motion"].to_numpy(str), label=np.array(label),
+        )
+        staged = out / reports.absolute().relative_to(root)
+        figs = [
+            objective_figure(est.objective_, staged / "figures" / "objective.png"),
+            basis_figure(U, V, staged / "figures" / "basis.png"),
+        ]
+        # Files hold only what the inputs determine; wall time goes to MLflow.
+        write_json(staged / "factorize.json", {"rank": rank, "label": label, **metrics})
+        return StageResult(
+            params={"rank": rank, "max_iter": max_iter, "seed": seed, "label": label, **kw},
+            metrics={**metrics, "fit_seconds": round(seconds, 3)}, artifacts=figs,
+        )
+
+    result = _publish("factorize", reports, reports.absolute().relative_to(root) / "factorize.json",
+                      write, root=root)
+    result.artifacts = [reports / Path(a).relative_to(reports.absolute()) for a in result.artifacts]
+    return result
 
 
 def _macro_precision(y_true, y_pred) -> float:
@@ -693,6 +734,9 @@ def isomap(params: dict, model=MODEL_PATH, features_csv=FEATURES_CSV, reports=RE
     neighbors = int(require(params, "isomap.neighbors"))
     max_dim = int(require(params, "isomap.max_dim"))
     seed = int(require(params, "seed"))
+    from nnsf.publish import recover
+
+    recover(reports, "factorize", wait=True)  # the model of a killed factorize: its set is settled first
     fitted = read_npz(model)
     for key in ("V_encoded", "character"):
         if key not in fitted:
@@ -705,13 +749,6 @@ def isomap(params: dict, model=MODEL_PATH, features_csv=FEATURES_CSV, reports=RE
                                                 disconnected="bridge")
     notes = [str(w.message) for w in caught if issubclass(w.category, UserWarning)]
     dim = intrinsic_dimension(dims, rv)
-    reports = Path(reports)
-    write_csv(reports / "plots" / "isomap_residual.csv",
-              pd.DataFrame({"dim": dims, "residual_variance": rv}))
-    fig = isomap_figure(embedding[:, :3], characters[rows], dims, rv, dim,
-                        reports / "figures" / "isomap.png",
-                        title=f"ISOMAP of the NNSF weights V, frames encoded with U fixed "
-                              f"({len(rows)} frames, rank {V.shape[1]})")
     result = {
         "intrinsic_dimension": int(dim),
         "residual_variance_at_intrinsic": float(rv[dim - 1]),
@@ -719,11 +756,21 @@ def isomap(params: dict, model=MODEL_PATH, features_csv=FEATURES_CSV, reports=RE
         "samples": int(len(rows)),
         "notes": notes,
     }
-    write_json(reports / "isomap.json", result)
-    return StageResult(
-        params={"samples": samples, "neighbors": neighbors, "max_dim": max_dim, "seed": seed},
-        metrics={k: v for k, v in result.items() if not isinstance(v, list)}, artifacts=[fig],
-    )
+
+    def write(out: Path) -> StageResult:
+        write_csv(out / "plots" / "isomap_residual.csv",
+                  pd.DataFrame({"dim": dims, "residual_variance": rv}))
+        fig = isomap_figure(embedding[:, :3], characters[rows], dims, rv, dim,
+                            out / "figures" / "isomap.png",
+                            title=f"ISOMAP of the NNSF weights V, frames encoded with U fixed "
+                                  f"({len(rows)} frames, rank {V.shape[1]})")
+        write_json(out / "isomap.json", result)
+        return StageResult(
+            params={"samples": samples, "neighbors": neighbors, "max_dim": max_dim, "seed": seed},
+            metrics={k: v for k, v in result.items() if not isinstance(v, list)}, artifacts=[fig],
+        )
+
+    return _publish("isomap", reports, "isomap.json", write)
 
 
 def sweep_grid(params: dict) -> list[dict]:

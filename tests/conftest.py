@@ -11,6 +11,7 @@ import os
 import shutil
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import pytest
@@ -18,6 +19,78 @@ import pytest
 import flows  # noqa: F401  (telemetry switches before anything else is imported)
 
 PROJECT = Path(__file__).resolve().parents[1]
+
+# --------------------------------------------------------------------------- spawn guard
+#: Audit events (PEP 578) of starting a process: a command, a fork, a spawn.
+_SPAWN_EVENTS = {"subprocess.Popen", "os.fork", "os.forkpty", "os.posix_spawn", "os.system",
+                 "os.exec", "os.spawn", "_posixsubprocess.fork_exec"}
+_GUARDED: dict = {"test": None, "thread": None, "started": []}
+
+
+def _spawn_audit(event: str, args) -> None:
+    test = _GUARDED["test"]
+    if test is None or event not in _SPAWN_EVENTS or threading.get_ident() != _GUARDED["thread"]:
+        return
+    what = event
+    if event in ("subprocess.Popen", "_posixsubprocess.fork_exec") and args[1]:
+        what = " ".join(str(a) for a in list(args[1])[:3])
+    _GUARDED["started"].append(what)
+    raise RuntimeError(f"{test} starts a process ({what}) but is not marked slow: mark it "
+                       "@pytest.mark.slow (README, Tests), or run the code in this process")
+
+
+# Two libraries ask the system once per process by running a command: joblib counts the
+# physical cores (`lscpu`), the platform module the processor (`uname -p`, for Prefect and
+# Dask).  Done here, before any test, so that a quick test using them starts no process.
+import platform  # noqa: E402
+
+from joblib.externals.loky.backend.context import cpu_count  # noqa: E402
+
+cpu_count(only_physical_cores=True)
+platform.processor()
+sys.addaudithook(_spawn_audit)
+
+
+def _watch_fork_exec() -> None:
+    """Also watch ``_posixsubprocess.fork_exec``, which multiprocessing's spawn and
+    joblib's loky workers call directly (it raises no audit event of its own)."""
+    import _posixsubprocess
+
+    real = _posixsubprocess.fork_exec
+
+    def fork_exec(*args, **kwargs):
+        _spawn_audit("_posixsubprocess.fork_exec", (None, args[0] if args else ()))
+        return real(*args, **kwargs)
+
+    _posixsubprocess.fork_exec = fork_exec
+
+
+_watch_fork_exec()
+
+
+@pytest.fixture(autouse=True)
+def _quick_tests_start_no_process(request):
+    """Every test that starts a process is marked slow, so ``-m "not slow"`` starts none.
+
+    A test without the marker fails as soon as it starts one (from its own thread:
+    ``subprocess``, ``os.fork``, ``os.system``, ``os.posix_spawn``).  Module and
+    session fixtures are not watched: a test that needs a server is marked slow.
+    """
+    if request.node.get_closest_marker("slow") is not None:
+        yield
+        return
+    _GUARDED.update(test=request.node.nodeid, thread=threading.get_ident(), started=[])
+    try:
+        yield
+    finally:
+        started = list(_GUARDED["started"])
+        _GUARDED.update(test=None, thread=None, started=[])
+    if started:
+        pytest.fail(f"{request.node.nodeid} started a process ({started[0]}) but is not marked slow",
+                    pytrace=False)
+
+
+# --------------------------------------------------------------------------- projects and servers
 #: What a fresh clone holds that the pipeline needs (no data, models, reports,
 #: stores or environments).
 SOURCES = ("nnsf", "flows", "dvc.yaml", "params.yaml", "pyproject.toml", ".dvcignore",
@@ -104,3 +177,66 @@ def make_project(tmp_path, mlflow_template, request):
         api = request.getfixturevalue("prefect_api") if prefect else None
         return new_project(tmp_path / name, mlflow_template, api)
     return make
+
+
+# --------------------------------------------------------------------------- the small pipeline, once
+
+def lock_hashes(root: Path) -> dict[str, dict[str, str]]:
+    """Stage -> {output path: md5} from a project's dvc.lock."""
+    import yaml
+
+    lock = yaml.safe_load((root / "dvc.lock").read_text())
+    return {stage: {o["path"]: o["md5"] for o in body.get("outs", [])}
+            for stage, body in lock["stages"].items()}
+
+
+@pytest.fixture(scope="session")
+def small_pipeline(tmp_path_factory, prefect_api, mlflow_template):
+    """One cold ``python -m flows repro`` of ``test_pipeline.SMALL_PARAMS`` (every stage) in a
+    committed copy of the project, shared by the modules of the xdist group ``small-pipeline``.
+
+    test_pipeline inspects (and then changes) the project; test_ops_repro compares its
+    own repros with ``reference``, the dvc.lock output hashes taken right after this run.
+    One OpenBLAS thread: the reference set-up of the cross-BLAS comparison.
+    """
+    import time
+    from types import SimpleNamespace
+
+    from test_pipeline import SMALL_PARAMS
+
+    base = tmp_path_factory.mktemp("e2e")
+    root, env = new_project(base / "project", mlflow_template, prefect_api)
+    (root / "params.yaml").write_text(SMALL_PARAMS)
+    git(root, "commit", "-q", "-am", "small params")
+    env["NNSF_RECORD_IMPORTS"] = str(base / "imports")
+    env["OPENBLAS_NUM_THREADS"] = "1"
+    started = time.perf_counter()
+    cold = run([sys.executable, "-m", "flows", "repro"], root, env, timeout=1800)
+    seconds = time.perf_counter() - started
+    assert cold.returncode == 0, cold.stdout[-4000:] + cold.stderr[-4000:]
+    print(f"cold repro of the small pipeline: {seconds:.1f} s")
+    return SimpleNamespace(root=root, env=env, cold=cold, seconds=seconds, imports=base / "imports",
+                           mlflow_uri=env["MLFLOW_TRACKING_URI"], reference=lock_hashes(root))
+
+
+# --------------------------------------------------------------------------- scheduling on xdist workers
+
+#: Modules that share a session fixture, so they must run on one xdist worker (``--dist
+#: loadgroup``); every other module is a group of its own, as with ``--dist loadfile``.
+GROUPS = {"test_pipeline.py": "small-pipeline", "test_ops_repro.py": "small-pipeline"}
+#: The modules that take minutes (the ``--durations`` table of .ci/run), longest first: they are
+#: handed out first (``--no-loadscope-reorder`` keeps this order), so the many short modules fill
+#: in around them instead of leaving one worker running a long module alone at the end.
+LONGEST_FIRST = ("small-pipeline", "test_determinism.py", "test_ops_faults.py", "test_ops_servers.py",
+                 "test_hardening_publish.py", "test_track_stage.py", "test_flows.py",
+                 "test_ops_fanout.py", "test_animate.py", "test_translation_eval.py", "test_hardening.py")
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
+    for item in items:
+        if item.get_closest_marker("xdist_group") is None:
+            item.add_marker(pytest.mark.xdist_group(GROUPS.get(item.path.name, item.path.name)))
+    group = {id(item): GROUPS.get(item.path.name, item.path.name) for item in items}
+    items.sort(key=lambda item: rank.get(group[id(item)], len(rank)))  # stable: file order otherwise

@@ -10,7 +10,11 @@ before the k-th one, for k = 1, 2, ... until a run finishes.  Before each
 run ``REPORTS_DIR`` is reset to the previous run's complete output (params A,
 ``seed: 0``); the killed run writes params B (``seed: 1``).  For every k the
 driver records the published files (``relative path -> SHA-256``) right
-after the kill and after :func:`nnsf.publish.recover`, and what
+after the kill (and whether the staging folder held a commit journal), then
+runs what the user would run next, a real command of the project
+(``nnsf check``, through :func:`nnsf.cli.main` in the reports' parent
+folder, as any ``nnsf`` or ``python -m flows`` command settles interrupted
+publications first), records the files again, and what
 :func:`nnsf.publish.verify` says.  The test judges them.
 """
 from __future__ import annotations
@@ -35,10 +39,12 @@ import nnsf.evaluate.figures  # noqa: E402,F401
 from nnsf.params import Params
 
 try:
-    from nnsf.publish import recover, verify
+    from nnsf.publish import JOURNAL, staging_path, verify
 except ImportError:  # the code before issue 18 had no publication protocol
-    def recover(root, stage):
-        return "none"
+    JOURNAL = ".commit.json"
+
+    def staging_path(root, stage):
+        return Path(root) / f".{stage}.staging"
 
     def verify(root, stage):
         raise InputError(root, "manifest", "a publication manifest (not implemented)")
@@ -117,6 +123,26 @@ def run_child(features: Path, reports: Path, params: Params, kill_at: int | None
     return status
 
 
+def next_command(reports: Path) -> str:
+    """``nnsf check`` in the reports' parent folder (the project), in this process; its stderr."""
+    import contextlib
+    import io
+
+    from nnsf import cli
+
+    params = reports.parent / "params.yaml"
+    params.write_text((PROJECT / "params.yaml").read_text())
+    err, here = io.StringIO(), os.getcwd()
+    os.chdir(reports.parent)
+    try:
+        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+            assert cli.main(["check", "--params", "params.yaml"]) == 0
+    finally:
+        os.chdir(here)
+        params.unlink()
+    return err.getvalue()
+
+
 def reset(reports: Path, saved: Path) -> None:
     shutil.rmtree(reports, ignore_errors=True)
     shutil.copytree(saved, reports)
@@ -143,8 +169,12 @@ def main(features: str, reports: str, out: str) -> None:
             runs.append({"k": k, "killed": False, "after_kill": snapshot(reports)})
             break
         entry = {"k": k, "killed": True, "after_kill": snapshot(reports)}
-        entry["recovery"] = recover(reports, "evaluate")
+        staging = staging_path(reports, "evaluate")
+        entry["recovery"] = ("completed" if (staging / JOURNAL).is_file() else
+                             "discarded" if staging.exists() else "none")
+        entry["notes"] = next_command(reports)
         entry["after_recovery"] = snapshot(reports)
+        entry["hidden_left"] = sorted(p.name for p in reports.iterdir() if p.name.startswith("."))
         try:
             entry["verified"] = sorted(verify(reports, "evaluate"))
         except InputError as exc:

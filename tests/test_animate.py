@@ -444,3 +444,68 @@ def test_the_stage_model_file_has_the_same_bytes_whatever_the_hash_seed(tmp_path
         assert done.returncode == 0, done.stderr[-2000:]
         outs.append(out.read_bytes())
     assert outs[0] == outs[1]
+
+
+# --------------------------------------------------------------------------- styles -> animate on BVH, by DVC
+
+#: Two styles x two contents of Bandai-Namco-1, the shortest clips (70-123 frames at 30 fps).
+BN_CLIPS = [f"dataset-1_{content}_{style}_001" for content in ("bow", "bye") for style in ("angry", "childish")]
+
+
+@pytest.mark.slow  # runs `dvc exp run`, its stages as processes, against the session's Prefect server
+@needs_shared
+def test_styles_then_animate_on_a_bvh_folder_through_dvc_exp_run(tmp_path, make_project):
+    """``dvc exp run -S dataset.name=bvh -S dataset.path=motions/bandai … styles animate`` in a
+    tiny copy of the project: the style model learns the folder's two styles, and animate
+    re-performs one of its clips in the other style."""
+    import re
+    import subprocess
+    import sys
+
+    from conftest import git, run
+    from test_pipeline import SMALL_PARAMS
+
+    from nnsf.factor.style_model import StyleModel
+
+    root, env = make_project()
+    folder = root / "motions" / "bandai"
+    shutil.copytree(BN.parent / "cfg", folder / "cfg")
+    (folder / "data").mkdir()
+    for stem in BN_CLIPS:
+        for suffix in (".bvh", ".json"):
+            shutil.copy2(BN / (stem + suffix), folder / "data" / (stem + suffix))
+    params = yaml.safe_load(SMALL_PARAMS)
+    params["dataset"]["bvh"]["fps"] = 15                   # half the frames: seconds, not minutes
+    params["animate"].update(max_frames=6, fps=15)
+    (root / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    git(root, "add", "-A")
+    git(root, "commit", "-q", "-m", "tiny params, four Bandai-Namco clips")
+
+    motion = "motions/bandai/data/dataset-1_bye_angry_001.bvh"
+    done = run([sys.executable, "-m", "dvc", "exp", "run", "-S", "dataset.name=bvh",
+                "-S", "dataset.path=motions/bandai", "-S", f"animate.motion={motion}",
+                "-S", "animate.style=childish", "styles", "animate"], root, env, timeout=1200)
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    ran = set(re.findall(r"Running stage '([^']+)'", done.stdout))
+    assert ran == {"data", "features", "styles", "animate"}, ran   # nothing else of the pipeline
+
+    model = StyleModel.load(root / "models" / "styles.npz")
+    assert sorted(model.translator.styles_) == ["angry", "childish"]
+    assert sorted(model.translator.contents_) == ["bow", "bye"]
+    out = root / "reports" / "animate"
+    made = json.loads((out / "animate.json").read_text())
+    assert made["style"] == "childish" and made["frames"] == 6 and made["view"] in ("front", "side",
+                                                                                     "three-quarter")
+    assert made["motion"].startswith("dataset-1_bye_angry_001")
+    assert sorted(made["files"]) == ["animation.gif", "animation.mp4", "animation_sheet.png"]
+    video = cv2.VideoCapture(str(out / "animation.mp4"))
+    frames = 0
+    while video.read()[0]:
+        frames += 1
+    assert frames == 6
+    sheet = cv2.imread(str(out / "animation_sheet.png"), cv2.IMREAD_UNCHANGED)
+    assert sheet is not None and sheet.shape[0] > 64 and sheet.std() > 5   # a drawing, not a blank
+    # The experiment is recorded with its parameters.
+    shown = subprocess.run([sys.executable, "-m", "dvc", "exp", "show", "--json"], cwd=root, env=env,
+                           capture_output=True, text=True, timeout=300)
+    assert shown.returncode == 0 and '"bvh"' in shown.stdout and "motions/bandai" in shown.stdout

@@ -153,6 +153,54 @@ def test_sweep_rank_larger_than_feature_count(make_project):
     assert not (root / "reports" / "sweep.json").exists()
 
 
+# -- the stage server ----------------------------------------------------------------
+
+@pytest.mark.slow  # runs `python -m flows factorize` twice and a stage server
+def test_a_stage_run_through_the_stage_server_is_the_same_stage(make_project, tmp_path):
+    """flows/stage_server.py: the stage a server's child runs writes the same bytes as the
+    stage run on its own, and is still its own Prefect flow run and its own MLflow run."""
+    import hashlib
+    import shutil
+
+    from flows import stage_server
+
+    root, env = make_project()
+    write_features(root)
+    set_params(root, **{"nnsf.rank": 3, "nnsf.max_iter": 20})
+    outputs = ("models/nnsf.npz", "reports/factorize.json", "reports/factorize.manifest.json",
+               "reports/figures/objective.png", "reports/figures/basis.png")
+
+    def digests():
+        return {f: hashlib.sha256((root / f).read_bytes()).hexdigest() for f in outputs}
+
+    env.pop(stage_server.ENV, None)
+    alone = run(FLOWS + ["factorize"], root, env)
+    assert alone.returncode == 0, alone.stderr[-2000:]
+    first = digests()
+    shutil.rmtree(root / "models")
+    shutil.rmtree(root / "reports")
+
+    with stage_server.running(env, root, tmp_path / "stage-server.log") as served:
+        assert stage_server.ENV in served, (tmp_path / "stage-server.log").read_text()[-2000:]
+        # What `python -m flows factorize` does under repro, spelled out: delegate() returns
+        # the stage's exit code when the server ran it, None when it would run locally.
+        code = ("import sys; from flows import stage_server; "
+                "code = stage_server.delegate(['factorize']); print('delegated:', code); "
+                "sys.exit(3 if code is None else code)")
+        through = run([sys.executable, "-c", code], root, served)
+    assert through.returncode == 0, through.stdout[-2000:] + through.stderr[-2000:]
+    assert "delegated: 0" in through.stdout
+    assert digests() == first
+
+    import mlflow
+
+    mlflow.set_tracking_uri(env["MLFLOW_TRACKING_URI"])
+    runs = mlflow.search_runs(search_all_experiments=True)
+    stage_runs = runs[runs["tags.nnsf.stage"] == "factorize"]
+    assert len(stage_runs) == 2 and (stage_runs["status"] == "FINISHED").all()
+    assert stage_runs["tags.prefect.flow_run_id"].nunique() == 2
+
+
 # -- building blocks -------------------------------------------------------------------
 
 def test_console_formatter_shows_one_line_but_keeps_the_traceback_for_others():
@@ -198,6 +246,27 @@ def test_task_runner_is_chosen_in_one_place(monkeypatch):
     monkeypatch.setenv("NNSF_TASK_RUNNER", "spark")
     with pytest.raises(InputError, match="NNSF_TASK_RUNNER"):
         runners.task_runner()
+
+
+def test_each_fan_out_gets_its_runner_and_the_environment_overrides_the_rule(monkeypatch):
+    """The rule (flows/runners.py, README): processes for the held-out cells (few, large items),
+    threads for every other fan-out; NNSF_TASK_RUNNER, when set, decides for all of them."""
+    from prefect.task_runners import ProcessPoolTaskRunner, ThreadPoolTaskRunner
+
+    from flows.stage_flows import FAN_OUT, FLOWS
+
+    monkeypatch.delenv("NNSF_TASK_RUNNER", raising=False)
+    monkeypatch.setenv("NNSF_WORKERS", "2")
+    chosen = {stage: runners.kind(stage) for stage in (*FAN_OUT, "sweep")}
+    assert chosen == {"evaluate": "threads", "frames": "threads", "track": "threads",
+                      "tracking": "threads", "heldout": "processes", "sweep": "threads"}
+    heldout = runners.configured(FLOWS["heldout"], "heldout")
+    assert isinstance(heldout.task_runner, ProcessPoolTaskRunner)
+    assert isinstance(runners.configured(FLOWS["evaluate"], "evaluate").task_runner, ThreadPoolTaskRunner)
+    for name, cls in (("threads", ThreadPoolTaskRunner), ("processes", ProcessPoolTaskRunner)):
+        monkeypatch.setenv("NNSF_TASK_RUNNER", name)
+        assert {runners.kind(stage) for stage in chosen} == {name}
+        assert isinstance(runners.configured(FLOWS["heldout"], "heldout").task_runner, cls)
 
 
 def test_pipeline_report_names_stages_and_changed_metrics():

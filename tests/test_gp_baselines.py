@@ -255,6 +255,7 @@ def test_gp_translate_synthesises_the_hidden_cell(method):
     assert err < 0.2 * copy, (err, copy)
 
 
+@pytest.mark.slow  # starts `nnsf evaluate` as a process
 def test_evaluate_stage_exits_2_on_a_subsample_larger_than_the_data(tmp_path):
     table = _contract_table(S=2, C=2, clips=10, T=6)
     path = tmp_path / "data" / "features" / "features.csv"

@@ -80,6 +80,7 @@ def _bomb_value() -> str:
     return f"[{text}, " + ", ".join(["*l8"] * 8) + "]"
 
 
+@pytest.mark.slow  # starts a fresh `python -c` and `nnsf check` as a process
 def test_alias_bomb_is_answered_in_under_a_second_with_one_line(tmp_path):
     base = (PROJECT / "params.yaml").read_text()
     text = base.replace("  ranks: [2, 4, 8, 12, 16, 24, 34]", "  ranks: " + _bomb_value())
@@ -115,6 +116,7 @@ def test_yaml_nested_thousands_deep_is_one_line(tmp_path):
 
 # --------------------------------------------------------------------------- 3. misspelt keys
 
+@pytest.mark.slow  # starts `nnsf` as a process
 def test_three_misspelt_keys_are_all_named_with_suggestions(tmp_path):
     p = copy.deepcopy(BASE)
     p["nnsf"]["aplha"] = p["nnsf"].pop("alpha")
@@ -127,6 +129,7 @@ def test_three_misspelt_keys_are_all_named_with_suggestions(tmp_path):
         assert f"{wrong} (did you mean {right}?)" in line, line
 
 
+@pytest.mark.slow  # starts `nnsf` as a process
 def test_the_project_params_pass_and_every_key_is_in_the_schema(tmp_path):
     res = nnsf("check", cwd=PROJECT)
     assert res.returncode == 0 and res.stdout.strip() == "params.yaml: ok", res.stderr
@@ -162,6 +165,7 @@ def test_a_section_that_is_not_a_mapping_is_named():
 
 # --------------------------------------------------------------------------- 4. infinite and absurd values
 
+@pytest.mark.slow  # starts `nnsf` as a process
 @pytest.mark.parametrize("key, value", [
     ("nnsf.beta", float("inf")), ("nnsf.alpha", float("nan")), ("reshape.fps", float("inf")),
     ("reshape.fps", 500), ("track.w_sketch", float("inf")), ("dataset.bvh.azimuth", float("-inf")),
@@ -195,6 +199,7 @@ def test_factorize_refuses_an_infinite_beta_naming_the_field(tmp_path):
                          reports=tmp_path / "reports")
 
 
+@pytest.mark.slow  # starts `nnsf` as a process
 @pytest.mark.parametrize("key", ["dataset.synthetic.clips_per_cell", "dataset.synthetic.frames", "frames.frames"])
 def test_absurd_sizes_are_refused_with_a_memory_estimate(tmp_path, key):
     path = write_params(tmp_path / "p.yaml", with_value(key, 1_000_000_000))
@@ -215,6 +220,7 @@ def test_sizes_within_their_bounds_but_too_big_together_are_refused():
 
 # --------------------------------------------------------------------------- 5. the params file named
 
+@pytest.mark.slow  # starts `nnsf` as a process
 def test_reshape_errors_name_the_params_file_given(tmp_path):
     from nnsf.reshape.stage import _params
 
@@ -386,6 +392,7 @@ def test_evaluate_refuses_a_single_class_or_clip(tmp_path, features_csv, keep, w
                            features_csv=path)
 
 
+@pytest.mark.slow  # starts `nnsf` as a process
 def test_evaluate_command_exits_2_on_a_single_class(tmp_path, features_csv):
     from nnsf.datasets import contract
 
@@ -400,6 +407,7 @@ def test_evaluate_command_exits_2_on_a_single_class(tmp_path, features_csv):
 
 # --------------------------------------------------------------------------- 9. disk full
 
+@pytest.mark.slow  # starts `nnsf` as a process
 def test_a_write_past_the_file_size_limit_names_the_file(tmp_path):
     """A real write failure (EFBIG from RLIMIT_FSIZE) in the ``nnsf data`` command: one line, exit 2."""
     p = with_value("dataset.synthetic.characters", 2)
@@ -432,6 +440,7 @@ def tiny_disk(tmp_path):
         subprocess.run(["umount", str(mnt)], capture_output=True)
 
 
+@pytest.mark.slow  # starts `mount` as a process
 def test_disk_full_names_the_file(tiny_disk):
     from nnsf.io import write_json
 

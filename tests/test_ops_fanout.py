@@ -135,6 +135,28 @@ def test_prefect_mapper_returns_results_in_order(prefect_here, monkeypatch):
     assert runners.configured(fan_out)() == runners.local_mapper(square_sum, items)
 
 
+def test_worker_processes_report_the_project_files_they_ran(prefect_here, monkeypatch, tmp_path):
+    """Under NNSF_RECORD_IMPORTS, items run in a process pool send back the project files their
+    worker loaded (flows.__main__ adds them to the stage's record, checked against its deps)."""
+    from prefect import flow
+
+    monkeypatch.setenv("NNSF_TASK_RUNNER", "processes")
+    monkeypatch.setenv("NNSF_WORKERS", "2")
+    monkeypatch.setenv("NNSF_RECORD_IMPORTS", str(tmp_path))
+    runners.WORKER_FILES.clear()
+    items = [(i, i + 5) for i in range(4)]
+
+    @flow(persist_result=False)
+    def fan_out():
+        return runners.prefect_mapper("square-sum")(square_sum, items)
+
+    assert runners.configured(fan_out)() == runners.local_mapper(square_sum, items)
+    # the worker unpickled the recording wrapper from flows.runners, so loaded it and its package
+    assert {"flows/__init__.py", "flows/runners.py"} <= runners.WORKER_FILES
+    assert all(f.split("/")[0] in ("nnsf", "flows") for f in runners.WORKER_FILES)
+    runners.WORKER_FILES.clear()
+
+
 def test_configured_runner_follows_the_environment(monkeypatch):
     from prefect import flow
     from prefect.task_runners import ProcessPoolTaskRunner, ThreadPoolTaskRunner

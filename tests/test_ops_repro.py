@@ -1,15 +1,17 @@
 """Crash safety and determinism of ``dvc repro`` in real clones of the project.
 
-- A stage SIGKILLed while it writes its outputs leaves nothing that looks
-  finished, and the next repro gives outputs identical (same hashes in
-  dvc.lock) to a run that was never interrupted.
+- A stage SIGKILLed while it writes its outputs (``evaluate``, reproduced with
+  what it needs) leaves nothing that looks finished, and the next repro gives
+  outputs identical (same hashes in dvc.lock) to a run that was never
+  interrupted.
 - Two cold repros of the small pipeline (test_pipeline.SMALL_PARAMS, every
   stage) in separate git clones of HEAD give identical dvc.lock output hashes,
   the second under another machine's BLAS and SIMD set-up (two OpenBLAS
   threads, Haswell kernels, no AVX-512: test_determinism.SETUPS).
 
 Every project here is a clone of HEAD with the small params committed; the
-uninterrupted cold repro is made once (module fixture) and is the reference
+uninterrupted cold repro is made once per session (conftest.small_pipeline, a
+committed copy of the sources, shared with test_pipeline) and is the reference
 of both tests.  Slow (minutes): they run the real pipeline several times.
 """
 from __future__ import annotations
@@ -24,20 +26,13 @@ from pathlib import Path
 import pytest
 import yaml
 
-from conftest import PROJECT, git, project_env, run
+from conftest import PROJECT, git, lock_hashes, project_env, run
 from test_ops_support import process_group, wait_for
 
 pytestmark = pytest.mark.slow
 
 FLOWS = [sys.executable, "-m", "flows"]
 DVC = [sys.executable, "-m", "dvc"]
-
-
-def lock_hashes(root: Path) -> dict[str, dict[str, str]]:
-    """Stage -> {output path: md5} from dvc.lock."""
-    lock = yaml.safe_load((root / "dvc.lock").read_text())
-    return {stage: {o["path"]: o["md5"] for o in body.get("outs", [])}
-            for stage, body in lock["stages"].items()}
 
 
 def small_params() -> str:
@@ -60,14 +55,10 @@ def _small_clone(base: Path, name: str, mlflow_template: Path, prefect_api: str,
 
 
 @pytest.fixture(scope="module")
-def reference(tmp_path_factory, mlflow_template, prefect_api):
-    """dvc.lock output hashes of one uninterrupted cold repro of the small pipeline."""
-    base = tmp_path_factory.mktemp("repro-reference")
-    root, env = _small_clone(base, "reference", mlflow_template, prefect_api,
-                             {"OPENBLAS_NUM_THREADS": "1"})
-    done = run(FLOWS + ["repro"], root, env, timeout=1800)
-    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
-    return lock_hashes(root)
+def reference(small_pipeline):
+    """dvc.lock output hashes of one uninterrupted cold repro of the small pipeline (one OpenBLAS
+    thread): conftest.small_pipeline, the cold repro test_pipeline inspects."""
+    return small_pipeline.reference
 
 
 def test_a_stage_killed_while_writing_leaves_nothing_finished_and_repro_recovers(
@@ -78,7 +69,9 @@ def test_a_stage_killed_while_writing_leaves_nothing_finished_and_repro_recovers
     first_output = root / "reports" / ".evaluate.staging" / "cv_folds.csv"
     last_output = root / "reports" / "metrics.json"       # published with the rest of the set
     log = tmp_path / "killed.log"
-    with process_group(FLOWS + ["repro"], env, root, log) as proc:
+    # `repro evaluate`: the killed stage and what it needs (data, features); the other stages
+    # neither feed it nor read it, and their repro against the same reference is the next test.
+    with process_group(FLOWS + ["repro", "evaluate"], env, root, log) as proc:
         wait_for(lambda: first_output.exists(), 600, "evaluate to start writing", proc, log,
                  every=0.005)
         os.killpg(proc.pid, signal.SIGKILL)  # dvc, the stage and everything they started
@@ -92,9 +85,11 @@ def test_a_stage_killed_while_writing_leaves_nothing_finished_and_repro_recovers
     status = wait_for(lambda: _status(root, env), 60, "dvc status after the kill")
     assert "evaluate" in status
 
-    again = run(FLOWS + ["repro"], root, env, timeout=1800)
+    again = run(FLOWS + ["repro", "evaluate"], root, env, timeout=1800)
     assert again.returncode == 0, again.stdout[-3000:] + again.stderr[-3000:]
-    assert lock_hashes(root) == reference
+    reproduced = lock_hashes(root)
+    assert set(reproduced) == {"data", "features", "evaluate"}
+    assert reproduced == {stage: reference[stage] for stage in reproduced}
     leftovers = [p for d in ("data", "models", "reports") for p in (root / d).rglob(".*")
                  if p.name != ".gitignore"]  # DVC's own
     assert leftovers == []  # no temporary file survived in an output

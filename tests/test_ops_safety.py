@@ -257,3 +257,19 @@ def test_the_server_helpers_default_to_loopback():
 
     assert inspect.signature(prefect_server.running).parameters["host"].default == "127.0.0.1"
     assert inspect.signature(prefect_server.free_port).parameters["host"].default == "127.0.0.1"
+
+
+def test_a_quick_test_that_starts_a_process_fails():
+    """The guard of conftest.py: a test not marked slow cannot start a command or fork."""
+    import os
+
+    from conftest import _GUARDED
+
+    try:
+        with pytest.raises(RuntimeError, match="starts a process .*true.* but is not marked slow"):
+            subprocess.run(["true"])
+        with pytest.raises(RuntimeError, match=r"\(os\.fork\) but is not marked slow"):
+            os.fork()
+        assert len(_GUARDED["started"]) == 2
+    finally:
+        _GUARDED["started"].clear()   # this test provoked them on purpose

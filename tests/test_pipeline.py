@@ -2,7 +2,9 @@
 
 Real DVC, real Prefect flows against the session's Prefect server, a real
 sqlite MLflow store.  The tests of this module share one reproduced project
-and run in file order; the last one changes ``nnsf.alpha``.
+(``conftest.small_pipeline``, made once per session for this module and
+test_ops_repro) and run in file order; the last ones change ``nnsf.alpha``
+and ``animate.style``.
 """
 from __future__ import annotations
 
@@ -16,13 +18,12 @@ import time
 import urllib.error
 import urllib.request
 from pathlib import Path
-from types import SimpleNamespace
 
 import pandas as pd
 import pytest
 import yaml
 
-from conftest import git, new_project, run
+from conftest import run
 
 pytestmark = pytest.mark.slow
 
@@ -163,20 +164,10 @@ def stages_run(output: str) -> set[str]:
 
 
 @pytest.fixture(scope="module")
-def pipeline(tmp_path_factory, prefect_api, mlflow_template):
-    """A copy of the project with SMALL_PARAMS, reproduced once from scratch."""
-    base = tmp_path_factory.mktemp("e2e")
-    root, env = new_project(base / "project", mlflow_template, prefect_api)
-    (root / "params.yaml").write_text(SMALL_PARAMS)
-    git(root, "commit", "-q", "-am", "small params")
-    env["NNSF_RECORD_IMPORTS"] = str(base / "imports")
-    started = time.perf_counter()
-    cold = run(FLOWS + ["repro"], root, env, timeout=900)
-    seconds = time.perf_counter() - started
-    assert cold.returncode == 0, cold.stdout[-4000:] + cold.stderr[-4000:]
-    print(f"cold repro of the small pipeline: {seconds:.1f} s")
-    return SimpleNamespace(root=root, env=env, cold=cold, seconds=seconds,
-                           imports=base / "imports", mlflow_uri=env["MLFLOW_TRACKING_URI"])
+def pipeline(small_pipeline):
+    """A copy of the project with SMALL_PARAMS, reproduced once from scratch (conftest.small_pipeline,
+    shared with test_ops_repro, which only reads its reference hashes)."""
+    return small_pipeline
 
 
 def dvc_yaml(root: Path) -> dict:
@@ -197,6 +188,25 @@ def test_cold_repro_runs_every_stage_and_writes_every_output(pipeline):
         for path in declared(stage.get("metrics")):
             metrics = json.loads((pipeline.root / path).read_text())
             assert isinstance(metrics, dict) and metrics, path
+
+
+def test_each_multi_file_report_stage_published_exactly_its_outputs(pipeline):
+    """factorize, evaluate, isomap, heldout and tracking publish their files as one set
+    (nnsf/publish.py): each manifest verifies and lists every other declared output."""
+    from nnsf.publish import verify
+
+    reports = pipeline.root / "reports"
+    for name, stage in dvc_yaml(pipeline.root)["stages"].items():
+        outputs = set(declared(stage.get("outs")) + declared(stage.get("metrics")))
+        manifest = f"reports/{name}.manifest.json"
+        if manifest not in outputs:
+            continue
+        published = {p.resolve().relative_to(pipeline.root.resolve()).as_posix()
+                     for p in verify(reports, name).values()}
+        assert published == outputs - {manifest}, name
+    assert {p.name for p in reports.glob("*.manifest.json")} == {
+        f"{s}.manifest.json" for s in ("factorize", "evaluate", "isomap", "heldout", "tracking")}
+    assert not [p for p in reports.iterdir() if p.name.startswith(".")]   # nothing staged left
 
 
 def test_plot_data_has_the_declared_columns(pipeline):

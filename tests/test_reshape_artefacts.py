@@ -187,6 +187,7 @@ def test_depth_override_bad_input(spec, field):
         D.parse_overrides(spec, 40)
 
 
+@pytest.mark.slow  # starts `nnsf reshape` as a process
 def test_depth_override_bad_input_from_the_command_line(tmp_path):
     """``nnsf reshape`` with an unknown part / a frame outside the clip: one line naming the field, exit 2."""
     import yaml

@@ -104,3 +104,43 @@ def test_check_writable_accepts_a_folder_still_to_be_made_and_creates_nothing(tm
     (tmp_path / "file").write_text("x")
     with pytest.raises(InputError, match="^file/sub: output folder: .*'file is a file'"):
         check_writable(Path("file") / "sub")
+
+
+#: (arguments, the path a file is put at, the folder the error must name): the commands
+#: whose output paths come from their own options.  Every input is valid (built-in
+#: character and motion, the project's params), so without the up-front check each
+#: would do its whole work (render every frame, re-track every clip) before failing.
+OPTION_CASES = [
+    (["styles", "--data", ".", "--out", "blocked/styles.npz"], "blocked", "blocked"),
+    (["animate", "--character", "pip", "--motion", "synthetic:max/walk/6", "--out", "blocked/a.mp4"],
+     "blocked", "blocked"),
+    (["animate", "--character", "pip", "--motion", "synthetic:max/walk/6", "--out", "blocked/a.gif"],
+     "blocked", "blocked"),
+    (["animate", "--character", "pip", "--motion", "synthetic:max/walk/6", "--out", "blocked/frames"],
+     "blocked", "blocked"),  # the frames folder and its contact sheet beside it
+    (["animate", "--character", "pip", "--motion", "synthetic:max/walk/6", "--out", "frames"],
+     "frames", "frames"),
+    (["track", "--export-cvat", "blocked/cvat"], "blocked", "blocked/cvat"),
+    (["track", "--corrections", "fixed.xml"], "data/tracks", "data/tracks"),
+    (["track", "--corrections", "fixed.xml"], "data/tracked", "data/tracked"),
+    (["track", "--corrections", "fixed.xml", "--export-cvat", "cvat"], "cvat", "cvat"),
+]
+
+
+@pytest.mark.parametrize("args, blocked, named", OPTION_CASES,
+                         ids=[f"{a[0]}-{'-'.join(a[1:])}-{b}" for a, b, _ in OPTION_CASES])
+def test_command_with_an_unwritable_folder_from_its_options(args, blocked, named, tmp_path,
+                                                            monkeypatch, capsys):
+    (tmp_path / "params.yaml").write_text(PARAMS.read_text())
+    if "--corrections" in args:
+        (tmp_path / "fixed.xml").write_text("<annotations/>\n")
+    _block(tmp_path, blocked)
+    before = _files(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    code = cli.main(args)
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert code == 2, err
+    assert len(lines) == 1 and lines[0].startswith(f"error: {named}: output folder: "), lines
+    assert "Traceback" not in err
+    assert _files(tmp_path) == before  # nothing rendered, tracked or half-written
