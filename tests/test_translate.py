@@ -322,3 +322,66 @@ def test_restored_amplitude_matches_the_real_clips_on_average(unified, translato
     finally:
         translator.set_params(tempo=True, amplitude="restore")
     assert plain.sum() < np.mean([Xq.std(0) for Xq in real], 0).sum()
+
+
+# ------------------------------------------------------ temporal smoothness, public path
+def test_second_difference_split_is_the_acceleration_penalty_along_each_chain():
+    from nnsf.factor.translate import second_difference_split
+
+    rng = np.random.default_rng(0)
+    chains, R = [(0, 5), (5, 12), (12, 14)], 14            # the last chain is too short to bend
+    W = rng.random((R, 3))
+    Lpos, Lneg = second_difference_split(chains, R)
+    assert Lpos.min() >= 0 and Lneg.min() >= 0
+    by_hand = sum(float(np.sum((W[a:b - 2] - 2 * W[a + 1:b - 1] + W[a + 2:b]) ** 2)) for a, b in chains
+                  if b - a >= 3)
+    L = (Lpos - Lneg).toarray()
+    assert np.trace(W.T @ L @ W) == pytest.approx(by_hand, rel=1e-12)
+    # no coupling across chains: rows 4 and 5 (and 3 and 5) are in different chains
+    assert L[4, 5] == 0 and L[3, 5] == 0 and L[5, 4] == 0
+    # straight lines cost nothing
+    line = np.outer(np.arange(R, dtype=float), [1.0, 2.0])
+    assert np.allclose(L @ line, 0.0)
+
+
+def test_smoothed_encoding_removes_jitter_and_zero_is_the_per_frame_encoding(unified, translator):
+    from nnsf.factor.nnsf import weights_for_basis
+
+    X, mo, ch, cl = unified
+    Xq = X[cl == cl[0]]
+    rng = np.random.default_rng(1)
+    noisy = np.maximum(Xq + rng.normal(0, 0.02, Xq.shape), 0.0)
+    U = translator.components_
+    plain = weights_for_basis(noisy, U, alpha=translator.alpha, max_iter=translator.max_iter, tol=translator.tol)
+    acc = lambda V: float(np.abs(np.diff(V, n=2, axis=0)).mean())  # noqa: E731
+    for order in (1, 2):
+        t = StyleTranslator(**{**translator.get_params(), "smooth": 20.0, "smooth_order": order})
+        assert acc(t.encode_smooth(noisy, U)) < 0.7 * acc(plain), order
+    t0 = StyleTranslator(**{**translator.get_params(), "smooth": 0.0})
+    np.testing.assert_array_equal(t0.encode_smooth(noisy, U), plain)
+
+
+def test_translate_clip_resamples_to_the_target_tempo(unified, translator):
+    X, mo, ch, cl = unified
+    Xq = X[cl == cl[0]]
+    translator.set_params(tempo=True)
+    fast = {**translator.style_tempo_}
+    for s in translator.styles_:
+        out = translator.translate_clip(Xq, s)
+        assert out.shape == (max(2, int(round(len(Xq) * fast[s]))), Xq.shape[1])
+    translator.set_params(tempo=False)
+    try:
+        assert translator.translate_clip(Xq, "pip").shape == Xq.shape
+    finally:
+        translator.set_params(tempo=True)
+
+
+def test_constructor_defaults_equal_the_pipelines_params():
+    """A bare StyleTranslator() is the translator the pipeline configures (params.yaml)."""
+    from nnsf.evaluate.translation import translator_params
+    from nnsf.params import load
+
+    root = Path(__file__).resolve().parents[1]
+    want = translator_params(load(root / "params.yaml"))
+    have = StyleTranslator().get_params()
+    assert {k: have[k] for k in want} == want

@@ -31,7 +31,7 @@ def _params(**over):
         "unify": {"margin": 0.5},
         "translation": {
             "rank": 8, "alpha": 0.01, "beta": 10.0, "label": "motion", "basis": "aligned",
-            "synthesis": "consensus", "amplitude": "restore", "tempo": False, "ridge": 0.5, "smooth": 0.0,
+            "synthesis": "consensus", "amplitude": "restore", "tempo": False, "ridge": 0.5, "smooth": 0.0, "smooth_order": 1,
             "max_iter": 40, "align_iter": 20, "bilinear_rank": 1, "max_sources": 2, "max_cells": 3,
             "examples": 1, "methods": list(STAGE_METHODS), "gp_rank": 4, "gp_phase_bins": 2, "gp_max_iter": 10,
         },

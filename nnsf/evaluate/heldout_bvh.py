@@ -25,7 +25,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-__all__ = ["main", "summary_tables", "markdown"]
+from nnsf.evaluate.translation import STAGE_METHODS
+
+__all__ = ["main", "summary_tables", "markdown", "target_check"]
 
 METRICS = ("dtw_error", "style_lr", "content_lr", "style_nn1", "content_nn1", "style_angles",
            "content_angles", "style_all", "content_all", "style_acc", "content_acc", "jerk_ratio")
@@ -66,6 +68,17 @@ def markdown(summary: dict, key: str = "methods") -> str:
     return "\n".join(lines)
 
 
+def target_check(results: pd.DataFrame, method: str = "nnsf") -> dict:
+    """Issue 11's targets for ``method`` on these results
+    (:func:`nnsf.evaluate.translation._target_check`)."""
+    from nnsf.evaluate.translation import _target_check
+
+    cols = ["dtw_error", *[c for c in results.columns if c.startswith(("style_", "content_"))]]
+    means = results.groupby("method")[cols].mean()
+    per_method = {m: {k: (None if pd.isna(v) else float(v)) for k, v in row.items()} for m, row in means.iterrows()}
+    return _target_check(per_method, method)
+
+
 def _one(args):
     table, s, c, kw = args
     from threadpoolctl import threadpool_limits
@@ -82,6 +95,7 @@ def _one(args):
 def main(argv=None) -> int:
     from nnsf.datasets import bvh_source
     from nnsf.errors import InputError
+    from nnsf.evaluate.gp_translation import GP_TRANSLATION_METHODS, translation_gp_params
     from nnsf.evaluate.translation import DEFAULT_VARIANTS, _pick, grid_cells, translator_params
     from nnsf.io import write_csv, write_json
     from nnsf.params import load, require
@@ -92,7 +106,9 @@ def main(argv=None) -> int:
     ap.add_argument("--out", required=True, help="output path without suffix (.csv and .json are written)")
     ap.add_argument("--params", default="params.yaml")
     ap.add_argument("--cells", type=int, default=0, help="cells to hold out, spread evenly (0: all)")
-    ap.add_argument("--methods", default="nnsf,nnsf_smooth,nnsf_swapped,bilinear,offset,identity,real")
+    ap.add_argument("--methods", default=",".join(STAGE_METHODS),
+                    help="comma-separated methods of nnsf.evaluate.translation (default: every method "
+                         "of the heldout stage)")
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--markdown", choices=("methods", "per_style", "per_content"),
                     help="print that table of an existing OUT.json and exit")
@@ -118,8 +134,19 @@ def main(argv=None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     methods = tuple(m for m in a.methods.split(",") if m)
+    bad = [m for m in methods if m not in STAGE_METHODS]
+    if bad or not methods:
+        print(f"error: --methods: expected a comma-separated list of {', '.join(STAGE_METHODS)}, got "
+              f"{a.methods!r}", file=sys.stderr)
+        return 2
+    gp = [m for m in methods if m in GP_TRANSLATION_METHODS]
+    try:
+        gp_params = translation_gp_params(params, table, gp) if gp else None
+    except InputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     cells = _pick(grid_cells(table), a.cells)
-    ev = dict(methods=methods, translator_params=tp, variants=dict(DEFAULT_VARIANTS),
+    ev = dict(methods=methods, translator_params=tp, variants=dict(DEFAULT_VARIANTS), gp_params=gp_params,
               bilinear_rank=int(require(params, "translation.bilinear_rank")),
               margin=float(require(params, "unify.margin")), seed=int(require(params, "seed")))
     out = Path(a.out)
@@ -134,8 +161,10 @@ def main(argv=None) -> int:
             "data": Path(a.data).name, "bvh": kw, "translation": {k: v for k, v in tp.items()},
             "cells": len(per_cell), "cells_planned": len(cells), "methods_run": list(methods),
             "seconds_per_cell": {"wall_mean": _round(per_cell["seconds"].mean()),
+                                 "wall_max": _round(per_cell["seconds"].max()),
                                  "cpu_mean": _round(per_cell["cpu_seconds"].mean()),
                                  "cpu_max": _round(per_cell["cpu_seconds"].max())},
+            "target": target_check(res),
             **summary_tables(res)})
 
     if a.jobs > 1:
