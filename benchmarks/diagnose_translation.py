@@ -29,7 +29,12 @@ judges do: on the real training clips).  The judges see pixels: every step is
 mapped to the target character with the cell's inverse unification.
 
     .venv/bin/python benchmarks/diagnose_translation.py --data ../shared/data/bandai-namco-1 \\
-        --cells 15 --jobs 2 --out reports/translation_diagnosis
+        --cells 30 --jobs 2 --out reports/translation_diagnosis --set smooth=5.0 --set smooth_order=1 \\
+        --candidates "smooth_order=2+smooth=20,smooth_order=2+smooth=20+amplitude=style"
+
+(the diagnosis of the previous default, first-order smoothness 5, and the two candidate fixes;
+``reports/translation_diagnosis.{json,png}`` hold that run's output; ``--redraw`` prints and
+redraws them without recomputing).
 
 Writes ``OUT.json`` (means per step, per-joint error over time of every step)
 and ``OUT.png`` (per-joint error over time of the default; statistic-group
@@ -177,8 +182,25 @@ def main(argv=None) -> int:
     ap.add_argument("--cells", type=int, default=15)
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--params", default="params.yaml")
-    ap.add_argument("--candidates", default="", help="comma-separated names of CANDIDATES to measure too")
+    ap.add_argument("--candidates", default="", help="candidate fixes to measure too, comma-separated, each "
+                    "key=value StyleTranslator settings joined by '+' (see candidate())")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="override a translation setting of params.yaml for the diagnosed steps "
+                         "(e.g. --set smooth=5.0 --set smooth_order=1: the previous default)")
+    ap.add_argument("--redraw", action="store_true", help="print the tables and redraw OUT.png from an existing OUT.json")
     a = ap.parse_args(argv)
+    if a.redraw:
+        from nnsf.io import read_json
+        from nnsf.skeleton import JOINTS
+
+        report = read_json(Path(a.out).with_suffix(".json"))
+        # The writer sorts keys: back to the pipeline's order, candidates last.
+        order = [k for k in STEPS if k in report["steps"]] + [k for k in report["steps"] if k not in STEPS]
+        report["steps"] = {k: report["steps"][k] for k in order}
+        jt = {s: np.array(v) / 100.0 for s, v in report["joint_time_pct_torso"].items()}
+        _figure(Path(a.out).with_suffix(".png"), jt, report["steps"], JOINTS, report["translation"])
+        print(markdown(report))
+        return 0
 
     from nnsf.datasets import bvh_source
     from nnsf.evaluate.translation import _pick, grid_cells, translator_params
@@ -194,6 +216,17 @@ def main(argv=None) -> int:
     table, _ = _complete_grid(table)
     tp = translator_params(params)
     tp.pop("random_state")
+    import ast
+
+    for item in a.set:
+        key, _, value = item.partition("=")
+        if key not in tp or not value:
+            print(f"error: --set: expected KEY=VALUE with KEY one of {sorted(tp)}, got {item!r}", file=sys.stderr)
+            return 2
+        try:
+            tp[key] = ast.literal_eval(value)
+        except (ValueError, SyntaxError):
+            tp[key] = value
     cands = [c for c in a.candidates.split(",") if c]
     cells = _pick(grid_cells(table), a.cells)
     jobs = [(table, s, c, tp, float(require(params, "unify.margin")), int(require(params, "seed")), cands)
@@ -223,7 +256,7 @@ def main(argv=None) -> int:
     }
     out = Path(a.out)
     write_json(out.with_suffix(".json"), report)
-    _figure(out.with_suffix(".png"), joint_time, summary, JOINTS)
+    _figure(out.with_suffix(".png"), joint_time, summary, JOINTS, tp)
     print(markdown(report))
     print(f"{len(results)} cells in {wall:.0f} s wall ({a.jobs} processes)")
     return 0
@@ -250,7 +283,7 @@ def markdown(report) -> str:
     return "\n".join(lines)
 
 
-def _figure(path, joint_time, summary, joints):
+def _figure(path, joint_time, summary, joints, tp):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -263,7 +296,9 @@ def _figure(path, joint_time, summary, joints):
                         extent=(0, 1, len(joints) - 0.5, -0.5))
     axes[0].set_yticks(range(len(joints)), joints, fontsize=8)
     axes[0].set_xlabel("hidden clip's normalised time")
-    axes[0].set_title("default nnsf: per-joint DTW error, % torso")
+    order = tp.get("smooth_order", 1)
+    axes[0].set_title(f"+tempo (nnsf, smooth {tp['smooth']:g}, order {order}): per-joint DTW error, % torso",
+                      fontsize=9)
     fig.colorbar(im, ax=axes[0], fraction=0.05)
     groups = list(_groups())
     steps = list(summary)

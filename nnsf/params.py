@@ -25,7 +25,7 @@ TRACKERS = ("ours", "agarwala", "lk")
 #: Camera views of projected motion capture (nnsf.datasets.views).
 VIEW_CHOICES = ("front", "side", "three-quarter", "auto")
 TRANSLATION_METHODS = ("nnsf", "nnsf_smooth", "nnsf_nosmooth", "nnsf_styleamp", "nnsf_swapped", "nnsf_beta0",
-                       "nnsf_refit", "api", "bilinear", "mgpm", "cbgpm", "offset", "identity", "real")
+                       "nnsf_refit", "api", "api_source", "bilinear", "mgpm", "cbgpm", "offset", "identity", "real")
 
 
 def _optional_str():

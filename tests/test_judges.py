@@ -229,7 +229,8 @@ def test_judges_get_the_raw_clips_and_the_target_characters_pixels(pixels, monke
 
 def test_the_api_method_is_exactly_nnsf_translate(pixels, monkeypatch):
     """``api`` judges what nnsf.translate() returns for the source clip as read, with a model
-    fitted on the cell's remaining clips (the cell's unifier, the default translator)."""
+    fitted on the cell's remaining clips (the cell's unifier, the default translator);
+    ``api_source`` the same call told the source clip's style."""
     import nnsf.evaluate.translation as ev
     from nnsf import translate
     from nnsf.factor.style_model import StyleModel
@@ -243,8 +244,8 @@ def test_the_api_method_is_exactly_nnsf_translate(pixels, monkeypatch):
 
     monkeypatch.setattr(ev, "Judges", Spy)
     tp = {"n_components": 6, "max_iter": 30, "align_iter": 10}
-    out, ex = evaluate_cell(pixels, "olga", "wave", methods=("api",), translator_params=tp, max_sources=1,
-                            return_examples=True)
+    out, ex = evaluate_cell(pixels, "olga", "wave", methods=("api", "api_source"), translator_params=tp,
+                            max_sources=1, return_examples=True)
     hidden = (pixels["character"] == "olga") & (pixels["motion"] == "wave")
     train = pixels[~hidden].reset_index(drop=True)
     P = to_points(contract.features(train))
@@ -254,6 +255,10 @@ def test_the_api_method_is_exactly_nnsf_translate(pixels, monkeypatch):
     src = ex["api"]["source"]
     want = translate(P[cl == src], "olga", StyleModel(tr, u))
     np.testing.assert_array_equal(seen["score"][0], want)
+    s_src = ch[cl == src][0]
+    told = translate(P[cl == src], "olga", StyleModel(tr, u), source_style=s_src)
+    np.testing.assert_array_equal(seen["score"][1], told)
+    assert not np.allclose(told, want)
     assert np.isfinite(out["dtw_error"]).all()
 
 

@@ -385,3 +385,32 @@ def test_constructor_defaults_equal_the_pipelines_params():
     want = translator_params(load(root / "params.yaml"))
     have = StyleTranslator().get_params()
     assert {k: have[k] for k in want} == want
+
+
+def test_style_amplitude_carries_a_wider_swinging_style_to_an_unseen_content(unified):
+    """Style "wide" is style "base" with every coordinate's deviation from its clip mean doubled.
+    With (wide, jump) hidden, amplitude="style" learns from the other contents that "wide" swings
+    wider than its restored renderings (h > 1, and h < 1 for "base") and so comes closer to the
+    true amplitude of (wide, jump) than the content-only restore."""
+    X, mo, ch, cl = unified
+    keep = ch == "bruno"
+    Xa, moa, cla = X[keep], mo[keep], cl[keep]
+    wide = np.empty_like(Xa)
+    for q in np.unique(cla):
+        r = cla == q
+        m = Xa[r].mean(axis=0)
+        wide[r] = m + 2.0 * (Xa[r] - m) + 1.0          # + 1 keeps it non-negative
+    base = Xa + 1.0
+    hide = moa == "jump"
+    Xt = np.concatenate([base, wide[~hide]])
+    mot = np.concatenate([moa, moa[~hide]])
+    cht = np.concatenate([np.full(len(base), "base"), np.full((~hide).sum(), "wide")])
+    clt = np.concatenate([np.char.add("b-", cla.astype(str)), np.char.add("w-", cla[~hide].astype(str))])
+    t = StyleTranslator(n_components=8, max_iter=80, align_iter=40, tempo=False).fit(Xt, mot, cht, clt)
+    assert t._style_gain("wide", "jump").mean() > 1.0 > t._style_gain("base", "jump").mean()
+    truth = np.mean([wide[cla == q].std(axis=0) for q in np.unique(cla[hide])], axis=0)
+    t.set_params(amplitude="restore")
+    plain = t.synthesize("jump", "wide").std(axis=0)
+    t.set_params(amplitude="style")
+    styled = t.synthesize("jump", "wide").std(axis=0)
+    assert np.abs(styled - truth).mean() < 0.7 * np.abs(plain - truth).mean()

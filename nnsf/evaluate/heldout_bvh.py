@@ -1,6 +1,6 @@
 """Held-out translation on a motion-capture folder, outside the DVC pipeline (issue 11).
 
-``python -m nnsf.evaluate.heldout_bvh --data FOLDER --out reports/heldout_bandai_namco_1``
+``python -m nnsf.evaluate.heldout_bvh --data FOLDER --out reports/heldout_bandai_namco_1_all150``
 reads every labelled ``.bvh`` clip of ``FOLDER`` with the ``dataset.bvh``
 settings of ``params.yaml`` (keeping the motions every style performs),
 holds out every (style, content) cell (or ``--cells N`` of them, spread
@@ -52,14 +52,23 @@ def summary_tables(results: pd.DataFrame) -> dict:
     return out
 
 
-def markdown(summary: dict, key: str = "methods") -> str:
+def markdown(summary: dict, key: str = "methods", only=None) -> str:
     """A Markdown table of one section of a written ``OUT.json`` (``methods``, ``per_style`` or
-    ``per_content``): DTW error in % of the torso, then every judge's style/content accuracy."""
+    ``per_content``): DTW error in % of the torso, then every judge's style/content accuracy.
+    ``only``: the methods to show (all by default), in the JSON's order."""
     fams = ("lr", "nn1", "angles", "all")
     head = "| " + ("method" if key == "methods" else "cell group / method") + " | DTW % torso | " + \
         " | ".join(f"style {f} | content {f}" for f in fams) + " | jerk ratio | cells |"
     lines = [head, "|---" + "|---:" * (3 + 2 * len(fams)) + "|"]
-    for name, v in summary[key].items():
+    rank = {m: i for i, m in enumerate(STAGE_METHODS)}
+
+    def order(name):            # the JSON's keys are sorted: back to the methods' table order
+        *group, method = name.split("/")
+        return (group, rank.get(method, len(rank)), method)
+
+    for name, v in sorted(summary[key].items(), key=lambda kv: order(kv[0])):
+        if only and name.split("/")[-1] not in only:
+            continue
         cells = [f"{100 * v['dtw_error']:.1f}" if v["dtw_error"] else "0"]
         for f in fams:
             cells += [f"{v[f'style_{f}']:.2f}", f"{v[f'content_{f}']:.2f}"]
@@ -112,10 +121,12 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--markdown", choices=("methods", "per_style", "per_content"),
                     help="print that table of an existing OUT.json and exit")
+    ap.add_argument("--only", default="", help="with --markdown: comma-separated methods to show")
     a = ap.parse_args(argv)
     if a.markdown:
         from nnsf.io import read_json
-        print(markdown(read_json(Path(a.out).with_suffix(".json")), a.markdown))
+        print(markdown(read_json(Path(a.out).with_suffix(".json")), a.markdown,
+                       only=[m for m in a.only.split(",") if m] or None))
         return 0
     if not a.data:
         print("error: --data: expected a folder of labelled .bvh clips, got nothing", file=sys.stderr)

@@ -12,12 +12,18 @@ clip is compared with the hidden real clip(s):
   so ×100 reads as % of the torso);
 * ``style_<family>``, ``content_<family>`` -- the verdict of the independent
   judges (:mod:`nnsf.evaluate.judges`: logistic regression, 1-NN and an
-  angle-statistics SVM, trained on the remaining real clips, told neither
-  label; ``all`` = recognised by every family);
+  angle-statistics SVM, trained on the remaining real clips as read -- raw
+  key points, pixels --, told neither label; ``all`` = recognised by every
+  family).  They judge each synthesis mapped to the target character's
+  pixels with the inverse of the cell's unification (what a caller gets;
+  ``api`` in the coordinates :func:`nnsf.translate` returns) and the hidden
+  clip as read, and normalise on their own: nothing of the cell's unifier or
+  the translation's template reaches them;
 * ``jerk_ratio`` -- mean |second difference| of the key points (:func:`jerk`)
   over that of the target style's real training clips;
 * ``style_acc`` -- does the project's own (conditioned LDA) style classifier
-  trained on the remaining real clips say the target style?
+  trained on the remaining real clips, in the cell's template units, say the
+  target style?  (Kept for comparison with earlier numbers.)
 * ``content_acc`` -- does a content classifier trained on the remaining real
   clips say the cell's content?
 * ``bone_error`` -- mean absolute bone-length difference over the DTW-aligned
@@ -32,7 +38,8 @@ classifiers) is fitted on the remaining data only, inside :func:`evaluate_cell`,
 a pure function of its arguments so that a task runner can fan the cells out;
 :func:`leave_one_cell_out` runs them one after another.
 
-The classifiers (our choice; docs/method.md §15.5): one feature
+The project's own classifiers (``style_acc``, ``content_acc``; the judges are the
+evaluation's verdict, these are kept for comparison; docs/method.md §15.5): one feature
 vector per clip (:func:`clip_features`: mean, standard deviation, mean
 absolute velocity and the signed area swept by each key point -- 119
 numbers), standardised, then linear discriminant analysis with Ledoit-Wolf
@@ -85,7 +92,7 @@ __all__ = [
 #: ceiling.
 METHODS: tuple[str, ...] = (
     "nnsf", "nnsf_smooth", "nnsf_nosmooth", "nnsf_styleamp", "nnsf_swapped", "nnsf_beta0", "nnsf_refit", "api",
-    "bilinear", "bilinear_template", "mgpm", "cbgpm", "offset", "identity", "real",
+    "api_source", "bilinear", "bilinear_template", "mgpm", "cbgpm", "offset", "identity", "real",
 )
 
 #: StyleTranslator parameters of every NNSF method (on top of ``translator_params``).
@@ -98,6 +105,9 @@ DEFAULT_VARIANTS: dict[str, dict] = {
     "nnsf_nosmooth": {"smooth": 0.0},
     "nnsf_styleamp": {"amplitude": "style"},
 }
+
+#: The public path's methods: nnsf.translate() without and with the source clip's style.
+_API: tuple[str, ...] = ("api", "api_source")
 
 #: StyleTranslator parameters that only change how a fitted translator is
 #: used (not the fit): variants differing only in these share one fit.
@@ -421,6 +431,13 @@ def evaluate_cell(table: pd.DataFrame, style: str, content: str, *,
         (a consensus synthesis is the same for every source); variants that
         differ only in how a fit is used (``reading``, ``synthesis``,
         ``amplitude``, ``tempo``, ``keep_residual``) share one fit.
+        ``api`` -- the public path: every source clip, as read (pixels),
+        through :func:`nnsf.translate` with a
+        :class:`~nnsf.factor.style_model.StyleModel` of the ``nnsf`` fit and
+        the cell's unifier, read style-neutrally (the default call); judged
+        in the coordinates it returns (the source clip's), its DTW error from
+        the same call's template features.  ``api_source`` -- the same call
+        told the source clip's style (``source_style=``).
         ``bilinear`` -- Tenenbaum & Freeman's asymmetric model fitted on the
         other styles, the target style adapted from its observed contents
         (:meth:`~nnsf.factor.baselines.BilinearModel.adapt_style`), and every
@@ -527,8 +544,8 @@ def evaluate_cell(table: pd.DataFrame, style: str, content: str, *,
     base.setdefault("random_state", seed)
     translators, fitted = {}, {}
     for m in methods:
-        if m in variants or m == "api":
-            # ``api``: the default fit, used through nnsf.translate (the public path).
+        if m in variants or m in _API:
+            # ``api``, ``api_source``: the default fit, used through nnsf.translate (the public path).
             params = {**base, **variants.get(m, {})}
             fit_params = {k: v for k, v in params.items() if k not in _USE_PARAMS}
             key = tuple(sorted((k, repr(v)) for k, v in fit_params.items()))
@@ -565,13 +582,16 @@ def evaluate_cell(table: pd.DataFrame, style: str, content: str, *,
         X_hats = {}
         pixels = {}         # what a caller gets, where it is not the target character's pixels
         for m in methods:
-            if m == "api":
+            if m in _API:
                 tr, use = translators[m]
                 tr.set_params(**use)
                 # Exactly nnsf.translate(): the source clip's raw key points in, key points in
                 # the clip's own coordinates out; X_hat is the same call's template features.
-                pixels[m], X_hats[m], _ = translate_features(P_train[rows[q]], style,
-                                                             StyleModel(tr, unifier))
+                # ``api`` reads the clip style-neutrally (the default call), ``api_source`` is
+                # told the clip's style (source_style=).
+                pixels[m], X_hats[m], _ = translate_features(
+                    P_train[rows[q]], style, StyleModel(tr, unifier),
+                    source_style=s_src if m == "api_source" else None)
             elif m in translators:
                 tr, use = translators[m]
                 tr.set_params(**use)
@@ -725,7 +745,7 @@ def per_style(results: pd.DataFrame) -> pd.DataFrame:
 # --------------------------------------------------------------------------- #
 #: Methods of the held-out stage, in table order (``real`` is the ceiling row).
 STAGE_METHODS: tuple[str, ...] = ("nnsf", "nnsf_smooth", "nnsf_nosmooth", "nnsf_styleamp", "nnsf_swapped",
-                                  "nnsf_beta0", "nnsf_refit", "api", "bilinear", "mgpm", "cbgpm", "offset", "identity", "real")
+                                  "nnsf_beta0", "nnsf_refit", "api", "api_source", "bilinear", "mgpm", "cbgpm", "offset", "identity", "real")
 
 #: Summary metrics of ``reports/heldout.json`` per method: name there -> column.
 SUMMARY_METRICS: dict[str, str] = {
