@@ -453,6 +453,15 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
     # ---- translate
     t, c = time.perf_counter(), time.process_time()
     moved = points if sm is None else style_translate(points, style, sm, source_style=source_style)
+    if depth is not None and len(moved) != len(depth):
+        # The style's tempo resampled the motion (nnsf.translate); the depths follow.
+        from nnsf.factor.translate import resample_clip
+
+        depth = resample_clip(depth, len(moved))
+    moved = moved[:max_frames]              # a slower style's tempo may lengthen the motion
+    depth = None if depth is None else depth[:max_frames]
+    if len(moved) != len(points):
+        _say(progress, f"animate: {len(points)} -> {len(moved)} frames at the tempo of style {style}")
     seconds["translate"], cpu["translate"] = time.perf_counter() - t, time.process_time() - c
     # ---- retarget
     t, c = time.perf_counter(), time.process_time()

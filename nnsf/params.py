@@ -24,8 +24,8 @@ LABELS = ("motion", "character")
 TRACKERS = ("ours", "agarwala", "lk")
 #: Camera views of projected motion capture (nnsf.datasets.views).
 VIEW_CHOICES = ("front", "side", "three-quarter", "auto")
-TRANSLATION_METHODS = ("nnsf", "nnsf_smooth", "nnsf_nosmooth", "nnsf_swapped", "nnsf_beta0", "nnsf_refit", "bilinear", "mgpm", "cbgpm",
-                       "offset", "identity", "real")
+TRANSLATION_METHODS = ("nnsf", "nnsf_smooth", "nnsf_nosmooth", "nnsf_styleamp", "nnsf_swapped", "nnsf_beta0",
+                       "nnsf_refit", "api", "api_source", "bilinear", "mgpm", "cbgpm", "offset", "identity", "real")
 
 
 def _optional_str():
@@ -213,10 +213,11 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "translation.label": _choice(LABELS),
     "translation.basis": _choice(("aligned", "refit", "separate")),
     "translation.synthesis": _choice(("consensus", "source")),
-    "translation.amplitude": _choice(("restore", "none")),
+    "translation.amplitude": _choice(("restore", "style", "none")),
     "translation.tempo": _bool(),
     "translation.ridge": _num(0, 1e6),
     "translation.smooth": _num(0, 1e6),
+    "translation.smooth_order": _int(1, 2),
     "translation.max_iter": _int(1, 100000),
     "translation.align_iter": _int(1, 100000),
     "translation.bilinear_rank": _int(1, 34),

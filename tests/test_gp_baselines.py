@@ -293,3 +293,15 @@ def test_scikit_learn_conventions_that_do_not_need_fit_x_y(Estimator):
     X, y, s, g, ph = grid_table(offset_styles(S=2, C=3, T=4)[0], 4)
     fitted = est.fit(X, y, s, ph)
     assert fitted is est and not hasattr(clone(est), "classes_")
+
+
+def test_dvc_plots_show_every_method_of_the_precision_vs_rank_stage():
+    """dvc.yaml's plots draw precision (and reconstruction error) vs rank for every method the
+    evaluate stage runs by default, the GP models included."""
+    dvc = yaml.safe_load((ROOT / "dvc.yaml").read_text())
+    methods = yaml.safe_load((ROOT / "params.yaml").read_text())["evaluate"]["methods"]
+    plots = {k: v for p in dvc["plots"] if isinstance(p, dict) for k, v in p.items()}
+    for name, csv in (("precision_vs_rank", "reports/plots/precision_vs_rank.csv"),
+                      ("recon_error_vs_rank", "reports/plots/recon_error_vs_rank.csv")):
+        assert plots[name]["y"][csv] == methods, name
+    assert {"mgpm", "cbgpm"} <= set(methods)

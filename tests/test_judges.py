@@ -3,6 +3,8 @@
 consensus synthesis is no jerkier than the real clips of its target style."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -134,3 +136,151 @@ def test_a_consensus_synthesis_is_no_jerkier_than_real_clips_of_its_style(pixels
         real = np.mean([jerk(X[cl == q]) for q in np.unique(cl[ch == s])])
         for c in MOTIONS:
             assert jerk(tr.synthesize(c, s)) <= 1.5 * real, (s, c)
+
+
+# ------------------------------------------------------- independence of the judges
+def test_judges_module_imports_nothing_of_the_project():
+    """judges.py imports numpy and scikit-learn only: not the skeleton unifier, not the
+    translation or its evaluation (checked in its source and in a fresh interpreter)."""
+    import ast
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import nnsf.evaluate.judges as jm
+
+    tree = ast.parse(Path(jm.__file__).read_text())
+    imported = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            imported |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            imported.add(node.module)
+    assert {m.split(".")[0] for m in imported} <= {"__future__", "numpy", "sklearn"}, imported
+    code = ("import sys, nnsf.evaluate.judges; "
+            "print(' '.join(sorted(m for m in sys.modules if m.split('.')[0] == 'nnsf')))")
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert loaded == ["nnsf", "nnsf.evaluate", "nnsf.evaluate.judges"], loaded
+
+
+def test_the_judges_skeleton_is_the_data_contracts():
+    from nnsf.evaluate.judges import PARENTS as judged
+    from nnsf.skeleton.layout import PARENTS
+
+    assert judged == PARENTS
+
+
+def test_judges_normalise_position_and_size_themselves(pixels):
+    """A clip shifted and scaled (another camera, another unit) gets the same verdicts."""
+    P = to_points(contract.features(pixels))
+    clips = pixels["clip"].to_numpy()
+    names = sorted(set(clips))
+    seqs = [P[clips == q] for q in names]
+    st = [pixels.loc[clips == q, "character"].iloc[0] for q in names]
+    co = [pixels.loc[clips == q, "motion"].iloc[0] for q in names]
+    j = Judges().fit(seqs[::2], st[::2], co[::2])
+    moved = [3.7 * Q + np.array([120.0, -45.0]) for Q in seqs[1::2]]
+    a, b = j.predict(seqs[1::2]), j.predict(moved)
+    for fam in FAMILIES:
+        np.testing.assert_array_equal(a[fam][0], b[fam][0])
+        np.testing.assert_array_equal(a[fam][1], b[fam][1])
+    np.testing.assert_allclose(pose_statistics(moved[0]), pose_statistics(seqs[1]), atol=1e-12)
+
+
+def test_judges_get_the_raw_clips_and_the_target_characters_pixels(pixels, monkeypatch):
+    """In evaluate_cell the judges are fitted on the remaining clips exactly as read (pixels, no
+    clip of the hidden cell), and judge each synthesis mapped to the target character's pixels
+    (the inverse of the cell's unification) and the hidden clip as read."""
+    import nnsf.evaluate.translation as ev
+
+    seen = {}
+
+    class Spy(Judges):
+        def fit(self, clips, style, content):
+            seen["fit"] = (list(clips), list(style), list(content))
+            return super().fit(clips, style, content)
+
+        def score(self, clips, style, content):
+            seen["score"] = list(clips)
+            return super().score(clips, style, content)
+
+    monkeypatch.setattr(ev, "Judges", Spy)
+    out, ex = evaluate_cell(pixels, "olga", "wave", methods=("offset", "identity", "real"), max_sources=1,
+                            return_examples=True)
+    cols = list(contract.COLUMNS[4:])
+    hidden = (pixels["character"] == "olga") & (pixels["motion"] == "wave")
+    raw = {q: pixels.loc[pixels["clip"] == q, cols].to_numpy().reshape(-1, 17, 2)
+           for q in pixels["clip"].unique()}
+    fit_clips, fit_style, fit_content = seen["fit"]
+    train_names = sorted(pixels.loc[~hidden, "clip"].unique())
+    assert len(fit_clips) == len(train_names)
+    for P, q in zip(fit_clips, train_names):
+        np.testing.assert_array_equal(P, raw[q])                 # as read, bit for bit
+    assert not any(s == "olga" and c == "wave" for s, c in zip(fit_style, fit_content))
+    # scored: offset, identity (one source) then the hidden clip as read
+    train = pixels[~hidden].reset_index(drop=True)
+    u = Unifier(margin=0.5).fit(to_points(contract.features(train)), train["character"].to_numpy())
+    np.testing.assert_allclose(seen["score"][0], u.inverse_transform(ex["offset"]["synth"], "olga"), atol=1e-9)
+    np.testing.assert_allclose(seen["score"][1], u.inverse_transform(ex["identity"]["synth"], "olga"), atol=1e-9)
+    hidden_names = sorted(pixels.loc[hidden, "clip"].unique())
+    for P, q in zip(seen["score"][2:], hidden_names):
+        np.testing.assert_array_equal(P, raw[q])
+
+
+def test_the_api_method_is_exactly_nnsf_translate(pixels, monkeypatch):
+    """``api`` judges what nnsf.translate() returns for the source clip as read, with a model
+    fitted on the cell's remaining clips (the cell's unifier, the default translator);
+    ``api_source`` the same call told the source clip's style."""
+    import nnsf.evaluate.translation as ev
+    from nnsf import translate
+    from nnsf.factor.style_model import StyleModel
+
+    seen = {}
+
+    class Spy(Judges):
+        def score(self, clips, style, content):
+            seen["score"] = list(clips)
+            return super().score(clips, style, content)
+
+    monkeypatch.setattr(ev, "Judges", Spy)
+    tp = {"n_components": 6, "max_iter": 30, "align_iter": 10}
+    out, ex = evaluate_cell(pixels, "olga", "wave", methods=("api", "api_source"), translator_params=tp,
+                            max_sources=1, return_examples=True)
+    hidden = (pixels["character"] == "olga") & (pixels["motion"] == "wave")
+    train = pixels[~hidden].reset_index(drop=True)
+    P = to_points(contract.features(train))
+    ch, mo, cl = (train[k].astype(str).to_numpy() for k in ("character", "motion", "clip"))
+    u = Unifier(margin=0.5).fit(P, ch)
+    tr = StyleTranslator(**tp, random_state=0).fit(u.transform(P, ch), mo, ch, cl)
+    src = ex["api"]["source"]
+    want = translate(P[cl == src], "olga", StyleModel(tr, u))
+    np.testing.assert_array_equal(seen["score"][0], want)
+    s_src = ch[cl == src][0]
+    told = translate(P[cl == src], "olga", StyleModel(tr, u), source_style=s_src)
+    np.testing.assert_array_equal(seen["score"][1], told)
+    assert not np.allclose(told, want)
+    assert np.isfinite(out["dtw_error"]).all()
+
+
+BANDAI = Path(__file__).resolve().parents[2] / "shared" / "data" / "bandai-namco-1"
+
+
+@pytest.mark.skipif(not BANDAI.is_dir(), reason=f"Bandai-Namco-1 data not found at {BANDAI}")
+def test_held_out_syntheses_on_real_motion_are_no_jerkier_than_the_styles_real_clips():
+    """On a small Bandai-Namco-1 subset (6 styles x 5 contents, read with params.yaml's BVH
+    settings), the default translation of four held-out cells, spread over the grid, has a mean
+    jerk ratio (mean |second difference| over that of the target style's real training clips)
+    of at most 1.5."""
+    from nnsf.datasets.bvh_source import read_folder
+    from nnsf.evaluate.translation import _pick, grid_cells
+    from nnsf.params import load
+
+    bvh = load(Path(__file__).resolve().parents[1] / "params.yaml")["dataset"]["bvh"]
+    table, _ = read_folder(BANDAI, fps=bvh["fps"], azimuth=bvh["azimuth"], elevation=bvh["elevation"],
+                           facing=bvh["facing"], center=bvh["center"])
+    styles = ["normal", "active", "tired", "old", "proud", "sad"]
+    contents = ["walk", "run", "bow", "byebye", "dash"]
+    table = table[table["character"].isin(styles) & table["motion"].isin(contents)].reset_index(drop=True)
+    ratios = [evaluate_cell(table, s, c, methods=("nnsf",))["jerk_ratio"].iloc[0]
+              for s, c in _pick(grid_cells(table), 4)]
+    assert np.mean(ratios) <= 1.5, ratios

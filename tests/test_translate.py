@@ -322,3 +322,95 @@ def test_restored_amplitude_matches_the_real_clips_on_average(unified, translato
     finally:
         translator.set_params(tempo=True, amplitude="restore")
     assert plain.sum() < np.mean([Xq.std(0) for Xq in real], 0).sum()
+
+
+# ------------------------------------------------------ temporal smoothness, public path
+def test_second_difference_split_is_the_acceleration_penalty_along_each_chain():
+    from nnsf.factor.translate import second_difference_split
+
+    rng = np.random.default_rng(0)
+    chains, R = [(0, 5), (5, 12), (12, 14)], 14            # the last chain is too short to bend
+    W = rng.random((R, 3))
+    Lpos, Lneg = second_difference_split(chains, R)
+    assert Lpos.min() >= 0 and Lneg.min() >= 0
+    by_hand = sum(float(np.sum((W[a:b - 2] - 2 * W[a + 1:b - 1] + W[a + 2:b]) ** 2)) for a, b in chains
+                  if b - a >= 3)
+    L = (Lpos - Lneg).toarray()
+    assert np.trace(W.T @ L @ W) == pytest.approx(by_hand, rel=1e-12)
+    # no coupling across chains: rows 4 and 5 (and 3 and 5) are in different chains
+    assert L[4, 5] == 0 and L[3, 5] == 0 and L[5, 4] == 0
+    # straight lines cost nothing
+    line = np.outer(np.arange(R, dtype=float), [1.0, 2.0])
+    assert np.allclose(L @ line, 0.0)
+
+
+def test_smoothed_encoding_removes_jitter_and_zero_is_the_per_frame_encoding(unified, translator):
+    from nnsf.factor.nnsf import weights_for_basis
+
+    X, mo, ch, cl = unified
+    Xq = X[cl == cl[0]]
+    rng = np.random.default_rng(1)
+    noisy = np.maximum(Xq + rng.normal(0, 0.02, Xq.shape), 0.0)
+    U = translator.components_
+    plain = weights_for_basis(noisy, U, alpha=translator.alpha, max_iter=translator.max_iter, tol=translator.tol)
+    acc = lambda V: float(np.abs(np.diff(V, n=2, axis=0)).mean())  # noqa: E731
+    for order in (1, 2):
+        t = StyleTranslator(**{**translator.get_params(), "smooth": 20.0, "smooth_order": order})
+        assert acc(t.encode_smooth(noisy, U)) < 0.7 * acc(plain), order
+    t0 = StyleTranslator(**{**translator.get_params(), "smooth": 0.0})
+    np.testing.assert_array_equal(t0.encode_smooth(noisy, U), plain)
+
+
+def test_translate_clip_resamples_to_the_target_tempo(unified, translator):
+    X, mo, ch, cl = unified
+    Xq = X[cl == cl[0]]
+    translator.set_params(tempo=True)
+    fast = {**translator.style_tempo_}
+    for s in translator.styles_:
+        out = translator.translate_clip(Xq, s)
+        assert out.shape == (max(2, int(round(len(Xq) * fast[s]))), Xq.shape[1])
+    translator.set_params(tempo=False)
+    try:
+        assert translator.translate_clip(Xq, "pip").shape == Xq.shape
+    finally:
+        translator.set_params(tempo=True)
+
+
+def test_constructor_defaults_equal_the_pipelines_params():
+    """A bare StyleTranslator() is the translator the pipeline configures (params.yaml)."""
+    from nnsf.evaluate.translation import translator_params
+    from nnsf.params import load
+
+    root = Path(__file__).resolve().parents[1]
+    want = translator_params(load(root / "params.yaml"))
+    have = StyleTranslator().get_params()
+    assert {k: have[k] for k in want} == want
+
+
+def test_style_amplitude_carries_a_wider_swinging_style_to_an_unseen_content(unified):
+    """Style "wide" is style "base" with every coordinate's deviation from its clip mean doubled.
+    With (wide, jump) hidden, amplitude="style" learns from the other contents that "wide" swings
+    wider than its restored renderings (h > 1, and h < 1 for "base") and so comes closer to the
+    true amplitude of (wide, jump) than the content-only restore."""
+    X, mo, ch, cl = unified
+    keep = ch == "bruno"
+    Xa, moa, cla = X[keep], mo[keep], cl[keep]
+    wide = np.empty_like(Xa)
+    for q in np.unique(cla):
+        r = cla == q
+        m = Xa[r].mean(axis=0)
+        wide[r] = m + 2.0 * (Xa[r] - m) + 1.0          # + 1 keeps it non-negative
+    base = Xa + 1.0
+    hide = moa == "jump"
+    Xt = np.concatenate([base, wide[~hide]])
+    mot = np.concatenate([moa, moa[~hide]])
+    cht = np.concatenate([np.full(len(base), "base"), np.full((~hide).sum(), "wide")])
+    clt = np.concatenate([np.char.add("b-", cla.astype(str)), np.char.add("w-", cla[~hide].astype(str))])
+    t = StyleTranslator(n_components=8, max_iter=80, align_iter=40, tempo=False).fit(Xt, mot, cht, clt)
+    assert t._style_gain("wide", "jump").mean() > 1.0 > t._style_gain("base", "jump").mean()
+    truth = np.mean([wide[cla == q].std(axis=0) for q in np.unique(cla[hide])], axis=0)
+    t.set_params(amplitude="restore")
+    plain = t.synthesize("jump", "wide").std(axis=0)
+    t.set_params(amplitude="style")
+    styled = t.synthesize("jump", "wide").std(axis=0)
+    assert np.abs(styled - truth).mean() < 0.7 * np.abs(plain - truth).mean()

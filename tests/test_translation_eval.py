@@ -31,7 +31,7 @@ def _params(**over):
         "unify": {"margin": 0.5},
         "translation": {
             "rank": 8, "alpha": 0.01, "beta": 10.0, "label": "motion", "basis": "aligned",
-            "synthesis": "consensus", "amplitude": "restore", "tempo": False, "ridge": 0.5, "smooth": 0.0,
+            "synthesis": "consensus", "amplitude": "restore", "tempo": False, "ridge": 0.5, "smooth": 0.0, "smooth_order": 1,
             "max_iter": 40, "align_iter": 20, "bilinear_rank": 1, "max_sources": 2, "max_cells": 3,
             "examples": 1, "methods": list(STAGE_METHODS), "gp_rank": 4, "gp_phase_bins": 2, "gp_max_iter": 10,
         },
@@ -101,6 +101,12 @@ def test_heldout_stage_writes_tables_figures_and_one_run_per_method(unified, tmp
     for f in ("heldout_by_style.png", "heldout_strip.png", "heldout_example.gif"):
         assert (reports / "figures" / f).stat().st_size > 1000
     assert set(res.runs) == set(STAGE_METHODS)
+    # Issue 11's targets, each recorded honestly, in the JSON and as MLflow metrics.
+    target = summary["target"]
+    assert target["method"] == "nnsf" and target["of"] == 7 and isinstance(target["met"], bool)
+    assert res.metrics["target_met"] == float(target["met"])
+    assert res.metrics["targets_passed"] == target["passed"]
+    assert res.metrics["target_dtw_error"] == float(target["checks"]["dtw_error <= 0.17"]["met"])
     assert res.runs["nnsf"].metrics["dtw_error"] == pytest.approx(summary["methods"]["nnsf"]["dtw_error"],
                                                                  rel=5.1e-6)  # the file keeps 6 digits
     # Same inputs, same bytes.
@@ -226,3 +232,23 @@ def test_stick_gif_strip_and_contact_sheet(tmp_path):
     with pytest.raises(ValueError, match="finite"):
         as_clips(np.full((2, 34), np.nan))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.gif", "s.png", "sheet.png"]
+
+
+def test_target_check_records_every_target_of_issue_11():
+    """DTW ≤ 0.17 and, for every judge family, style ≥ 0.45 and content ≥ 0.70: each recorded
+    with its value; ``met`` only when all pass; baselines compared on the side."""
+    from nnsf.evaluate.judges import FAMILIES
+    from nnsf.evaluate.translation import _target_check
+
+    good = {"dtw_error": 0.16, **{f"style_{f}": 0.5 for f in FAMILIES}, **{f"content_{f}": 0.75 for f in FAMILIES}}
+    t = _target_check({"nnsf": good})
+    assert t["met"] is True and t["passed"] == t["of"] == 1 + 2 * len(FAMILIES)
+    bad = {**good, "style_nn1": 0.44, "dtw_error": 0.171}
+    off = {**good, "dtw_error": 0.2, "style_lr": 0.1, "content_lr": 0.99, "content_nn1": 0.99, "content_angles": 0.99}
+    t = _target_check({"nnsf": bad, "offset": off})
+    assert t["met"] is False and t["passed"] == t["of"] - 2
+    assert t["checks"]["style_nn1 >= 0.45"] == {"value": 0.44, "target": 0.45, "met": False}
+    assert t["checks"]["dtw_error <= 0.17"]["met"] is False
+    assert t["checks"]["content_lr >= 0.70"]["met"] is True
+    assert t["beats"] == {"offset": {"dtw_error": True, "style": True, "content": False}}
+    assert _target_check({"offset": off})["met"] is None

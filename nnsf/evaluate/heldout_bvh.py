@@ -1,6 +1,6 @@
 """Held-out translation on a motion-capture folder, outside the DVC pipeline (issue 11).
 
-``python -m nnsf.evaluate.heldout_bvh --data FOLDER --out reports/heldout_bandai_namco_1``
+``python -m nnsf.evaluate.heldout_bvh --data FOLDER --out reports/heldout_bandai_namco_1_all150``
 reads every labelled ``.bvh`` clip of ``FOLDER`` with the ``dataset.bvh``
 settings of ``params.yaml`` (keeping the motions every style performs),
 holds out every (style, content) cell (or ``--cells N`` of them, spread
@@ -25,7 +25,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-__all__ = ["main", "summary_tables", "markdown"]
+from nnsf.evaluate.translation import STAGE_METHODS
+
+__all__ = ["main", "summary_tables", "markdown", "target_check"]
 
 METRICS = ("dtw_error", "style_lr", "content_lr", "style_nn1", "content_nn1", "style_angles",
            "content_angles", "style_all", "content_all", "style_acc", "content_acc", "jerk_ratio")
@@ -50,20 +52,40 @@ def summary_tables(results: pd.DataFrame) -> dict:
     return out
 
 
-def markdown(summary: dict, key: str = "methods") -> str:
+def markdown(summary: dict, key: str = "methods", only=None) -> str:
     """A Markdown table of one section of a written ``OUT.json`` (``methods``, ``per_style`` or
-    ``per_content``): DTW error in % of the torso, then every judge's style/content accuracy."""
+    ``per_content``): DTW error in % of the torso, then every judge's style/content accuracy.
+    ``only``: the methods to show (all by default), in the JSON's order."""
     fams = ("lr", "nn1", "angles", "all")
     head = "| " + ("method" if key == "methods" else "cell group / method") + " | DTW % torso | " + \
         " | ".join(f"style {f} | content {f}" for f in fams) + " | jerk ratio | cells |"
     lines = [head, "|---" + "|---:" * (3 + 2 * len(fams)) + "|"]
-    for name, v in summary[key].items():
+    rank = {m: i for i, m in enumerate(STAGE_METHODS)}
+
+    def order(name):            # the JSON's keys are sorted: back to the methods' table order
+        *group, method = name.split("/")
+        return (group, rank.get(method, len(rank)), method)
+
+    for name, v in sorted(summary[key].items(), key=lambda kv: order(kv[0])):
+        if only and name.split("/")[-1] not in only:
+            continue
         cells = [f"{100 * v['dtw_error']:.1f}" if v["dtw_error"] else "0"]
         for f in fams:
             cells += [f"{v[f'style_{f}']:.2f}", f"{v[f'content_{f}']:.2f}"]
         cells += [f"{v['jerk_ratio']:.2f}", str(v["cells"])]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+def target_check(results: pd.DataFrame, method: str = "nnsf") -> dict:
+    """Issue 11's targets for ``method`` on these results
+    (:func:`nnsf.evaluate.translation._target_check`)."""
+    from nnsf.evaluate.translation import _target_check
+
+    cols = ["dtw_error", *[c for c in results.columns if c.startswith(("style_", "content_"))]]
+    means = results.groupby("method")[cols].mean()
+    per_method = {m: {k: (None if pd.isna(v) else float(v)) for k, v in row.items()} for m, row in means.iterrows()}
+    return _target_check(per_method, method)
 
 
 def _one(args):
@@ -82,6 +104,7 @@ def _one(args):
 def main(argv=None) -> int:
     from nnsf.datasets import bvh_source
     from nnsf.errors import InputError
+    from nnsf.evaluate.gp_translation import GP_TRANSLATION_METHODS, translation_gp_params
     from nnsf.evaluate.translation import DEFAULT_VARIANTS, _pick, grid_cells, translator_params
     from nnsf.io import write_csv, write_json
     from nnsf.params import load, require
@@ -92,14 +115,18 @@ def main(argv=None) -> int:
     ap.add_argument("--out", required=True, help="output path without suffix (.csv and .json are written)")
     ap.add_argument("--params", default="params.yaml")
     ap.add_argument("--cells", type=int, default=0, help="cells to hold out, spread evenly (0: all)")
-    ap.add_argument("--methods", default="nnsf,nnsf_smooth,nnsf_swapped,bilinear,offset,identity,real")
+    ap.add_argument("--methods", default=",".join(STAGE_METHODS),
+                    help="comma-separated methods of nnsf.evaluate.translation (default: every method "
+                         "of the heldout stage)")
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--markdown", choices=("methods", "per_style", "per_content"),
                     help="print that table of an existing OUT.json and exit")
+    ap.add_argument("--only", default="", help="with --markdown: comma-separated methods to show")
     a = ap.parse_args(argv)
     if a.markdown:
         from nnsf.io import read_json
-        print(markdown(read_json(Path(a.out).with_suffix(".json")), a.markdown))
+        print(markdown(read_json(Path(a.out).with_suffix(".json")), a.markdown,
+                       only=[m for m in a.only.split(",") if m] or None))
         return 0
     if not a.data:
         print("error: --data: expected a folder of labelled .bvh clips, got nothing", file=sys.stderr)
@@ -118,8 +145,19 @@ def main(argv=None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     methods = tuple(m for m in a.methods.split(",") if m)
+    bad = [m for m in methods if m not in STAGE_METHODS]
+    if bad or not methods:
+        print(f"error: --methods: expected a comma-separated list of {', '.join(STAGE_METHODS)}, got "
+              f"{a.methods!r}", file=sys.stderr)
+        return 2
+    gp = [m for m in methods if m in GP_TRANSLATION_METHODS]
+    try:
+        gp_params = translation_gp_params(params, table, gp) if gp else None
+    except InputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     cells = _pick(grid_cells(table), a.cells)
-    ev = dict(methods=methods, translator_params=tp, variants=dict(DEFAULT_VARIANTS),
+    ev = dict(methods=methods, translator_params=tp, variants=dict(DEFAULT_VARIANTS), gp_params=gp_params,
               bilinear_rank=int(require(params, "translation.bilinear_rank")),
               margin=float(require(params, "unify.margin")), seed=int(require(params, "seed")))
     out = Path(a.out)
@@ -134,8 +172,10 @@ def main(argv=None) -> int:
             "data": Path(a.data).name, "bvh": kw, "translation": {k: v for k, v in tp.items()},
             "cells": len(per_cell), "cells_planned": len(cells), "methods_run": list(methods),
             "seconds_per_cell": {"wall_mean": _round(per_cell["seconds"].mean()),
+                                 "wall_max": _round(per_cell["seconds"].max()),
                                  "cpu_mean": _round(per_cell["cpu_seconds"].mean()),
                                  "cpu_max": _round(per_cell["cpu_seconds"].max())},
+            "target": target_check(res),
             **summary_tables(res)})
 
     if a.jobs > 1:

@@ -4,28 +4,42 @@ The held-out evaluation (:mod:`nnsf.evaluate.translation`) asks of every
 synthesised clip "is it of the target style?" and "is it of the cell's
 content?".  The judges here answer, and they are kept apart from the
 translation code on purpose: they share no feature, normalisation or
-classifier with it -- they read the clips as key points ``(n, 17, 2)`` and
-nothing else (the only import is the skeleton's parent list, i.e. which key
-point hangs from which).  So a method cannot be tuned to them through a
-shared representation.
+classifier with it.  This module imports nothing of ``nnsf`` (only numpy and
+scikit-learn): it reads a clip as key points ``(n, 17, 2)`` in whatever 2D
+coordinates the caller has -- the held-out evaluation passes the real clips
+as read from the table (pixels) and every method's output mapped to the
+target style's character in pixels, i.e. what a caller of the translation
+gets -- and normalises them itself:
+
+* position: every key point is taken relative to the root (the pelvis) in
+  each frame;
+* size: the root-relative pose is divided by the clip's own body length,
+  the median over its frames of the summed lengths of its 16 bones (so a
+  clip's scale, whatever unit it comes in, does not enter; nothing about
+  other clips or any fitted template is used);
+* the statistics are then standardised by a scaler fitted on the judges'
+  training clips only (part of each fitted pipeline).
+
+The key-point order is the data contract's (Human3.6M, docs/formats.md):
+:data:`PARENTS` spells out which key point hangs from which; a test checks
+that it is the contract's tree.
 
 Each judge is *unconditioned*: the style classifier is not told the content
 and the content classifier is not told the style.  Every judge is fitted on
 the real clips it is given (the caller passes only the clips outside the
-hidden cell); the standardisation is part of the fitted pipeline, so no
-statistic of a clip outside the training set reaches it.
+hidden cell).
 
 Families (:data:`FAMILIES`):
 
 * ``"lr"`` -- :func:`pose_statistics` (per key point: mean, standard deviation
-  and mean |velocity| of the root-relative pose), standardised, multinomial
-  logistic regression;
+  and mean |velocity| of the root-relative, size-normalised pose),
+  standardised, multinomial logistic regression;
 * ``"nn1"`` -- the same statistics, standardised, one nearest neighbour;
 * ``"angles"`` -- :func:`angle_statistics` (per bone: circular mean, spread
   and mean |angular velocity| of its direction in the image), standardised,
   an RBF support-vector machine: a different representation (bone
-  directions are blind to size and posture offsets that shift key points)
-  and a different classifier family.
+  directions are blind to size and to posture offsets that shift key
+  points) and a different classifier family.
 
 ``"all"`` (in :meth:`Judges.score`) counts a clip as recognised only when
 every family recognises it.
@@ -39,9 +53,13 @@ from sklearn.pipeline import make_pipeline
 from sklearn.preprocessing import StandardScaler
 from sklearn.svm import SVC
 
-from nnsf.skeleton.layout import PARENTS
+__all__ = ["FAMILIES", "PARENTS", "body_length", "pose_statistics", "angle_statistics", "Judges"]
 
-__all__ = ["FAMILIES", "pose_statistics", "angle_statistics", "Judges"]
+#: Parent of each of the 17 key points in the data contract's order (pelvis, r_hip, r_knee,
+#: r_ankle, l_hip, l_knee, l_ankle, spine, thorax, neck, head_top, l_shoulder, l_elbow, l_wrist,
+#: r_shoulder, r_elbow, r_wrist); the pelvis is the root (-1).  Written out here rather than
+#: imported, so that this module depends on nothing of the project but the clips' format.
+PARENTS: tuple[int, ...] = (-1, 0, 1, 2, 0, 4, 5, 0, 7, 8, 9, 8, 11, 12, 8, 14, 15)
 
 #: Judge families, in table order.
 FAMILIES: tuple[str, ...] = ("lr", "nn1", "angles")
@@ -60,17 +78,31 @@ def _check_clip(P) -> np.ndarray:
     return P
 
 
-def pose_statistics(P) -> np.ndarray:
-    """Clip statistics of the root-relative pose, ``(96,)``.
+def body_length(P) -> float:
+    """The clip's own size: median over frames of the summed lengths of its 16 bones (P's unit).
 
-    ``P`` is ``(n, 17, 2)`` key points (any one unit).  Every key point but
-    the root is taken relative to the root (the pelvis) in each frame; per
-    coordinate: the mean over frames, the standard deviation, and the mean
-    absolute frame-to-frame change (per frame).  A one-frame clip has zero
-    spread and motion.
+    A sum over all bones, not one bone, so that a bone foreshortened by the
+    pose (a bowing torso, a leg swung towards the camera) moves it little.
     """
     P = _check_clip(P)
-    R = (P - P[:, _ROOT:_ROOT + 1])[:, _CHILDREN].reshape(len(P), -1)     # (n, 32)
+    B = P[:, _CHILDREN] - P[:, _PARENT_OF]
+    size = float(np.median(np.linalg.norm(B, axis=-1).sum(axis=1)))
+    if not size > 0:
+        raise ValueError("judges: a clip has zero size (every bone of zero length)")
+    return size
+
+
+def pose_statistics(P) -> np.ndarray:
+    """Clip statistics of the root-relative, size-normalised pose, ``(96,)``.
+
+    ``P`` is ``(n, 17, 2)`` key points (any one unit).  Every key point but
+    the root is taken relative to the root (the pelvis) in each frame and
+    divided by the clip's :func:`body_length`; per coordinate: the mean over
+    frames, the standard deviation, and the mean absolute frame-to-frame
+    change (per frame).  A one-frame clip has zero spread and motion.
+    """
+    P = _check_clip(P)
+    R = (P - P[:, _ROOT:_ROOT + 1])[:, _CHILDREN].reshape(len(P), -1) / body_length(P)     # (n, 32)
     V = np.abs(np.diff(R, axis=0)).mean(axis=0) if len(R) > 1 else np.zeros(R.shape[1])
     return np.concatenate([R.mean(axis=0), R.std(axis=0), V])
 

@@ -293,14 +293,28 @@ def translate(content_clip, style, model, source_style=None) -> np.ndarray:
     model : :class:`StyleModel`, a fitted translator, or a path to a file
         written by :func:`save_model` (``nnsf styles``).
     source_style : a style of the model the clip is performed in, if known;
-        by default the clip is read style-neutrally (:meth:`StyleTranslator.translate_unseen`).
+        by default the clip is read style-neutrally.
 
     Returns
     -------
-    ndarray ``(n, 17, 2)`` in the coordinates and body proportions of
+    ndarray ``(m, 17, 2)`` in the coordinates and body proportions of
     ``content_clip``: the clip is unified to the template (its own bone
-    ratios and scale), translated, and mapped back with the inverse of the
-    same unification.
+    ratios and scale), translated by
+    :meth:`~nnsf.factor.translate.StyleTranslator.translate_clip` (weights
+    encoded with the model's temporal smoothness, the target's basis and
+    offset, the clip's residual kept, resampled to the target style's tempo
+    when the model's ``tempo`` is on, so ``m`` may differ from ``n``), and
+    mapped back with the inverse of the same unification.  The held-out
+    evaluation scores exactly this function as its ``api`` method.
+    """
+    return translate_features(content_clip, style, model, source_style)[0]
+
+
+def translate_features(content_clip, style, model, source_style=None):
+    """:func:`translate`, also returning the translated template features and the clip's unifier.
+
+    Returns ``(points (m, 17, 2), X_hat (m, 34) or None, unifier or None)``;
+    the last two are None for style ``"none"``.
     """
     from nnsf.skeleton import to_points
 
@@ -310,7 +324,7 @@ def translate(content_clip, style, model, source_style=None) -> np.ndarray:
     if P.ndim != 3 or P.shape[1:] != (17, 2):
         raise ValueError(f"translate: content_clip must be (n, 17, 2) or (n, 34), got {P.shape}")
     if style is None or str(style) == "none":
-        return P.copy()
+        return P.copy(), None, None
     if isinstance(model, (str, Path)):
         model = StyleModel.load(model)
     elif not isinstance(model, StyleModel):
@@ -319,8 +333,8 @@ def translate(content_clip, style, model, source_style=None) -> np.ndarray:
     if source_style is not None:
         model.check_style(source_style, "source_style")
     X, u = unify_clip(P, model.unifier)
-    X_hat = model.translator.translate_unseen(X, style, source_style)
-    return u.inverse_transform(X_hat, "__clip__")
+    X_hat = model.translator.translate_clip(X, style, source_style)
+    return u.inverse_transform(X_hat, "__clip__"), X_hat, u
 
 
 # ----------------------------------------------------------------------------- fitting one

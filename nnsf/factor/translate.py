@@ -87,7 +87,7 @@ BASES: tuple[str, ...] = ("aligned", "refit", "separate")
 #: content's shared weights (all styles that perform it).
 SYNTHESES: tuple[str, ...] = ("consensus", "source")
 #: Amplitude calibration of a consensus synthesis.
-AMPLITUDES: tuple[str, ...] = ("restore", "none")
+AMPLITUDES: tuple[str, ...] = ("restore", "style", "none")
 
 
 # --------------------------------------------------------------------------- #
@@ -371,6 +371,26 @@ def _style_tempo(clips: dict) -> dict:
     return {s: float(np.median(ratios[s])) if s in ratios else 1.0 for s in sorted({s for s, _ in clips})}
 
 
+def second_difference_split(chains, R: int):
+    """``(L⁺, L⁻)``, sparse ``(R, R)``: L = D₂ᵀD₂ = L⁺ − L⁻ split by sign, both non-negative.
+
+    D₂ has one row e_r − 2e_{r+1} + e_{r+2} for every three consecutive rows
+    inside one chain (``chains``: ``(start, stop)`` row ranges), so
+    ½‖D₂W‖² is the summed squared second difference (acceleration) of the
+    rows of W along each chain.  The gradient L W splits into L⁺W − L⁻W with
+    non-negative parts, the form a multiplicative update needs (as the
+    first-difference graph Laplacian splits into degree and adjacency).
+    """
+    r0 = np.concatenate([np.arange(a, b - 2) for a, b in chains if b - a >= 3] or [np.zeros(0, int)])
+    m = len(r0)
+    D2 = sp.csr_matrix((np.tile([1.0, -2.0, 1.0], m),
+                        (np.repeat(np.arange(m), 3), (r0[:, None] + np.arange(3)).ravel())), shape=(m, R))
+    L = (D2.T @ D2).tocsr()
+    Lpos = L.multiply(L > 0).tocsr()
+    Lneg = (-L).multiply(L < 0).tocsr()
+    return Lpos, Lneg
+
+
 # --------------------------------------------------------------------------- #
 # The translator
 # --------------------------------------------------------------------------- #
@@ -432,15 +452,25 @@ class StyleTranslator(BaseEstimator):
         departs from the average posture; with ``"aligned"`` they are fitted
         in the alternation, otherwise set afterwards to the centred mean
         residual of each style.  False is the plain model x ≈ v U_s.
-    smooth : float >= 0, default=5.0
-        ``"aligned"`` only: weight of a temporal smoothness term on the
-        shared weights, (λ/2) Σ_t ‖v_t − v_{t+1}‖² over consecutive rows of
-        each content, with λ = ``smooth`` × (mean number of frames mapped to a
-        row), so it is relative to the data term.  Each shared row is otherwise fitted
-        on its own, and DTW maps a different mix of frames of the clips to
-        neighbouring rows, so the consensus jitters from row to row; the
-        term makes the model's own clip smooth (Cai et al.'s graph-regularised
-        multiplicative update with the chain graph of each content's rows).
+    smooth : float >= 0, default=20.0
+        ``"aligned"`` only: weight λ of a temporal smoothness term on the
+        shared weights along each content's rows, relative to the data term
+        (λ = ``smooth`` × the mean number of frames mapped to a row).  Each
+        shared row is otherwise fitted on its own, and DTW maps a different
+        mix of frames of the clips to neighbouring rows, so the consensus
+        jitters from row to row.  Also the weight of the same term when one
+        clip is encoded on the public path (:meth:`encode_smooth`, one frame
+        per row).
+    smooth_order : {1, 2}, default=2
+        Which difference the term penalises: 1, (λ/2) Σ_t ‖v_t − v_{t+1}‖²
+        (velocity: Cai et al.'s graph-regularised update with the chain
+        graph); 2, (λ/2) Σ_t ‖v_{t−1} − 2v_t + v_{t+1}‖² (acceleration,
+        :func:`second_difference_split`).  The first order damps every
+        frequency of the motion, the swing with the jitter: on Bandai-Namco-1
+        the smoothed consensus moved only half the amplitude of the real
+        clips, and restoring it (``amplitude``) multiplied the jitter back
+        in.  The second order leaves slow motion (a stride, a wave) almost
+        untouched and damps frame-to-frame jitter (README, style translation).
     free_norms : bool, default=False
         ``"aligned"`` only: let the rows of each style's basis take any
         length.  With weights shared across styles the length of atom i in
@@ -457,9 +487,10 @@ class StyleTranslator(BaseEstimator):
     synthesis : {"consensus", "source"}, default="consensus"
         How :meth:`synthesize_cell` makes a cell: from the content's shared
         weights (``"aligned"`` basis only) or by translating a source clip.
-    amplitude : {"restore", "none"}, default="restore"
+    amplitude : {"restore", "style", "none"}, default="restore"
         Consensus only: undo the amplitude the shared weights lose (see
-        :meth:`synthesize`).
+        :meth:`synthesize`); ``"style"`` also applies the target style's own
+        amplitude relative to the other styles.
     tempo : bool, default=True
         Resample a synthesised cell to the target style's tempo
         (:attr:`style_tempo_`).
@@ -501,7 +532,8 @@ class StyleTranslator(BaseEstimator):
 
     def __init__(self, n_components=16, *, alpha=0.01, beta=0.0, label="content", class_in_loop=True,
                  reading="style_basis", basis="aligned", ridge=0.5, refit_iter=100, align_iter=150,
-                 basis_steps=3, realign=0, style_offset=True, smooth=5.0, free_norms=False, keep_residual=True,
+                 basis_steps=3, realign=0, style_offset=True, smooth=20.0, smooth_order=2, free_norms=False,
+                 keep_residual=True,
                  synthesis="consensus", amplitude="restore", tempo=True,
                  max_iter=150, tol=1e-5, init="nndsvda", random_state=0):
         self.n_components = n_components
@@ -518,6 +550,7 @@ class StyleTranslator(BaseEstimator):
         self.realign = realign
         self.style_offset = style_offset
         self.smooth = smooth
+        self.smooth_order = smooth_order
         self.free_norms = free_norms
         self.keep_residual = keep_residual
         self.synthesis = synthesis
@@ -544,6 +577,8 @@ class StyleTranslator(BaseEstimator):
             v = getattr(self, name)
             if not (isinstance(v, numbers.Real) and not isinstance(v, bool) and v >= 0):
                 raise ValueError(f"{name} must be a number >= 0, got {v!r}")
+        if self.smooth_order not in (1, 2) or isinstance(self.smooth_order, bool):
+            raise ValueError(f"smooth_order must be 1 or 2, got {self.smooth_order!r}")
         for name, lo in (("refit_iter", 1), ("align_iter", 1), ("basis_steps", 1), ("max_iter", 1),
                          ("realign", 0)):
             v = getattr(self, name)
@@ -719,7 +754,11 @@ class StyleTranslator(BaseEstimator):
         step_fn = _free_basis_step if self.free_norms else _basis_step
         W = np.maximum(W, EPSILON)     # a row no frame maps to any more keeps a live start
         smooth = float(self.smooth)
-        if smooth > 0:
+        second = smooth > 0 and self.smooth_order == 2
+        if second:
+            Lpos, Lneg = second_difference_split(list(self.content_rows_.values()), R)
+            lam2 = smooth * float(counts.mean())
+        elif smooth > 0:
             # Chain graph of each content's rows: link[r] joins rows r and r + 1.
             link = np.ones(max(R - 1, 0))
             for a, b in self.content_rows_.values():
@@ -746,7 +785,11 @@ class StyleTranslator(BaseEstimator):
                 den += cnt[:, i, None] * (W @ (bases[i] @ bases[i].T))
             if alpha > 0:
                 den += alpha * counts[:, None]
-            if smooth > 0:
+            if second:
+                # Gradient λ L W of (λ/2)Σ‖v_{r−1} − 2v_r + v_{r+1}‖², L = D₂ᵀD₂ split by sign.
+                num = num + lam2 * (Lneg @ W)
+                den = den + lam2 * (Lpos @ W)
+            elif smooth > 0:
                 # Gradient of (λ/2)Σ‖v_r − v_{r+1}‖² split by sign: λ(deg·v_r) − λ(Σ neighbours).
                 nb = np.zeros_like(W)
                 nb[1:] += link[:, None] * W[:-1]
@@ -883,7 +926,13 @@ class StyleTranslator(BaseEstimator):
           them.  Each coordinate's deviation from the clip mean is scaled by
           g_j = mean_q sd(X_q)_j / mean_q sd(V_c U_{s_q} + b_{s_q})_j over
           the fitted clips q of the content (their own styles s_q): the
-          model's own shrinkage, measured where the truth is known.
+          model's own shrinkage, measured where the truth is known.  This
+          restores the content's amplitude averaged over its styles.
+        * ``amplitude="style"``: the same, times h_t, the target style's own
+          amplitude: over its fitted clips of the other contents that other
+          styles perform too, Σ sd(X_q) / Σ g_{c_q} sd(V_{c_q} U_t + b_t)
+          (per coordinate; a style that swings wider than its restored
+          renderings gets h > 1).
         * ``tempo=True``: resampled (linear interpolation) to the content's
           mean clip length times the target style's tempo
           (:attr:`style_tempo_`).
@@ -896,11 +945,10 @@ class StyleTranslator(BaseEstimator):
         if content not in self.content_rows_:
             raise ValueError(f"unknown content {content!r}; fitted contents: {list(self.contents_)}")
         X_hat = self._render(content, target_style)
-        if self.amplitude == "restore":
-            have = [(s, Xq) for (s, c), lst in self.clips_.items() if c == content for Xq in lst]
-            num = np.mean([Xq.std(axis=0) for _, Xq in have], axis=0)
-            den = np.mean([self._render(content, s).std(axis=0) for s, _ in have], axis=0)
-            gain = np.where(den > 1e-12, num / np.maximum(den, 1e-12), 1.0)
+        if self.amplitude in ("restore", "style"):
+            gain = self._content_gain(content)
+            if self.amplitude == "style":
+                gain = gain * self._style_gain(target_style, content)
             mean = X_hat.mean(axis=0)
             X_hat = np.maximum(mean + (X_hat - mean) * gain, 0.0)
         if self.tempo:
@@ -908,6 +956,30 @@ class StyleTranslator(BaseEstimator):
             m = max(2, int(round(np.mean(lengths) * self.style_tempo_.get(target_style, 1.0))))
             X_hat = resample_clip(X_hat, m)
         return X_hat
+
+    def _content_gain(self, content) -> np.ndarray:
+        """g_c (d,): mean sd of the content's fitted clips over mean sd of the model's renderings
+        of the content in those clips' styles (1 where the rendering does not move)."""
+        have = [(s, Xq) for (s, c), lst in self.clips_.items() if c == content for Xq in lst]
+        num = np.mean([Xq.std(axis=0) for _, Xq in have], axis=0)
+        den = np.mean([self._render(content, s).std(axis=0) for s, _ in have], axis=0)
+        return np.where(den > 1e-12, num / np.maximum(den, 1e-12), 1.0)
+
+    def _style_gain(self, style_name, content) -> np.ndarray:
+        """h_t (d,): how much more (or less) the target style's own clips move than their
+        content-restored renderings, over the style's contents other than ``content`` that
+        other styles perform too: Σ sd(X_q) / Σ g_{c_q} sd(render(c_q, t)) (ratio of sums, so
+        a single content does not dominate; 1 where the style has no such content)."""
+        num = np.zeros(self.n_features_in_)
+        den = np.zeros(self.n_features_in_)
+        for (s, c), lst in self.clips_.items():
+            if s != style_name or c == content or not any(s2 != s for (s2, c2) in self.clips_ if c2 == c):
+                continue
+            r = self._render(c, s).std(axis=0) * self._content_gain(c)
+            for Xq in lst:
+                num += Xq.std(axis=0)
+                den += r
+        return np.where(den > 1e-12, num / np.maximum(den, 1e-12), 1.0)
 
     def _render(self, content, style_name):
         a, b = self.content_rows_[content]
@@ -955,6 +1027,77 @@ class StyleTranslator(BaseEstimator):
         X_hat = V @ self.style_bases_[target_style] + self.style_offsets_[target_style]
         if self.keep_residual:
             X_hat += X_clip - V @ self.components_
+        return X_hat
+
+    def encode_smooth(self, X_clip, basis) -> np.ndarray:
+        """Weights ``(n, k)`` of one clip for ``basis`` ``(k, d)`` with the model's temporal smoothness.
+
+        Minimises ½‖X − VU‖² + αΣV + (λ/2)Σ_t ‖v_t − v_{t+1}‖² over V ≥ 0 with
+        λ = ``smooth`` (one frame per row, the same weight relative to the
+        data term as the aligned fit's shared rows): the per-frame encoding
+        (:func:`~nnsf.factor.nnsf.weights_for_basis`), then ``max_iter``
+        graph-regularised multiplicative updates on the clip's chain of
+        frames (Cai et al.'s update, as in the aligned fit).  ``smooth`` 0
+        is the per-frame encoding.
+        """
+        X = np.asarray(X_clip, dtype=float)
+        U = np.asarray(basis, dtype=float)
+        alpha = float(self.alpha)
+        V = weights_for_basis(X, U, alpha=alpha, max_iter=self.max_iter, tol=float(self.tol))
+        lam = float(self.smooth)
+        if lam <= 0 or len(X) < 3:
+            return V
+        XUt, UUt = X @ U.T, U @ U.T
+        V = np.maximum(V, EPSILON)
+        if self.smooth_order == 2:
+            Lpos, Lneg = second_difference_split([(0, len(X))], len(X))
+            for _ in range(int(self.max_iter)):
+                V *= (XUt + lam * (Lneg @ V)) / np.maximum(V @ UUt + alpha + lam * (Lpos @ V), EPSILON)
+            return V
+        deg = np.full(len(X), 2.0)
+        deg[[0, -1]] = 1.0
+        for _ in range(int(self.max_iter)):
+            nb = np.zeros_like(V)
+            nb[1:] += V[:-1]
+            nb[:-1] += V[1:]
+            V *= (XUt + lam * nb) / np.maximum(V @ UUt + alpha + lam * deg[:, None] * V, EPSILON)
+        return V
+
+    def translate_clip(self, X_clip, target_style, source_style=None) -> np.ndarray:
+        """One clip of any body into ``target_style``: the public path (:func:`nnsf.translate`).
+
+        The steps of the held-out default (:meth:`synthesize`) that do not
+        need the clip's content label, applied to the caller's clip:
+
+        * weights encoded with the model's temporal smoothness
+          (:meth:`encode_smooth`), under the source style's basis and offset
+          when ``source_style`` is given, else style-neutrally under U₀;
+        * X̂ = V U_t + b_t, plus the clip's residual X − (V U_src + b_src)
+          with ``keep_residual``;
+        * with ``tempo``, resampled to the target style's tempo relative to
+          the source's (:attr:`style_tempo_`; a clip of unknown style is
+          taken at the average tempo, 1.0).
+
+        The amplitude restore of a consensus synthesis has no counterpart:
+        one clip's own weights reproduce it at its full amplitude (no
+        compromise over performances to undo).  Returns ``(m, d)``.
+        """
+        check_is_fitted(self, "style_bases_")
+        X_clip = self._check_X(X_clip, "StyleTranslator.translate_clip")
+        target_style = self._check_style(target_style, "target")
+        if source_style is None:
+            U_src, b_src, tempo_src = self.components_, np.zeros(X_clip.shape[1]), 1.0
+        else:
+            source_style = self._check_style(source_style, "source")
+            U_src, b_src = self.style_bases_[source_style], self.style_offsets_[source_style]
+            tempo_src = self.style_tempo_.get(source_style, 1.0)
+        V = self.encode_smooth(np.maximum(X_clip - b_src, 0.0), U_src)
+        X_hat = V @ self.style_bases_[target_style] + self.style_offsets_[target_style]
+        if self.keep_residual:
+            X_hat += X_clip - (V @ U_src + b_src)
+        if self.tempo:
+            ratio = self.style_tempo_.get(target_style, 1.0) / max(tempo_src, 1e-12)
+            X_hat = resample_clip(X_hat, max(2, int(round(len(X_hat) * ratio))))
         return X_hat
 
     def save(self, path, *, unifier=None, features_sha256=None, source="") -> Path:
