@@ -23,7 +23,7 @@ from nnsf.reshape.character import Character
 from nnsf.reshape.limbs import N_LIMBS, STRAIGHT, fit_omega
 from nnsf.reshape.mesh import Mesh, build_mesh
 from nnsf.reshape.subkeys import SubkeyTracker, Subkeys, init_subkeys
-from nnsf.skeleton import N_JOINTS
+from nnsf.skeleton import JOINTS, N_JOINTS
 
 HANDLE_SETS = ("subkeys", "keypoints")
 
@@ -85,6 +85,14 @@ class Rig:
         if mesh is None:
             mesh = build_mesh(character.mask, kp, n_vertices=n_vertices, split=split,
                               texture=character.texture)
+        if mesh.pivots is not None and not np.allclose(mesh.pivots, kp):
+            # A pieced mesh's limbs turn where they meet the body (nnsf.reshape.pieces.move_pivots).
+            from dataclasses import replace
+
+            moved = [n for n, d in zip(JOINTS, np.linalg.norm(mesh.pivots - kp, axis=1)) if d > 0.5]
+            character = replace(character, keypoints=mesh.pivots.copy(),
+                                notes=list(character.notes) + [f"pivots moved onto the cuts: {', '.join(moved)}"])
+            kp = character.keypoints
         if isinstance(omega, str):
             if omega == "fit":
                 omega = fit_omega(character.mask, kp)
@@ -93,36 +101,44 @@ class Rig:
             else:
                 raise ValueError(f"omega must be an (8, 2) array, 'fit' or 'straight', got {omega!r}")
         omega = np.asarray(omega, dtype=np.float64).reshape(N_LIMBS, 2)
+        # Joint tabs (a pieced mesh's last vertices) are not solved for: they follow their bone.
+        nc = mesh.core
+        Vc, Tc = mesh.vertices[:nc], mesh.triangles[mesh.core_triangles]
+        Pc = mesh.pieces[mesh.core_triangles]
         if mesh.is_split:
             # Each piece is pinned by its own key points; a shoulder or hip
             # becomes one handle on each side of its seam.
             # (A piece without triangles, possible on a very coarse mesh, gets no handles.)
-            used = set(np.unique(mesh.pieces).tolist())
+            used = set(np.unique(Pc).tolist())
             parts = [(pc, j) for pc, kps in enumerate(mesh.piece_keypoints) if pc in used for j in kps]
             handle_kp = np.array([j for _, j in parts], dtype=np.int64)
             handles = None
             for pc, j in parts:
-                h = Handles.at_points(mesh.vertices, mesh.triangles[mesh.pieces == pc], kp[[j]],
-                                      keypoint_weight)
+                h = Handles.at_points(Vc, Tc[Pc == pc], kp[[j]], keypoint_weight)
                 handles = h if handles is None else handles + h
-            vp = mesh.vertex_pieces()
+            vp = np.zeros(nc, dtype=np.int64)
+            vp[Tc.ravel()] = np.repeat(Pc, 3)
             # A limb's subkeys come from its own piece: the one holding most of its triangles.
-            own = [np.bincount(mesh.pieces[(mesh.parts == 2 + i) & (mesh.layer == 0)],
-                               minlength=len(mesh.piece_names)).argmax() for i in range(N_LIMBS)]
-            candidates = [np.flatnonzero(vp == own[i]) for i in range(N_LIMBS)]
+            lc = mesh.layer[mesh.core_triangles]
+            own = [np.bincount(Pc[(mesh.parts[mesh.core_triangles] == 2 + i) & (lc == 0)],
+                               minlength=len(mesh.piece_names)).argmax()
+                   if ((mesh.parts[mesh.core_triangles] == 2 + i) & (lc == 0)).any() else -1
+                   for i in range(N_LIMBS)]
+            candidates = [np.flatnonzero(vp == own[i]) if own[i] >= 0 else np.zeros(0, np.int64)
+                          for i in range(N_LIMBS)]
         else:
             handle_kp = np.arange(N_JOINTS)
-            handles = Handles.at_points(mesh.vertices, mesh.triangles, kp, keypoint_weight)
+            handles = Handles.at_points(Vc, Tc, kp, keypoint_weight)
             candidates = None
         if handle_set == "subkeys":
-            subkeys = init_subkeys(mesh.vertices, kp, omega, per_limb=subkeys_per_limb, candidates=candidates)
-            handles = handles + Handles.at_vertices(mesh.n_vertices, subkeys.vertex, subkey_weight)
+            subkeys = init_subkeys(Vc, kp, omega, per_limb=subkeys_per_limb, candidates=candidates)
+            handles = handles + Handles.at_vertices(nc, subkeys.vertex, subkey_weight)
             tracker = SubkeyTracker(subkeys, kp, omega, fit=fit_subkeys, keep_offset=keep_offset,
                                     propagation=propagation)
         else:
             subkeys = Subkeys(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 2)))
             tracker = None
-        deformer = TwoStepARAP(mesh.vertices, mesh.triangles, handles)
+        deformer = TwoStepARAP(Vc, Tc, handles)
         return cls(character, mesh, omega, subkeys, handles, deformer, tracker, handle_set, handle_kp)
 
     # ------------------------------------------------------------------ driving
@@ -147,7 +163,16 @@ class Rig:
 
     def animate(self, keypoints, omega=None, steps: int = 2) -> np.ndarray:
         """Deformed vertices ``(T, n, 2)`` (pixels) for key points ``(T, 17, 2)``."""
-        return self.deformer.deform(self.targets(keypoints, omega), steps=steps)
+        V = self.deformer.deform(self.targets(keypoints, omega), steps=steps)
+        return self._with_tabs(V, self._check(keypoints))
+
+    def _with_tabs(self, V: np.ndarray, kp: np.ndarray) -> np.ndarray:
+        """The solved vertices ``(T, n_core, 2)`` with the mesh's joint tabs attached (``(T, n, 2)``)."""
+        if not self.mesh.tabs:
+            return V
+        from nnsf.reshape.pieces import attach_tabs
+
+        return attach_tabs(self.mesh.tabs, V, self.character.keypoints, kp, self.mesh.vertices)
 
     def reset(self) -> None:
         """Restart streaming (:meth:`step`) from the rest pose."""
@@ -159,4 +184,4 @@ class Rig:
         kp = self._check(keypoints)
         key = kp[self.handle_keypoints]
         g = key if self.tracker is None else np.concatenate([key, self.tracker.step(kp, omega)])
-        return self.deformer.deform(g)
+        return self._with_tabs(self.deformer.deform(g)[None], kp[None])[0]
