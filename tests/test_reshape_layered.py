@@ -44,8 +44,13 @@ def _bend_elbow(kp, deg):
 def test_layered_mesh_pieces_are_connected_segments_with_collars(figure, layered):
     m = layered.mesh
     assert m.piece_names == SEGMENTS and set(np.unique(m.pieces)) == set(range(len(SEGMENTS)))
-    for pc in range(len(SEGMENTS)):  # every piece is one edge-connected group (else ARAP is singular)
-        tri = m.triangles[m.pieces == pc]
+    core = m.core_triangles
+    # joint tabs (the collars of the puppet mesh) are the vertices after the solved core, name the
+    # part they hide under, and are textured from their own layer
+    assert m.tabs and np.all(m.triangles[~core] >= m.core) and np.all(m.collar[~core] >= 0)
+    assert np.all(m.layer[~core] >= 3) and np.all(m.collar[core] == -1)
+    for pc in range(len(SEGMENTS)):  # every piece's solved triangles are one edge-connected group (else ARAP is singular)
+        tri = m.triangles[(m.pieces == pc) & core]
         a, b = triangle_adjacency(tri)
         from scipy.sparse import coo_matrix
         from scipy.sparse.csgraph import connected_components

@@ -99,10 +99,11 @@ def subkey_slide(rig, keypoints: np.ndarray) -> float:
     if rig.tracker is None or len(rig.subkeys) == 0:
         return float("nan")
     rig.tracker.reset()
+    keypoints = rig.drive(keypoints)
     q0 = rig.tracker.positions()
     q = rig.tracker.track(keypoints)  # (T, s, 2), starting from rest
     pairs = LIMB_PAIRS[rig.subkeys.limb]
-    kp = np.concatenate([rig.character.keypoints[None], keypoints])
+    kp = np.concatenate([rig.rest_keypoints[None], keypoints])
     qq = np.concatenate([q0[None], q])
     p0, p1 = kp[:, pairs[:, 0]], kp[:, pairs[:, 1]]
     d = p1 - p0
@@ -164,8 +165,9 @@ def evaluate_item(item: dict) -> dict:
                "sealed": bool(renderers[key].seal)}
         row.update(report(anim, depth_margin=0.02 * height))
         row["subkey_slide"] = subkey_slide(anim.rig, anim.keypoints)
-        row.update(clip_artefacts(renderers[key], anim.frames, anim.orders, anim.keypoints, anim.rig.mesh.vertices,
-                                  ch.keypoints, ch.texture, ch.mask, every=ARTEFACT_EVERY, offset=offset))
+        row.update(clip_artefacts(renderers[key], anim.frames, anim.orders, anim.rig.drive(anim.keypoints),
+                                  anim.rig.mesh.vertices,
+                                  anim.rig.rest_keypoints, ch.texture, ch.mask, every=ARTEFACT_EVERY, offset=offset))
         rows.append(row)
         anims[key] = anim
     out = {"rows": rows, "figure": None}

@@ -182,6 +182,8 @@ class Mesh:
     #: Rest key points ``(17, 2)`` with the pivots moved onto the cuts
     #: (:func:`nnsf.reshape.pieces.move_pivots`); a rig drives the mesh with these.
     pivots: np.ndarray | None = None
+    #: Pixels ``(H, W)`` of limbs drawn over the body (the body's layer-1 texture paints them out).
+    overlay: np.ndarray | None = None
 
     def __post_init__(self):
         if self.collar is None:
@@ -658,7 +660,7 @@ def build_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int = 800, s
             style = outline_style(texture, mask)
             margin = (style[2] if style is not None else 0.0) + 2.0
         return build_pieced_mesh(mask, kp, n_vertices=n_vertices, whole_limbs=split == "limbs",
-                                 tab_margin=margin, **kwargs)
+                                 tab_margin=margin, texture=texture, **kwargs)
     layered = split in ("layered", "limbs")
     cuts = joint_cuts(mask, kp) if layered else []
     if split == "limbs":

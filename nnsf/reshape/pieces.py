@@ -81,6 +81,9 @@ JOINTS_OF_PIECES: tuple[tuple[int, int, int], ...] = tuple(
 WIDEN = 1.6
 #: A limb claims pixels up to this factor × its half-width from its bone.
 CAPSULE = 1.3
+#: Pixels by which each piece grows into its neighbours at rest, hiding the seams that open by a
+#: pixel or two where a rigid segment meets the deformed body.
+OVERLAP = 2
 
 
 @dataclass
@@ -394,10 +397,15 @@ def _bone_samples(kp: np.ndarray, piece: int, per: int = 24) -> np.ndarray:
     return np.vstack(out)
 
 
-def label_pieces(mask: np.ndarray, keypoints: np.ndarray, cuts: list[Cut], whole_limbs: bool = False) -> np.ndarray:
+def label_pieces(mask: np.ndarray, keypoints: np.ndarray, cuts: list[Cut], whole_limbs: bool = False,
+                 texture=None) -> np.ndarray:
     """Piece of every mask pixel ``(H, W)`` int (−1 outside), indices into :data:`SEGMENT_NAMES`.
 
     With ``whole_limbs`` a limb's two segments share the upper one's index.
+    With ``texture``, a region of the drawing bounded by its lines that holds
+    the body's spine and no limb's bone (:func:`nnsf.reshape.mesh.body_region_triangles`)
+    stays the body's, even inside a limb's reach: a chest drawn in front of an
+    arm's root is the chest's.
     """
     m = np.asarray(mask, dtype=bool)
     kp = np.asarray(keypoints, dtype=np.float64)
@@ -475,8 +483,56 @@ def label_pieces(mask: np.ndarray, keypoints: np.ndarray, cuts: list[Cut], whole
             label[ys[sel], xs[sel]] = pick
     # Cut lines and components without bones: the neighbouring piece (nearest labelled pixel).
     label = _fill_unlabelled(label, m)
+    if texture is not None:
+        from nnsf.reshape.mesh import body_region_triangles
+
+        body_only = body_region_triangles(None, None, kp, texture, m, pixels=True)
+        label = np.where(body_only & (label > 0) & (label != HEAD), 0, label)
+        for seg, region in limb_regions(texture, m, kp).items():
+            label = np.where(region & (label == 0), seg, label)
     label = _open_big_pieces(label, m)
     return _one_component_each(label, m)
+
+
+def limb_regions(texture: np.ndarray, mask: np.ndarray, keypoints: np.ndarray) -> dict[int, np.ndarray]:
+    """Regions of the drawing, bounded by its lines, that are one limb segment's only, ``{segment: (H, W) bool}``.
+
+    A region (:func:`nnsf.reshape.mesh.drawn_regions`) belongs to a limb
+    limb when it holds points of its bones (upper segments λ ∈ [0.6, 0.95],
+    lower ones λ ∈ [0.1, 0.9]) and no point of the spine, the neck or another
+    limb: an arm drawn over the chest as a shape of its own.  The pixels of
+    such a region that the cuts gave the body go to the limb's upper segment.  Those pixels go with the limb even past the cut where its
+    outline leaves the body, and the body under them is painted in
+    (:func:`overlay_texture`).
+    """
+    from nnsf.reshape.mesh import drawn_regions
+
+    kp = np.asarray(keypoints, dtype=np.float64)
+    m = np.asarray(mask, dtype=bool)
+    lab = drawn_regions(texture, m)
+
+    def regions_along(a, b, lo, hi):
+        lam = np.linspace(lo, hi, 9)[:, None]
+        pts = kp[a] + lam * (kp[b] - kp[a])
+        r = _lookup(lab, pts)
+        return set(r[_lookup(m.astype(np.uint8), pts) > 0].tolist()) - {-1}
+
+    body = set()
+    for a, b in (("pelvis", "spine"), ("spine", "thorax"), ("thorax", "neck")):
+        body |= regions_along(J[a], J[b], 0.0, 1.0)
+    owner: dict[int, set] = {}
+    for i, (name, (a, b)) in enumerate(LIMBS.items()):
+        upper = "upper" in name or "thigh" in name
+        for r in regions_along(a, b, *((0.6, 0.95) if upper else (0.1, 0.9))):
+            owner.setdefault(r, set()).add(1 + i)
+    out = {}
+    for r, segs in owner.items():
+        # One limb's (its two segments count as one: no line need part them at the elbow).
+        if r in body or len({(s_ - 1) // 2 for s_ in segs}) != 1:
+            continue
+        seg = min(segs)
+        out[seg] = out.get(seg, np.zeros(m.shape, bool)) | (lab == r)
+    return out
 
 
 def _open_big_pieces(label: np.ndarray, m: np.ndarray) -> np.ndarray:
@@ -595,12 +651,13 @@ def tab_region(label: np.ndarray, cut: Cut, margin: float = 0.0, band: float | N
     parent = label[lo[1]:hi[1] + 1, lo[0]:hi[0] + 1] == cut.parent
     if under is not None:  # a parent drawn too short to hold the tab: what lies under it as well
         parent |= under[lo[1]:hi[1] + 1, lo[0]:hi[0] + 1]
+    # Within the drawing: at rest a tab must hide entirely under the pieces drawn over it.
     grow = cv2.dilate(parent.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    inner = cv2.distanceTransform(np.pad((label >= 0).astype(np.uint8), 1), cv2.DIST_L2, 3)[1:-1, 1:-1]
+    grow &= inner[lo[1]:hi[1] + 1, lo[0]:hi[0] + 1] >= 2.0
     if margin > 0:
         # Inside the parent's outline by ``margin``, except in the band along the cut, where the
         # tab fills the wedge a turning joint opens.
-        whole = label >= 0
-        inner = cv2.distanceTransform(np.pad(whole.astype(np.uint8), 1), cv2.DIST_L2, 3)[1:-1, 1:-1]
         grow &= (inner[lo[1]:hi[1] + 1, lo[0]:hi[0] + 1] > margin) | (depth_ >= -band)
     out[lo[1]:hi[1] + 1, lo[0]:hi[0] + 1] = inside & parent_side & grow
     return out
@@ -719,6 +776,16 @@ def _child_bone(child: int) -> tuple[int, int]:
     return LIMBS[list(LIMBS)[child - 1]]
 
 
+def _filled(label: np.ndarray) -> np.ndarray:
+    """The label image with every pixel (also outside the mask) given its nearest label."""
+    from scipy.ndimage import distance_transform_edt
+
+    if not (label >= 0).any():
+        return label
+    _, (iy, ix) = distance_transform_edt(label < 0, return_indices=True)
+    return label[iy, ix]
+
+
 def attach_tabs(tabs: list[Tab], core: np.ndarray, rest_kp: np.ndarray, keypoints: np.ndarray,
                 rest_vertices: np.ndarray) -> np.ndarray:
     """Vertices ``(T, n, 2)``: the core's ``(T, n_core, 2)`` followed by every tab moved with its bone.
@@ -747,7 +814,7 @@ def attach_tabs(tabs: list[Tab], core: np.ndarray, rest_kp: np.ndarray, keypoint
 
 
 def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int = 800,
-                      whole_limbs: bool = False, tab_margin: float | None = None, **kwargs):
+                      whole_limbs: bool = False, tab_margin: float | None = None, texture=None, **kwargs):
     """The layered mesh (``whole_limbs=False``) or whole-limb mesh of a drawing (module docstring).
 
     Every piece's region is triangulated on its own (grown by one pixel into
@@ -760,8 +827,16 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
 
     m = np.asarray(mask, dtype=bool)
     kp = np.asarray(keypoints, dtype=np.float64)
-    cuts = find_cuts(m, kp, whole_limbs=whole_limbs)
-    label = label_pieces(m, kp, cuts, whole_limbs=whole_limbs)
+    all_cuts = find_cuts(m, kp)
+    label = label_pieces(m, kp, all_cuts, texture=texture)
+    overlay = np.zeros(m.shape, bool)
+    if texture is not None:
+        # Limbs drawn over the body as shapes of their own: the body goes on under them, painted in.
+        geo = label_pieces(m, kp, all_cuts)
+        overlay = (geo == 0) & (label > 0) & (label != HEAD)
+    # A whole-limb mesh cuts at the shoulders, hips and neck only; its parts still follow the
+    # segments (for the depth order and the measures).
+    cuts = [c for c in all_cuts if c.parent == 0] if whole_limbs else all_cuts
     pivots = move_pivots(m, kp, cuts)
     h = meshmod.spacing_for(m, n_vertices)
     margin = tab_margin if tab_margin is not None else 0.0
@@ -777,12 +852,26 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
         names = meshmod.SEGMENTS
         piece_of = {i: i for i in range(len(SEGMENT_NAMES))}
         piece_kp = meshmod.SEGMENT_KEYPOINTS
-    grow = np.ones((3, 3), np.uint8)
+    grow = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * OVERLAP + 1, 2 * OVERLAP + 1))
     V, T, PC, PT = [], [], [], []
     count = 0
-    for seg in np.unique(label[label >= 0]):
-        region = label == seg
-        region = region | (cv2.dilate(region.astype(np.uint8), grow).astype(bool) & m)
+    near_cut = np.zeros(m.shape, np.uint8)
+    for c in cuts:  # seams open where the pieces turn: along the cuts
+        cv2.line(near_cut, tuple(int(v) for v in np.rint(c.p)), tuple(int(v) for v in np.rint(c.q)), 1,
+                 2 * (2 * OVERLAP + 1) + 1)
+    near_cut = near_cut.astype(bool)
+    piece_arr = np.array([piece_of[i] for i in range(len(SEGMENT_NAMES))])
+    piece_label = np.where(label >= 0, piece_arr[np.maximum(label, 0)], -1)
+    near_seg = _filled(label)
+    for pc in np.unique(piece_label[piece_label >= 0]):
+        region = (piece_label == pc) | (overlay if pc == 0 else False)
+        # Pieces grow OVERLAP px into each other near the cuts (where seams open as the joints
+        # turn), and a pixel elsewhere into the body and the body into them: a limb drawn over the
+        # body that swings away leaves at most a pixel of its drawing behind.
+        one = cv2.dilate(region.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+        two = cv2.dilate(region.astype(np.uint8), grow).astype(bool)
+        two &= ((piece_label != 0) | near_cut) if pc != 0 else near_cut
+        region = region | ((one | two) & m)
         if region.sum() < 6:
             continue
         try:
@@ -791,14 +880,18 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
             continue
         if len(t) == 0:
             continue
+        # Each triangle's part: the segment under its centroid (one of the piece's own).
+        seg = _lookup(near_seg, v[t].mean(axis=1))
+        own = np.flatnonzero(piece_arr == pc)
+        seg = np.where(np.isin(seg, own), seg, own[0])
         V.append(v)
         T.append(t + count)
         count += len(v)
-        PC.append(np.full(len(t), piece_of[int(seg)]))
-        PT.append(np.full(len(t), int(meshmod.SEGMENT_PART[int(seg)])))
+        PC.append(np.full(len(t), int(pc)))
+        PT.append(meshmod.SEGMENT_PART[seg].astype(np.int64))
     n_core = count
-    drawn = {int(seg) for seg in np.unique(label[label >= 0])
-             if any(int(meshmod.SEGMENT_PART[int(seg)]) == int(p[0]) for p in PT)}
+    drawn_parts = set(np.concatenate(PT).tolist()) if PT else set()
+    drawn = {seg for seg in range(len(SEGMENT_NAMES)) if int(meshmod.SEGMENT_PART[seg]) in drawn_parts}
     parent_of = {c.child: c.parent for c in cuts}
 
     def shown_parent(seg: int) -> int:
@@ -807,7 +900,10 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
             seg = parent_of[seg]
         return seg
 
-    tabs, layer, collar = [], [np.zeros(sum(len(t) for t in T), np.int64)], [np.full(sum(len(t) for t in T), -1)]
+    tabs, collar = [], [np.full(sum(len(t) for t in T), -1)]
+    # The body samples the drawing with the limbs drawn over it painted out (layer 1, overlay_texture).
+    layer = [np.concatenate([np.full(len(t), 1 if (overlay.any() and int(pc[0]) == 0) else 0, np.int64)
+                             for t, pc in zip(T, PC)]) if T else np.zeros(0, np.int64)]
     regions = {}
     # Parents first (shoulders and hips before elbows and knees): a segment drawn too short to
     # hold its child's tab lends it its own tab.
@@ -849,6 +945,7 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
     mesh.n_core = n_core
     mesh.tabs = tabs
     mesh.pivots = pivots
+    mesh.overlay = overlay
     mesh.labels = label
     mesh.cuts = cuts
     return mesh

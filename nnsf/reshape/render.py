@@ -139,15 +139,20 @@ class MeshRenderer:
         default on for a pieced mesh (layered, whole-limb, split), off for a
         connected one (it cannot tear).
         """
-        underlay = underlay_texture(character.texture, character.mask, mesh) if (mesh.layer == 1).any() else None
+        if mesh.overlay is not None and mesh.overlay.any():
+            underlay = overlay_texture(character.texture, character.mask, mesh.overlay)
+        else:
+            underlay = underlay_texture(character.texture, character.mask, mesh) if (mesh.layer == 1).any() else None
         rim = (rim_texture(character.texture, character.mask, character.keypoints)
                if (mesh.layer == 2).any() else None)
         textures = tab_textures(mesh, character) if mesh.tabs else None
         pieced = mesh.is_split
-        return cls(mesh.vertices, mesh.triangles, mesh.parts, character.texture, character.mask,
+        out = cls(mesh.vertices, mesh.triangles, mesh.parts, character.texture, character.mask,
                    size=size, layer=mesh.layer, underlay=underlay, behind=mesh.collar, rim=rim,
                    seal=seal if seal is not None else pieced, textures=textures,
                    reink=outline_style(character.texture, character.mask) if (pieced and mesh.tabs) else None)
+        out._tab_textures = textures
+        return out
 
     def _raster(self, V: np.ndarray, order):
         """Covered pixel runs ``(y, x_first, length, triangle)``, each ``(r,)``, nearest part last.
@@ -433,6 +438,26 @@ def underlay_texture(texture: np.ndarray, mask: np.ndarray, mesh, radius: float 
     if m.any():
         rgb[~m] = rgb[m].mean(axis=0).astype(np.uint8)
     filled = cv2.inpaint(rgb, region, radius, cv2.INPAINT_TELEA)
+    return np.dstack([filled, texture[..., 3]])
+
+
+def overlay_texture(texture: np.ndarray, mask: np.ndarray, overlay: np.ndarray) -> np.ndarray:
+    """The drawing with the limbs drawn over the body painted out, ``(H, W, 4)`` uint8 RGBA.
+
+    ``overlay``: those limbs' pixels (:attr:`nnsf.reshape.mesh.Mesh.overlay`),
+    grown by 1 % of the drawing's height (at least 2 px) to take the half of
+    their outline that lies on the body's side; filled with OpenCV's Telea
+    inpainting from the rest of the silhouette (pixels outside it set to the
+    silhouette's mean colour first, so the paper does not bleed in).
+    """
+    m = np.asarray(mask, dtype=bool)
+    ys = np.flatnonzero(m.any(axis=1))
+    r = max(int(round(0.01 * (ys[-1] - ys[0] + 1))), 2) if len(ys) else 2
+    region = cv2.dilate(np.asarray(overlay, np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+    rgb = np.ascontiguousarray(texture[..., :3]).copy()
+    if m.any():
+        rgb[~m] = rgb[m].mean(axis=0).astype(np.uint8)
+    filled = cv2.inpaint(rgb, (region > 0).astype(np.uint8), 2 * r + 3, cv2.INPAINT_TELEA)
     return np.dstack([filled, texture[..., 3]])
 
 
