@@ -495,13 +495,16 @@ def label_pieces(mask: np.ndarray, keypoints: np.ndarray, cuts: list[Cut], whole
 
 
 def limb_regions(texture: np.ndarray, mask: np.ndarray, keypoints: np.ndarray) -> dict[int, np.ndarray]:
-    """Regions of the drawing, bounded by its lines, that are one limb segment's only, ``{segment: (H, W) bool}``.
+    """Regions of the drawing, bounded by its lines, that are one arm's only, ``{segment: (H, W) bool}``.
 
     A region (:func:`nnsf.reshape.mesh.drawn_regions`) belongs to a limb
     limb when it holds points of its bones (upper segments λ ∈ [0.6, 0.95],
     lower ones λ ∈ [0.1, 0.9]) and no point of the spine, the neck or another
     limb: an arm drawn over the chest as a shape of its own.  The pixels of
-    such a region that the cuts gave the body go to the limb's upper segment.  Those pixels go with the limb even past the cut where its
+    such a region that the cuts gave the body go to the limb's upper segment.
+    Only arms: legs hang from the body's bottom edge, where a line between
+    leg and body is the body's outline (AnimatedDrawings' char1: its belly
+    band), not a leg drawn over it.  Those pixels go with the limb even past the cut where its
     outline leaves the body, and the body under them is painted in
     (:func:`overlay_texture`).
     """
@@ -522,6 +525,8 @@ def limb_regions(texture: np.ndarray, mask: np.ndarray, keypoints: np.ndarray) -
         body |= regions_along(J[a], J[b], 0.0, 1.0)
     owner: dict[int, set] = {}
     for i, (name, (a, b)) in enumerate(LIMBS.items()):
+        if "arm" not in name:  # legs hang from the body's bottom; arms are drawn over the chest
+            continue
         upper = "upper" in name or "thigh" in name
         for r in regions_along(a, b, *((0.6, 0.95) if upper else (0.1, 0.9))):
             owner.setdefault(r, set()).add(1 + i)

@@ -446,18 +446,25 @@ def overlay_texture(texture: np.ndarray, mask: np.ndarray, overlay: np.ndarray) 
 
     ``overlay``: those limbs' pixels (:attr:`nnsf.reshape.mesh.Mesh.overlay`),
     grown by 1 % of the drawing's height (at least 2 px) to take the half of
-    their outline that lies on the body's side; filled with OpenCV's Telea
-    inpainting from the rest of the silhouette (pixels outside it set to the
-    silhouette's mean colour first, so the paper does not bleed in).
+    their outline that lies on the body's side, and the lines around them;
+    filled with OpenCV's Telea inpainting from the rest of the silhouette
+    (pixels outside it set to the silhouette's median colour first, so the
+    paper does not bleed in).
     """
     m = np.asarray(mask, dtype=bool)
     ys = np.flatnonzero(m.any(axis=1))
     r = max(int(round(0.01 * (ys[-1] - ys[0] + 1))), 2) if len(ys) else 2
     region = cv2.dilate(np.asarray(overlay, np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+    from nnsf.reshape.pieces import ink_mask
+
+    # The lines near the region are painted out too, so the fill comes from the body's colour,
+    # not smeared from its outline.
+    near = cv2.dilate(region, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (4 * r + 1, 4 * r + 1))) > 0
+    unknown = (region > 0) | (near & ink_mask(texture, m))
     rgb = np.ascontiguousarray(texture[..., :3]).copy()
     if m.any():
-        rgb[~m] = rgb[m].mean(axis=0).astype(np.uint8)
-    filled = cv2.inpaint(rgb, (region > 0).astype(np.uint8), 2 * r + 3, cv2.INPAINT_TELEA)
+        rgb[~m] = np.median(rgb[m & ~unknown] if (m & ~unknown).any() else rgb[m], axis=0).astype(np.uint8)
+    filled = cv2.inpaint(rgb, unknown.astype(np.uint8), 2 * r + 3, cv2.INPAINT_TELEA)
     return np.dstack([filled, texture[..., 3]])
 
 
