@@ -82,8 +82,9 @@ WIDEN = 1.6
 #: A limb claims pixels up to this factor × its half-width from its bone.
 CAPSULE = 1.3
 #: Pixels by which each piece grows into its neighbours at rest, hiding the seams that open by a
-#: pixel or two where a rigid segment meets the deformed body.
-OVERLAP = 2
+#: pixel or two where a rigid segment meets the deformed body: this share of the drawing's height,
+#: between 1 and 2 px (2 on AnimatedDrawings' 400-600 px characters, 1 on a 128 px sprite).
+OVERLAP = 0.004
 
 
 @dataclass
@@ -737,7 +738,8 @@ def move_pivots(mask: np.ndarray, keypoints: np.ndarray, cuts: list[Cut], reach:
     A paper puppet's limb turns about the pin where it meets the body.  The
     drawings' shoulder and hip key points often sit well inside the body
     (AnimatedDrawings' char1: 40 px inside the torso), so a limb turning about
-    them swings a large part of itself out of the body's side.  The pivot is
+    them swings a large part of itself out of the body's side.  When a key
+    point lies farther from its cut than half the cut's length, the pivot is
     moved along the limb's upper bone to the point nearest the cut's middle (at most
     ``reach`` of the bone's length either way; for the neck, along the
     thorax-to-head-top line); the retargeting then chains the limb from
@@ -748,6 +750,10 @@ def move_pivots(mask: np.ndarray, keypoints: np.ndarray, cuts: list[Cut], reach:
     m = np.asarray(mask, dtype=bool)
     for c in cuts:
         if c.parent != 0:
+            continue
+        # Only a key point farther from its cut than half the cut's length: nearer, a disc around
+        # the key point covers the joint compactly, and the drawn pivot is kept.
+        if float(np.linalg.norm(c.mid - kp[c.joint])) <= 0.5 * float(np.linalg.norm(c.p - c.q)):
             continue
         a, b = _child_bone(c.child)
         if c.child == HEAD:
@@ -857,20 +863,22 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
         names = meshmod.SEGMENTS
         piece_of = {i: i for i in range(len(SEGMENT_NAMES))}
         piece_kp = meshmod.SEGMENT_KEYPOINTS
-    grow = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * OVERLAP + 1, 2 * OVERLAP + 1))
+    ys = np.flatnonzero(m.any(axis=1))
+    ov = int(np.clip(round(OVERLAP * (ys[-1] - ys[0] + 1)), 1, 2)) if len(ys) else 1
+    grow = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ov + 1, 2 * ov + 1))
     V, T, PC, PT = [], [], [], []
     count = 0
     near_cut = np.zeros(m.shape, np.uint8)
     for c in cuts:  # seams open where the pieces turn: along the cuts
         cv2.line(near_cut, tuple(int(v) for v in np.rint(c.p)), tuple(int(v) for v in np.rint(c.q)), 1,
-                 2 * (2 * OVERLAP + 1) + 1)
+                 2 * (2 * ov + 1) + 1)
     near_cut = near_cut.astype(bool)
     piece_arr = np.array([piece_of[i] for i in range(len(SEGMENT_NAMES))])
     piece_label = np.where(label >= 0, piece_arr[np.maximum(label, 0)], -1)
     near_seg = _filled(label)
     for pc in np.unique(piece_label[piece_label >= 0]):
         region = (piece_label == pc) | (overlay if pc == 0 else False)
-        # Pieces grow OVERLAP px into each other near the cuts (where seams open as the joints
+        # Pieces grow ``ov`` px (:data:`OVERLAP`) into each other near the cuts (where seams open as the joints
         # turn), and a pixel elsewhere into the body and the body into them: a limb drawn over the
         # body that swings away leaves at most a pixel of its drawing behind.
         one = cv2.dilate(region.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
