@@ -654,11 +654,14 @@ def build_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int = 800, s
         from nnsf.reshape.pieces import build_pieced_mesh
 
         margin = None
-        if texture is not None:  # tabs keep the paper margin and 2 px inside the parent's outline
+        if texture is not None:
+            # Tabs keep the paper margin and 0.4 % of the drawing's height (1-2 px) inside the
+            # parent's outline.
             from nnsf.reshape.render import outline_style
 
             style = outline_style(texture, mask)
-            margin = (style[2] if style is not None else 0.0) + 2.0
+            ys = np.flatnonzero(np.asarray(mask, bool).any(axis=1))
+            margin = (style[2] if style is not None else 0.0) + float(np.clip(0.004 * np.ptp(ys), 1.0, 2.0))
         return build_pieced_mesh(mask, kp, n_vertices=n_vertices, whole_limbs=split == "limbs",
                                  tab_margin=margin, texture=texture, **kwargs)
     layered = split in ("layered", "limbs")

@@ -628,14 +628,14 @@ def tab_region(label: np.ndarray, cut: Cut, margin: float = 0.0, band: float | N
     """The child's tab under its parent ``(H, W)`` bool (module docstring).
 
     ``margin``: away from the cut (farther than ``band``, default a quarter
-    of the cut's length), the tab keeps this far (pixels) inside the
+    of the cut's length, at least 3 px), the tab keeps this far (pixels) inside the
     parent's outline, so a small turn of the joint does not slide a sliver of
     it out along the parent's edge.  ``under`` ``(H, W)`` bool: pixels the
     tab may also cover (the parent's own tab: a parent segment may be drawn
     shorter than the tab).
     """
     if band is None:
-        band = 0.25 * float(np.linalg.norm(cut.p - cut.q))
+        band = max(0.25 * float(np.linalg.norm(cut.p - cut.q)), 3.0)
     H, W = label.shape
     rho = max(0.5 * float(np.linalg.norm(cut.p - cut.q)), 1.0)
     m = cut.mid
