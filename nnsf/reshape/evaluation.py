@@ -151,7 +151,8 @@ def evaluate_item(item: dict) -> dict:
     T = min(len(clip.points), item["max_frames"])
     motion, depth = clip.points[:T], clip.depth[:T]
     height = float(np.median(np.ptp(motion[..., 1], axis=1)))
-    meshes = {kind: build_mesh(ch.mask, ch.keypoints, item["n_vertices"], split=kind, texture=ch.texture)
+    meshes = {kind: build_mesh(ch.mask, ch.keypoints, item["n_vertices"], split=kind, texture=ch.texture,
+                               extra_limbs=ch.extra_limbs)
               for kind in dict.fromkeys(mesh for mesh, _ in VARIANTS)}
     rows, anims, renderers = [], {}, {}
     results = {}

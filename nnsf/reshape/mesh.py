@@ -633,7 +633,7 @@ def split_pieces(mesh: Mesh, keypoints: np.ndarray) -> Mesh:
 
 
 def build_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int = 800, split=False,
-               collar: float = 1.0, texture=None, **kwargs) -> Mesh:
+               collar: float = 1.0, texture=None, extra_limbs=(), **kwargs) -> Mesh:
     """Triangulate ``mask`` (:func:`triangulate_mask`) and label parts (:func:`label_parts`).
 
     ``split``: ``False`` / ``"connected"`` (one connected mesh), ``True`` /
@@ -641,6 +641,10 @@ def build_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int = 800, s
     ``"layered"`` (every segment its own piece with overlapping collars and a
     body underlay, :func:`layer_pieces`) or ``"limbs"`` (the same, but each
     whole limb one deformable piece: cut only at the shoulders, hips and neck).
+
+    ``extra_limbs``: arms beyond the skeleton's two (a layered or whole-limb
+    mesh gives each a piece that turns with the driven arm of its side,
+    :func:`nnsf.reshape.pieces.follower_regions`).
 
     ``texture`` ``(H, W, 3|4)``: the drawing.  With it, the limb capsules of
     the layered and limbs meshes give back to the body the triangles whose
@@ -663,7 +667,7 @@ def build_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int = 800, s
             ys = np.flatnonzero(np.asarray(mask, bool).any(axis=1))
             margin = (style[2] if style is not None else 0.0) + float(np.clip(0.004 * np.ptp(ys), 1.0, 2.0))
         return build_pieced_mesh(mask, kp, n_vertices=n_vertices, whole_limbs=split == "limbs",
-                                 tab_margin=margin, texture=texture, **kwargs)
+                                 tab_margin=margin, texture=texture, extra_limbs=extra_limbs, **kwargs)
     layered = split in ("layered", "limbs")
     cuts = joint_cuts(mask, kp) if layered else []
     if split == "limbs":

@@ -730,6 +730,13 @@ class Tab:
     piece: int
     part: int
     parent_part: int
+    #: A follower (an extra arm, or its tab): the rest pivot ``(2,)`` it turns about, carried by
+    #: the torso's pose, instead of the bone's first key point.
+    pivot: np.ndarray | None = None
+    #: The pixels whose fill a tab continues (default: its piece's label).
+    fill: np.ndarray | None = None
+    #: Whether the vertices show the drawing (a follower's own region) rather than a tab texture.
+    drawn: bool = False
 
 
 def move_pivots(mask: np.ndarray, keypoints: np.ndarray, cuts: list[Cut], reach: float = 0.5) -> np.ndarray:
@@ -811,21 +818,110 @@ def attach_tabs(tabs: list[Tab], core: np.ndarray, rest_kp: np.ndarray, keypoint
     n = len(rest_vertices)
     out = np.empty((T, n, 2))
     out[:, :core.shape[1]] = core
+    torso = None
     for tab in tabs:
         a, b = tab.bone
         r = rest_kp[b] - rest_kp[a]
         d = kp[:, b] - kp[:, a]
         ang = np.arctan2(d[:, 1], d[:, 0]) - np.arctan2(r[1], r[0])
         c, s = np.cos(ang), np.sin(ang)
-        v = rest_vertices[tab.vertices] - rest_kp[a]  # (k, 2)
+        if tab.pivot is None:
+            p0, pt = rest_kp[a], kp[:, a]
+        else:  # a follower turns about its own pivot, which the torso carries
+            if torso is None:
+                torso = torso_pose(rest_kp, kp)
+            c0, ct, tc, ts = torso
+            q = tab.pivot - c0
+            p0 = tab.pivot
+            pt = ct + np.stack([tc * q[0] - ts * q[1], ts * q[0] + tc * q[1]], -1)
+        v = rest_vertices[tab.vertices] - p0  # (k, 2)
         x = c[:, None] * v[None, :, 0] - s[:, None] * v[None, :, 1]
         y = s[:, None] * v[None, :, 0] + c[:, None] * v[None, :, 1]
-        out[:, tab.vertices] = np.stack([x, y], -1) + kp[:, a][:, None, :]
+        out[:, tab.vertices] = np.stack([x, y], -1) + pt[:, None, :]
+    return out
+
+
+def torso_pose(rest_kp: np.ndarray, kp: np.ndarray):
+    """The torso's rigid pose per frame: rest centroid ``(2,)``, frame centroids ``(T, 2)`` and the
+    rotation's cos, sin ``(T,)``, fitted (2-D Procrustes) to the key points of
+    :data:`nnsf.reshape.drive.TORSO`."""
+    from nnsf.reshape.drive import TORSO
+
+    torso = list(TORSO)
+    rest_kp = np.asarray(rest_kp, dtype=np.float64)
+    K = np.asarray(kp, dtype=np.float64)
+    c0 = rest_kp[torso].mean(0)
+    a0 = rest_kp[torso] - c0
+    ct = K[:, torso].mean(1)
+    b = K[:, torso] - ct[:, None]
+    ang = np.arctan2((a0[None, :, 0] * b[..., 1] - a0[None, :, 1] * b[..., 0]).sum(1), (a0[None] * b).sum((1, 2)))
+    return c0, ct, np.cos(ang), np.sin(ang)
+
+
+def follower_regions(mask: np.ndarray, keypoints: np.ndarray, label: np.ndarray, extra_limbs) -> list[dict]:
+    """Each extra arm's pixels, cut and pivot (``extra_limbs``: :attr:`nnsf.reshape.character.Character.extra_limbs`).
+
+    An extra arm is cut from the body as a driven arm is (:func:`_root_chord`,
+    the skeleton with that side's arm replaced by the extra one); its region
+    is the part of the body's pixels the cut separates holding its elbow and
+    hand, limited to :func:`limb_reach` of its bones.
+    """
+    m = np.asarray(mask, dtype=bool)
+    kp = np.asarray(keypoints, dtype=np.float64)
+    contour = _outline(m)
+    dist = _dist(m)
+    names = list(LIMBS)
+    out = []
+    for e in extra_limbs or ():
+        side, joints = e["side"], np.asarray(e["joints"], dtype=np.float64)
+        k2 = kp.copy()
+        for jn, xy in zip(("shoulder", "elbow", "wrist"), joints):
+            k2[J[f"{side}_{jn}"]] = xy
+        child = names.index(f"{side}_upper_arm") + 1
+        a, b = LIMBS[names[child - 1]]
+        c_ = LIMBS[names[child]][1]
+        w = w_distal(dist, k2, a, b, c_)
+        chord = _root_chord(m, k2, contour, child, w)
+        if chord is None:
+            continue
+        p, q = chord
+        n = _normal_of(p, q, k2[c_] - 0.5 * (p + q))
+        cut = Cut(J[f"{side}_shoulder"], 0, child, p, q, k2[a].copy(), n, w)
+        img = np.zeros(m.shape, np.uint8)
+        d = (q - p) / max(float(np.linalg.norm(q - p)), 1e-9)
+        cv2.line(img, tuple(int(v) for v in np.rint(p - 3 * d)), tuple(int(v) for v in np.rint(q + 3 * d)), 1, 1)
+        open_ = m & (img == 0)
+        _, comp = cv2.connectedComponents(open_.astype(np.uint8), connectivity=4)
+        pts = np.vstack([k2[a] + lam[:, None] * (k2[b] - k2[a]) for lam in (np.linspace(0.5, 1.0, 6),)]
+                        + [k2[b] + np.linspace(0.0, 1.0, 6)[:, None] * (k2[c_] - k2[b])])
+        ids = _lookup(comp.astype(np.int32), pts)
+        ids = ids[ids > 0]
+        if not len(ids):
+            continue
+        region = (comp == np.bincount(ids).argmax()) & (label == 0)
+        reach = max(limb_reach(w, float(np.linalg.norm(k2[b] - k2[a]))),
+                    limb_reach(half_width(dist, k2, b, c_), float(np.linalg.norm(k2[c_] - k2[b]))))
+        ys, xs = np.nonzero(region)
+        P = np.column_stack([xs, ys]).astype(np.float64)
+        near = np.minimum(_seg_dist(P, k2[a], k2[b]), _seg_dist(P, k2[b], k2[c_]))
+        blob = 2.5 * float(_lookup(dist, k2[c_][None])[0]) + 2.0  # the hand
+        keep = (near <= reach) | (np.linalg.norm(P - k2[c_], axis=1) <= blob)
+        region = np.zeros(m.shape, bool)
+        region[ys[keep], xs[keep]] = True
+        if region.sum() < 6:
+            continue
+        # The pivot on the cut when the key point lies deep in the body (as move_pivots).
+        if float(np.linalg.norm(cut.mid - k2[a])) > 0.5 * float(np.linalg.norm(p - q)):
+            u = k2[b] - k2[a]
+            lam = float(np.clip(((cut.mid - k2[a]) @ u) / max(float(u @ u), 1e-12), -0.5, 0.5))
+            cut.pivot = k2[a] + lam * u
+        out.append({"name": e.get("name", side), "side": side, "cut": cut, "region": region})
     return out
 
 
 def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int = 800,
-                      whole_limbs: bool = False, tab_margin: float | None = None, texture=None, **kwargs):
+                      whole_limbs: bool = False, tab_margin: float | None = None, texture=None,
+                      extra_limbs=(), **kwargs):
     """The layered mesh (``whole_limbs=False``) or whole-limb mesh of a drawing (module docstring).
 
     Every piece's region is triangulated on its own (grown by one pixel into
@@ -849,6 +945,10 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
     # segments (for the depth order and the measures).
     cuts = [c for c in all_cuts if c.parent == 0] if whole_limbs else all_cuts
     pivots = move_pivots(m, kp, cuts)
+    # Extra arms (AnimatedDrawings' char5): pieces of their own, taken out of the body.
+    followers = follower_regions(m, kp, label, extra_limbs)
+    for f in followers:
+        label = np.where(f["region"], -1, label)
     h = meshmod.spacing_for(m, n_vertices)
     margin = tab_margin if tab_margin is not None else 0.0
     args = dict(min_angle=kwargs.get("min_angle", 15.0), simplify=kwargs.get("simplify", 0.75),
@@ -951,6 +1051,35 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
         under = int(meshmod.SEGMENT_PART[shown_parent(cut.parent)])
         collar.append(np.full(len(t), under))
         tabs.append(Tab(idx, _child_bone(cut.child), region, pc, part, under))
+    for f in followers:
+        # The extra arm (the part of the driven arm of its side) and its tab.
+        cut = f["cut"]
+        part = int(meshmod.SEGMENT_PART[cut.child])
+        a_b = _child_bone(cut.child)
+        grown = f["region"] | (cv2.dilate(f["region"].astype(np.uint8), grow).astype(bool) & m & near_cut_f(cut, m, ov))
+        tab = tab_region(np.where(f["region"], cut.child, label), cut, margin)
+        # Both drawn just before the body (tab first): the extra arms stay behind the body and the
+        # driven arms, so arms that turn together do not pile up in front.
+        own = f["region"] | (cv2.dilate(f["region"].astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & m)
+        for region, is_tab in ((tab, True), (own | grown, False)):
+            if region.sum() < 6:
+                continue
+            try:
+                v, t, _ = meshmod._triangulate_at(region, h if not is_tab else max(0.6 * h, 2.0), **args)
+            except (ValueError, IndexError):
+                continue
+            if len(t) == 0:
+                continue
+            idx = np.arange(count, count + len(v))
+            V.append(v)
+            T.append(t + count)
+            count += len(v)
+            PC.append(np.full(len(t), piece_of[cut.child]))
+            PT.append(np.full(len(t), part))
+            layer.append(np.full(len(t), 3 + len(tabs) if is_tab else 0, np.int64))
+            collar.append(np.full(len(t), 0))
+            tabs.append(Tab(idx, a_b, region, piece_of[cut.child], part, 0, pivot=cut.pivot.copy(),
+                            fill=f["region"], drawn=not is_tab))
     mesh = meshmod.Mesh(vertices=np.vstack(V), triangles=np.vstack(T).astype(np.int64),
                         parts=np.concatenate(PT).astype(np.int64), spacing=h,
                         pieces=np.concatenate(PC).astype(np.int64), piece_names=names, piece_keypoints=piece_kp,
@@ -961,4 +1090,13 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
     mesh.overlay = overlay
     mesh.labels = label
     mesh.cuts = cuts
+    mesh.followers = [{"name": f["name"], "side": f["side"]} for f in followers]
     return mesh
+
+
+def near_cut_f(cut: Cut, m: np.ndarray, ov: int) -> np.ndarray:
+    """Pixels near a cut (where its two sides overlap by ``ov`` px)."""
+    img = np.zeros(m.shape, np.uint8)
+    cv2.line(img, tuple(int(v) for v in np.rint(cut.p)), tuple(int(v) for v in np.rint(cut.q)), 1,
+             2 * (2 * ov + 1) + 1)
+    return img.astype(bool)

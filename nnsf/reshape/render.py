@@ -486,7 +486,12 @@ def tab_textures(mesh, character) -> dict[int, np.ndarray]:
     out = {}
     k3 = np.ones((5, 5), np.uint8)
     for k, tab in enumerate(mesh.tabs):
-        img = tab_texture(character.texture, mesh.labels, _segment_of(mesh, tab), tab.region, ink)
+        if tab.drawn:  # a follower's own region shows the drawing
+            continue
+        if tab.fill is not None:
+            img = tab_texture(character.texture, np.where(tab.fill, 1, 0), 1, tab.region, ink)
+        else:
+            img = tab_texture(character.texture, mesh.labels, _segment_of(mesh, tab), tab.region, ink)
         grown = cv2.dilate(tab.region.astype(np.uint8), k3).astype(bool)
         for taken, gimg in groups:
             if not (taken & grown).any():

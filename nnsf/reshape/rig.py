@@ -145,7 +145,7 @@ class Rig:
         kp = character.keypoints
         if mesh is None:
             mesh = build_mesh(character.mask, kp, n_vertices=n_vertices, split=split,
-                              texture=character.texture)
+                              texture=character.texture, extra_limbs=character.extra_limbs)
         rest_kp = kp.copy()
         if mesh.pivots is not None and not np.allclose(mesh.pivots, kp):
             # A pieced mesh's limbs turn where they meet the body (nnsf.reshape.pieces.move_pivots).
