@@ -22,8 +22,9 @@ Pixel centres are at integer coordinates (pixel (x, y) covers
 [x−½, x+½] × [y−½, y+½]), the convention of :mod:`nnsf.reshape.character`.
 
 Writers: :func:`write_png_frames` (a folder of PNGs), :func:`write_gif`
-(Pillow) and :func:`write_mp4` (OpenCV's ``VideoWriter``, codec ``mp4v``,
-works headless).  All write atomically.
+(Pillow) and :func:`write_mp4` (OpenCV's ``VideoWriter``: H.264 when the
+build has an encoder, else ``mp4v``, :func:`mp4_codec`; works headless).  All
+write atomically.
 """
 from __future__ import annotations
 
@@ -603,8 +604,45 @@ def write_gif(path, images, fps: float) -> Path:
     return path
 
 
+_MP4_CODEC: str | None = None
+
+
+def mp4_codec() -> str:
+    """The MP4 codec this OpenCV build can write: ``avc1`` (H.264, plays in browsers and
+    QuickTime) when its FFmpeg has an H.264 encoder, else ``mp4v`` (MPEG-4 Part 2, which
+    many browsers and QuickTime do not play; VLC and FFmpeg do).  Probed once per process on
+    a scratch file, with FFmpeg's complaints about a missing encoder kept off the terminal.
+    The opencv-python wheels ship FFmpeg without an H.264 encoder, so there it is ``mp4v``."""
+    global _MP4_CODEC
+    if _MP4_CODEC is None:
+        import os
+        import sys
+        import tempfile
+
+        _MP4_CODEC = "mp4v"
+        with tempfile.TemporaryDirectory() as d:
+            probe = os.path.join(d, "probe.mp4")
+            sys.stderr.flush()
+            saved = os.dup(2)
+            try:
+                with open(os.devnull, "w") as null:
+                    os.dup2(null.fileno(), 2)
+                    vw = cv2.VideoWriter(probe, cv2.VideoWriter_fourcc(*"avc1"), 24.0, (64, 64))
+                    ok = vw.isOpened()
+                    if ok:
+                        vw.write(np.zeros((64, 64, 3), np.uint8))
+                    vw.release()
+            finally:
+                os.dup2(saved, 2)
+                os.close(saved)
+            if ok and os.path.getsize(probe) > 0:
+                _MP4_CODEC = "avc1"
+    return _MP4_CODEC
+
+
 def write_mp4(path, images, fps: float) -> Path:
-    """Write RGB(A) images ``(T, H, W, 3|4)`` as MP4 (``mp4v``), atomically.
+    """Write RGB(A) images ``(T, H, W, 3|4)`` as MP4, atomically: H.264 when this OpenCV can
+    encode it, else ``mp4v`` (:func:`mp4_codec`).
 
     Odd sizes are padded by one pixel (the codec wants even dimensions);
     RGBA is composited over white.  Raises ``OSError`` if OpenCV cannot open
@@ -614,10 +652,11 @@ def write_mp4(path, images, fps: float) -> Path:
     images = [np.asarray(i) for i in images]
     H, W = images[0].shape[:2]
     He, We = H + H % 2, W + W % 2
+    codec = mp4_codec()
     with atomic_path(path) as tmp:
-        vw = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (We, He))
+        vw = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*codec), float(fps), (We, He))
         if not vw.isOpened():
-            raise OSError(f"OpenCV could not open an mp4v video writer for {path}")
+            raise OSError(f"OpenCV could not open an {codec} video writer for {path}")
         try:
             for img in images:
                 if img.shape[2] == 4:
