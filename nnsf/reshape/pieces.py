@@ -2,7 +2,7 @@
 
 This is the layered mesh of :func:`nnsf.reshape.mesh.build_mesh` (``split=
 "layered"`` and ``"limbs"``), built the way an animator cuts a drawing into a
-paper puppet (docs/method.md §12.3):
+paper puppet (docs/method.md §13.1):
 
 1. **Cuts** (:func:`find_cuts`).  Every joint where a child piece hangs from
    its parent gets a straight cut across the drawing, from outline to
@@ -750,7 +750,7 @@ def move_pivots(mask: np.ndarray, keypoints: np.ndarray, cuts: list[Cut], reach:
     moved along the limb's upper bone to the point nearest the cut's middle (at most
     ``reach`` of the bone's length either way; for the neck, along the
     thorax-to-head-top line); the retargeting then chains the limb from
-    there (docs/method.md §12.3).  Elbows and knees stay: their cuts pass
+    there (docs/method.md §13.1).  Elbows and knees stay: their cuts pass
     through them.
     """
     kp = np.asarray(keypoints, dtype=np.float64).copy()
