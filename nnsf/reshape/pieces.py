@@ -169,7 +169,15 @@ def cross_sections(mask: np.ndarray, centres: np.ndarray, direction: np.ndarray,
 
 
 def _limb_bones(kp, exclude=()) -> list[tuple[np.ndarray, np.ndarray]]:
-    return [(kp[a], kp[b]) for name, (a, b) in LIMBS.items() if name not in exclude]
+    """Bone segments of the limbs not in ``exclude``; a forearm's or shin's reaches a third past
+    its wrist or ankle key point (the hand or foot)."""
+    out = []
+    for name, (a, b) in LIMBS.items():
+        if name in exclude:
+            continue
+        tip = kp[b] + (kp[b] - kp[a]) / 3.0 if name.endswith(("forearm", "shin")) else kp[b]
+        out.append((kp[a], tip))
+    return out
 
 
 def find_cuts(mask: np.ndarray, keypoints: np.ndarray, whole_limbs: bool = False) -> list[Cut]:
@@ -454,7 +462,12 @@ def label_pieces(mask: np.ndarray, keypoints: np.ndarray, cuts: list[Cut], whole
     near = np.full((len(pts), len(pieces)), np.inf)
     for pc in pieces:
         for a, b in PIECE_BONES[pc]:
-            dd = _seg_dist(pts, kp[a], kp[b])
+            tip = kp[b]
+            if pc in radius and pc % 2 == 0:
+                # A forearm or shin: its hand or foot reaches past the wrist or ankle key point
+                # (a third of the segment).
+                tip = kp[b] + (kp[b] - kp[a]) / 3.0
+            dd = _seg_dist(pts, kp[a], tip)
             if pc in radius:
                 dd = np.where(dd <= radius[pc], dd, np.inf)
             tgt = merged.get(pc, pc)

@@ -322,7 +322,13 @@ class MeshRenderer:
                 part_crop = np.pad(part_crop, ((py0, py1), (px0, px1)), constant_values=-1)
             y0, x0 = y0 - py0, x0 - px0
             h, w = crop.shape[:2]
-            crop = self._reink(crop, mx, my)
+            inked = self._reink(crop, mx, my)
+            if self.seal and inked is not crop:
+                # A stroke half outside the silhouette can close a pocket of paper: sealed as well.
+                from nnsf.reshape.seal import seal
+
+                inked = seal(inked, part_crop, **self._seal_kw)
+            crop = inked
         part_img = None
         if labels:
             part_img = np.full((H, W), -1, np.int64)
