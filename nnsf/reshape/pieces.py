@@ -989,6 +989,7 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
     piece_arr = np.array([piece_of[i] for i in range(len(SEGMENT_NAMES))])
     piece_label = np.where(label >= 0, piece_arr[np.maximum(label, 0)], -1)
     near_seg = _filled(label)
+    regions_core = []
     for pc in np.unique(piece_label[piece_label >= 0]):
         region = (piece_label == pc) | (overlay if pc == 0 else False)
         # Pieces grow ``ov`` px (:data:`OVERLAP`) into each other near the cuts (where seams open as the joints
@@ -998,14 +999,28 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
         two = cv2.dilate(region.astype(np.uint8), grow).astype(bool)
         two &= ((piece_label != 0) | near_cut) if pc != 0 else near_cut
         region = region | ((one | two) & m)
-        if region.sum() < 6:
-            continue
-        try:
-            v, t, _ = meshmod._triangulate_at(region, h, **args)
-        except (ValueError, IndexError):  # too small to triangulate (a sliver between two cuts)
-            continue
-        if len(t) == 0:
-            continue
+        if region.sum() >= 6:
+            regions_core.append((int(pc), region))
+
+    def triangulate_pieces(spacing):
+        out = []
+        for pc, region in regions_core:
+            try:
+                v, t, _ = meshmod._triangulate_at(region, spacing, **args)
+            except (ValueError, IndexError):  # too small to triangulate (a sliver between two cuts)
+                continue
+            if len(t):
+                out.append((pc, v, t))
+        return out
+
+    pieces_tri = triangulate_pieces(h)
+    # Each piece has its own outline, so the pieces hold more vertices than one mesh of the same
+    # spacing: one rescaled pass brings the solved vertices to about ``n_vertices``.
+    total = sum(len(v) for _, v, _ in pieces_tri)
+    if total and abs(total / n_vertices - 1) > 0.1:
+        h = h * float(np.sqrt(total / n_vertices))
+        pieces_tri = triangulate_pieces(h)
+    for pc, v, t in pieces_tri:
         # Each triangle's part: the segment under its centroid (one of the piece's own).
         seg = _lookup(near_seg, v[t].mean(axis=1))
         own = np.flatnonzero(piece_arr == pc)
@@ -1046,7 +1061,7 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
         if region.sum() < 6:
             continue
         try:
-            v, t, _ = meshmod._triangulate_at(region, max(0.6 * h, 2.0), **args)
+            v, t, _ = meshmod._triangulate_at(region, max(h, 2.0), **args)
         except (ValueError, IndexError):
             continue
         if len(t) == 0:
@@ -1078,7 +1093,7 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
             if region.sum() < 6:
                 continue
             try:
-                v, t, _ = meshmod._triangulate_at(region, h if not is_tab else max(0.6 * h, 2.0), **args)
+                v, t, _ = meshmod._triangulate_at(region, h if not is_tab else max(h, 2.0), **args)
             except (ValueError, IndexError):
                 continue
             if len(t) == 0:
