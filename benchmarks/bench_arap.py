@@ -16,8 +16,8 @@ otherwise the built-in stick figure; the clip swings one arm and one leg.
 Times are the median over frames of the fastest of ``--repeat`` runs.  Both
 the connected mesh and the stage's default layered mesh are timed (``--meshes``);
 a layered frame includes moving its joint tabs with their bones.  The vertex
-count printed is the mesh's (a layered mesh adds the tabs' vertices, which the
-ARAP does not solve for).
+count printed is the mesh's; ``solved`` is what the ARAP solves for (a layered
+mesh adds its joint tabs' vertices, which follow their bones).
 
     .venv/bin/python benchmarks/bench_arap.py [--frames 200] [--repeat 3] [--naive-frames 2]
 """
@@ -107,7 +107,7 @@ def main(argv=None):
     kp = clip(ch.keypoints, args.frames)
     print(f"character: {what}; {args.frames} frames; load average {os.getloadavg()[0]:.1f} "
           f"on {os.cpu_count()} cores; float64")
-    print(f"{'mesh':>9} {'vertices':>8} {'triangles':>9} {'handles':>7} {'build ms':>9} {'step ms':>8} "
+    print(f"{'mesh':>9} {'vertices':>8} {'solved':>6} {'triangles':>9} {'handles':>7} {'build ms':>9} {'step ms':>8} "
           f"{'clip ms':>8} {'naive ms':>9} {'naive/step':>10} {'max |diff| px':>13}")
     for kind in args.meshes:
         for n in args.sizes:
@@ -129,7 +129,7 @@ def main(argv=None):
                 naive = float(np.median(naive_t))
                 diff = float(np.abs(slow - fast[-1]).max())
                 naive_col, ratio_col, diff_col = f"{naive * 1e3:>9.1f}", f"{naive / step:>10.0f}", f"{diff:>13.2e}"
-            print(f"{kind:>9} {rig.mesh.n_vertices:>8} {len(rig.mesh.triangles):>9} {len(rig.handles):>7} "
+            print(f"{kind:>9} {rig.mesh.n_vertices:>8} {rig.mesh.core:>6} {len(rig.mesh.triangles):>9} {len(rig.handles):>7} "
                   f"{build * 1e3:>9.1f} {step * 1e3:>8.3f} {whole * 1e3:>8.3f} {naive_col} {ratio_col} {diff_col}")
 
 

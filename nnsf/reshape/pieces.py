@@ -823,34 +823,41 @@ def attach_tabs(tabs: list[Tab], core: np.ndarray, rest_kp: np.ndarray, keypoint
 
     A tab turns about its joint by the angle its child bone turned between the
     rest key points ``(17, 2)`` and each frame's ``(T, 17, 2)``, and the joint
-    moves to its key point: v' = R (v − j₀) + j_t.
+    moves to its key point: v' = R (v − j₀) + j_t.  A follower (``Tab.pivot``)
+    turns about its own pivot, which the torso's pose (:func:`torso_pose`)
+    carries.  Vectorised over tabs and frames (one gather, no loop over tabs).
     """
     core = np.asarray(core, dtype=np.float64)
     kp = np.asarray(keypoints, dtype=np.float64)
+    rest_kp = np.asarray(rest_kp, dtype=np.float64)
     T = core.shape[0]
     n = len(rest_vertices)
     out = np.empty((T, n, 2))
     out[:, :core.shape[1]] = core
-    torso = None
-    for tab in tabs:
-        a, b = tab.bone
-        r = rest_kp[b] - rest_kp[a]
-        d = kp[:, b] - kp[:, a]
-        ang = np.arctan2(d[:, 1], d[:, 0]) - np.arctan2(r[1], r[0])
-        c, s = np.cos(ang), np.sin(ang)
-        if tab.pivot is None:
-            p0, pt = rest_kp[a], kp[:, a]
-        else:  # a follower turns about its own pivot, which the torso carries
-            if torso is None:
-                torso = torso_pose(rest_kp, kp)
-            c0, ct, tc, ts = torso
-            q = tab.pivot - c0
-            p0 = tab.pivot
-            pt = ct + np.stack([tc * q[0] - ts * q[1], ts * q[0] + tc * q[1]], -1)
-        v = rest_vertices[tab.vertices] - p0  # (k, 2)
-        x = c[:, None] * v[None, :, 0] - s[:, None] * v[None, :, 1]
-        y = s[:, None] * v[None, :, 0] + c[:, None] * v[None, :, 1]
-        out[:, tab.vertices] = np.stack([x, y], -1) + pt[:, None, :]
+    if not tabs:
+        return out
+    a = np.array([t.bone[0] for t in tabs])
+    b = np.array([t.bone[1] for t in tabs])
+    r = rest_kp[b] - rest_kp[a]  # (k, 2)
+    d = kp[:, b] - kp[:, a]  # (T, k, 2)
+    ang = np.arctan2(d[..., 1], d[..., 0]) - np.arctan2(r[:, 1], r[:, 0])
+    c, s = np.cos(ang), np.sin(ang)  # (T, k)
+    p0 = rest_kp[a].copy()
+    pt = kp[:, a].copy()  # (T, k, 2)
+    follow = [i for i, t in enumerate(tabs) if t.pivot is not None]
+    if follow:  # followers turn about their own pivot, carried by the torso
+        c0, ct, tc, ts = torso_pose(rest_kp, kp)
+        P = np.array([tabs[i].pivot for i in follow])
+        q = P - c0
+        p0[follow] = P
+        pt[:, follow] = ct[:, None] + np.stack([tc[:, None] * q[:, 0] - ts[:, None] * q[:, 1],
+                                                 ts[:, None] * q[:, 0] + tc[:, None] * q[:, 1]], -1)
+    idx = np.concatenate([t.vertices for t in tabs])
+    which = np.concatenate([np.full(len(t.vertices), i) for i, t in enumerate(tabs)])
+    v = rest_vertices[idx] - p0[which]  # (m, 2)
+    cc, ss = c[:, which], s[:, which]  # (T, m)
+    out[:, idx, 0] = cc * v[:, 0] - ss * v[:, 1] + pt[:, which, 0]
+    out[:, idx, 1] = ss * v[:, 0] + cc * v[:, 1] + pt[:, which, 1]
     return out
 
 
