@@ -115,7 +115,6 @@ def _artefacts(ch, motion_bvh, seal, frames=240, every=1):
 KICK = SHARED / "bandai-namco-1" / "data" / "dataset-1_kick_normal_001.bvh"
 
 
-@pytest.mark.slow
 @pytest.mark.skipif(not (SHARED / "animated-drawings" / "characters" / "char1").is_dir() or not KICK.is_file(),
                     reason="../shared/data (AnimatedDrawings char1, Bandai-Namco kick) not present")
 def test_layered_mesh_has_no_holes_on_char1_kick():
@@ -135,7 +134,6 @@ def test_layered_mesh_has_no_holes_on_char1_kick():
     assert sealed["tear_px_max"] <= 3
 
 
-@pytest.mark.slow
 @pytest.mark.skipif(not (SHARED / "kenney-toon" / "robot").is_dir() or not KICK.is_file(),
                     reason="../shared/data (Kenney toon robot, Bandai-Namco kick) not present")
 def test_layered_mesh_has_no_holes_on_a_kenney_character():
