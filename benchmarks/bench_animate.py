@@ -1,7 +1,8 @@
 """End to end `nnsf animate`: a 10 s BVH clip at 30 fps onto a 512 px drawing, time per part.
 
 The drawing is AnimatedDrawings' char1 scaled so its longer side is 512 px
-(the built-in stick figure at 512 px when ``../shared/data`` is absent); the
+and centred on a 512 x 512 page (the built-in stick figure at 512 px when
+``../shared/data`` is absent); the
 motion is the first 10 s of a Bandai-Namco walk (a synthetic 300-frame walk
 when absent), projected in the ``auto`` view and translated into a style of a
 model fitted on the embedded synthetic set (a small fit, not timed).  Parts:
@@ -37,8 +38,15 @@ def _character(folder: Path):
     size = (int(round(ch.shape[1] * s)), int(round(ch.shape[0] * s)))
     tex = cv2.resize(ch.texture, size, interpolation=cv2.INTER_AREA)
     mask = cv2.resize(ch.mask.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
-    return Character(name="char1", texture=tex, mask=mask, keypoints=ch.keypoints * s,
-                     source=str(src)), f"char1 scaled to {size[0]}x{size[1]} px"
+    # Centred on a 512 x 512 page (transparent margins): a 512² drawing.
+    py, px = (512 - size[1]) // 2, (512 - size[0]) // 2
+    page = np.zeros((512, 512, 4), np.uint8)
+    page[py:py + size[1], px:px + size[0]] = tex
+    page_mask = np.zeros((512, 512), bool)
+    page_mask[py:py + size[1], px:px + size[0]] = mask
+    page[~page_mask, 3] = 0
+    return Character(name="char1", texture=page, mask=page_mask, keypoints=ch.keypoints * s + [px, py],
+                     source=str(src)), f"char1 scaled to {size[0]}x{size[1]} px on a 512x512 page"
 
 
 def main(argv=None) -> int:

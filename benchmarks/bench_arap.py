@@ -13,7 +13,11 @@ For a mesh of about 800 and about 3,000 vertices, in the same run:
 
 The character is AnimatedDrawings' char1 when ``../shared/data`` holds it,
 otherwise the built-in stick figure; the clip swings one arm and one leg.
-Times are the median over frames of the fastest of ``--repeat`` runs.
+Times are the median over frames of the fastest of ``--repeat`` runs.  Both
+the connected mesh and the stage's default layered mesh are timed (``--meshes``);
+a layered frame includes moving its joint tabs with their bones.  The vertex
+count printed is the mesh's; ``solved`` is what the ARAP solves for (a layered
+mesh adds its joint tabs' vertices, which follow their bones).
 
     .venv/bin/python benchmarks/bench_arap.py [--frames 200] [--repeat 3] [--naive-frames 2]
 """
@@ -88,9 +92,14 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=200)
     ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--naive-frames", type=int, default=2, help="frames timed for the dense baseline")
+    ap.add_argument("--naive-frames", type=int, default=2,
+                    help="frames timed for the dense baseline (0: skip it)")
     ap.add_argument("--sizes", type=int, nargs="+", default=[800, 3000])
+    ap.add_argument("--meshes", nargs="+", default=["connected", "layered"], choices=["connected", "layered", "limbs"],
+                    help="mesh kinds (layered: the stage's default, rigid segments plus joint tabs)")
     args = ap.parse_args(argv)
+    if args.naive_frames < 0:
+        ap.error("--naive-frames: expected 0 or more")
     if DATA.is_dir():
         ch, what = load_animated_drawings(DATA), "char1 (AnimatedDrawings)"
     else:
@@ -98,26 +107,30 @@ def main(argv=None):
     kp = clip(ch.keypoints, args.frames)
     print(f"character: {what}; {args.frames} frames; load average {os.getloadavg()[0]:.1f} "
           f"on {os.cpu_count()} cores; float64")
-    print(f"{'vertices':>8} {'triangles':>9} {'handles':>7} {'build ms':>9} {'step ms':>8} "
+    print(f"{'mesh':>9} {'vertices':>8} {'solved':>6} {'triangles':>9} {'handles':>7} {'build ms':>9} {'step ms':>8} "
           f"{'clip ms':>8} {'naive ms':>9} {'naive/step':>10} {'max |diff| px':>13}")
-    for n in args.sizes:
-        t0 = time.perf_counter()
-        rig = Rig.build(ch, n_vertices=n)
-        build = time.perf_counter() - t0
-        step = per_frame_stream(rig, kp, args.repeat)
-        whole = per_frame_clip(rig, kp, args.repeat)
-        targets = rig.targets(kp[: args.naive_frames])
-        fast = rig.deformer.deform(targets)
-        naive_t = []
-        for f in range(args.naive_frames):
+    for kind in args.meshes:
+        for n in args.sizes:
             t0 = time.perf_counter()
-            slow = naive_frame(rig, targets[f])
-            naive_t.append(time.perf_counter() - t0)
-        diff = float(np.abs(slow - fast[-1]).max())
-        naive = float(np.median(naive_t))
-        print(f"{rig.mesh.n_vertices:>8} {len(rig.mesh.triangles):>9} {len(rig.handles):>7} "
-              f"{build * 1e3:>9.1f} {step * 1e3:>8.3f} {whole * 1e3:>8.3f} {naive * 1e3:>9.1f} "
-              f"{naive / step:>10.0f} {diff:>13.2e}")
+            rig = Rig.build(ch, n_vertices=n, split=False if kind == "connected" else kind,
+                            propagation="limb-frame")
+            build = time.perf_counter() - t0
+            step = per_frame_stream(rig, kp, args.repeat)
+            whole = per_frame_clip(rig, kp, args.repeat)
+            naive_col, ratio_col, diff_col = f"{'-':>9}", f"{'-':>10}", f"{'-':>13}"
+            if args.naive_frames > 0:
+                targets = rig.targets(kp[: args.naive_frames])
+                fast = rig.deformer.deform(targets)
+                naive_t = []
+                for f in range(args.naive_frames):
+                    t0 = time.perf_counter()
+                    slow = naive_frame(rig, targets[f])
+                    naive_t.append(time.perf_counter() - t0)
+                naive = float(np.median(naive_t))
+                diff = float(np.abs(slow - fast[-1]).max())
+                naive_col, ratio_col, diff_col = f"{naive * 1e3:>9.1f}", f"{naive / step:>10.0f}", f"{diff:>13.2e}"
+            print(f"{kind:>9} {rig.mesh.n_vertices:>8} {rig.mesh.core:>6} {len(rig.mesh.triangles):>9} {len(rig.handles):>7} "
+                  f"{build * 1e3:>9.1f} {step * 1e3:>8.3f} {whole * 1e3:>8.3f} {naive_col} {ratio_col} {diff_col}")
 
 
 if __name__ == "__main__":

@@ -218,14 +218,17 @@ def _load_ad(cfg_path: Path):
     chest = loc.get("torso")
     if chest is None:
         return chmod.load_character(cfg_path)
-    joints, notes = {}, []
+    joints, notes, extra = {}, [], []
     for side, by_k in sets.items():
         k = min(by_k, key=lambda q: (float(np.linalg.norm(loc[by_k[q][0]] - chest)), q))
         for j, n in zip(_ARM, by_k[k]):
             joints[f"{side}_{j}"] = loc[n]
         others = [q for q in sorted(by_k) if q != k]
         notes.append(f"{cfg_path}: skeleton: {side} arm {k} drives the {side} arm; arms "
-                     f"{', '.join(others)} move with the body")
+                     f"{', '.join(others)} move with the body and turn as it turns")
+        # AnimatedDrawings' left/right is the character's own, as ours (nnsf.reshape.character).
+        extra += [{"side": "l" if side == "left" else "r", "name": f"{side} arm {q}",
+                   "joints": np.array([loc[n] for n in by_k[q]], dtype=np.float64)} for q in others]
     for n in chmod.AD_JOINTS:
         if n not in joints:
             if n not in loc:
@@ -235,7 +238,7 @@ def _load_ad(cfg_path: Path):
     texture, mask, note = chmod._load_images(folder / "texture.png", folder / "mask.png", cfg_path)
     kp = chmod._ad_to_keypoints(joints, mask, cfg_path)
     return chmod.Character(name=folder.name, texture=texture, mask=mask, keypoints=kp, source=str(cfg_path),
-                           notes=([note] if note else []) + notes)
+                           notes=([note] if note else []) + notes, extra_limbs=extra)
 
 
 def read_character(spec, joints=None, size: int = 512):

@@ -14,7 +14,7 @@
     nnsf animate --character C --motion M [--style NAME|none] [--model FILE]
                  [--view front|side|three-quarter|auto] [--out FILE.mp4|FILE.gif|DIR] [--fps N]
                                         your character performing your motion in a learned style
-    nnsf reshape-eval --data DIR [--out DIR]
+    nnsf reshape-eval --data DIR [--out DIR] [--workers N]
                                         the reshaping evaluation on drawn characters (AnimatedDrawings,
                                         Bandai-Namco, Kenney folders under DIR)
     nnsf tracking-real --data DIR [--out DIR] [--lpc DIR]
@@ -116,6 +116,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--kenney", type=Path, default=Path("tests/data/kenney"),
                    help="hand-made Kenney key-point annotations")
     p.add_argument("--out", type=Path, default=Path("reports"))
+    p.add_argument("--workers", type=int, default=1,
+                   help="processes for the (character, motion) items (default 1; results are the same)")
 
     p = sub.add_parser("tracking-real", help="the trackers on real cartoon frames (Kenney toon walk cycles)")
     p.add_argument("--params", default="params.yaml")
@@ -158,7 +160,15 @@ def _animate(args) -> int:
     parts = ", ".join(f"{k} {v:.2f} s" for k, v in res.seconds.items() if k != "total")
     print(f"animate: {res.frames} frames at {res.fps:g} fps in {res.seconds['total']:.2f} s ({parts})")
     for kind, path in res.files.items():
-        print(f"animate: {kind}: {path}")
+        if kind == "mp4":
+            from nnsf.reshape.render import mp4_codec
+
+            codec = mp4_codec()
+            print(f"animate: {kind}: {path}" + ("" if codec == "avc1" else
+                  " (MPEG-4 Part 2, mp4v: this OpenCV has no H.264 encoder; VLC and ffmpeg play it, "
+                  "browsers and QuickTime may not: use --out FILE.gif for those)"))
+        else:
+            print(f"animate: {kind}: {path}")
     return 0
 
 
@@ -228,8 +238,17 @@ def main(argv: list[str] | None = None) -> int:
             if not args.data.is_dir():
                 raise InputError(args.data, "--data", "a data folder (animated-drawings, "
                                  "bandai-namco-1, kenney-toon)")
+            if args.workers < 1:
+                raise InputError("nnsf reshape-eval", "--workers", "1 or more", args.workers)
+            mapper = None
+            if args.workers > 1:
+                from concurrent.futures import ProcessPoolExecutor
+
+                def mapper(fn, xs):
+                    with ProcessPoolExecutor(args.workers) as ex:
+                        return list(ex.map(fn, xs))
             result = reshape_eval(params, data_root=args.data, out_dir=args.out,
-                                  kenney_annotations=args.kenney)
+                                  kenney_annotations=args.kenney, mapper=mapper)
         elif args.command == "tracking-real":
             from nnsf.track.real import kenney_report
             from nnsf.track.stage import track_options

@@ -44,8 +44,13 @@ def _bend_elbow(kp, deg):
 def test_layered_mesh_pieces_are_connected_segments_with_collars(figure, layered):
     m = layered.mesh
     assert m.piece_names == SEGMENTS and set(np.unique(m.pieces)) == set(range(len(SEGMENTS)))
-    for pc in range(len(SEGMENTS)):  # every piece is one edge-connected group (else ARAP is singular)
-        tri = m.triangles[m.pieces == pc]
+    core = m.core_triangles
+    # joint tabs (the collars of the puppet mesh) are the vertices after the solved core, name the
+    # part they hide under, and are textured from their own layer
+    assert m.tabs and np.all(m.triangles[~core] >= m.core) and np.all(m.collar[~core] >= 0)
+    assert np.all(m.layer[~core] >= 3) and np.all(m.collar[core] == -1)
+    for pc in range(len(SEGMENTS)):  # every piece's solved triangles are one edge-connected group (else ARAP is singular)
+        tri = m.triangles[(m.pieces == pc) & core]
         a, b = triangle_adjacency(tri)
         from scipy.sparse import coo_matrix
         from scipy.sparse.csgraph import connected_components
@@ -155,3 +160,33 @@ def test_read_motion_returns_the_clip_in_frame_order(tmp_path):
     assert name == "a" and frames.tolist() == [0, 1, 2, 3, 4]
     assert np.allclose(pts, P + 1)
     assert JOINTS[0] == "pelvis"
+
+
+# --------------------------------------------------------------------------- extra arms (char5)
+
+_CHAR5 = __import__("pathlib").Path(__file__).resolve().parents[2] / "shared" / "data" / "animated-drawings" / "characters" / "char5"
+
+
+@pytest.mark.skipif(not _CHAR5.is_dir(), reason="../shared/data (AnimatedDrawings char5) not present")
+def test_extra_arms_turn_with_the_driven_arm_of_their_side():
+    """char5 has three arms a side: the driven one and two followers.  Turning the right arm by 40°
+    about its shoulder turns each right follower by 40° about its own pivot, and moves nothing
+    else of the left side; at rest nothing moves."""
+    from nnsf.animation import read_character
+    from nnsf.reshape.pieces import attach_tabs
+
+    ch = read_character(_CHAR5)
+    assert len(ch.extra_limbs) == 4 and {e["side"] for e in ch.extra_limbs} == {"l", "r"}
+    rig = Rig.build(ch, n_vertices=500, split="layered", handle_set="keypoints")
+    m = rig.mesh
+    followers = [t for t in m.tabs if t.pivot is not None]
+    assert len(followers) >= 4 and any(t.drawn for t in followers)
+    V0 = rig.animate(ch.keypoints[None])[0]
+    assert np.abs(V0 - m.vertices).max() < 1e-6
+    kp = ch.keypoints.copy()
+    for j in ("r_elbow", "r_wrist"):
+        kp[J[j]] = _rot(kp[J[j]], kp[J["r_shoulder"]], 40.0)
+    V = rig.animate(kp[None])[0]
+    for t in followers:
+        expect = _rot(m.vertices[t.vertices], t.pivot, 40.0 if t.bone[0] == J["r_shoulder"] else 0.0)
+        assert np.abs(V[t.vertices] - expect).max() < 1e-6

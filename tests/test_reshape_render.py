@@ -173,3 +173,56 @@ def test_writers_round_trip_and_are_atomic(tmp_path):
         write_png_frames(tmp_path / "bad", [imgs[0], np.zeros((3, 3, 7), np.uint8)])
     assert not (tmp_path / "bad").exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.gif", "a.mp4", "b.gif", "frames"]
+
+
+# --------------------------------------------------------------------------- outline redraw
+
+def _outlined_disc(size=360, radius=150, line=5, paper=2):
+    """An RGBA drawing: a grey disc with a dark outline `line` px thick, `paper` px inside the mask's edge."""
+    yy, xx = np.mgrid[:size, :size]
+    r = np.hypot(xx - size / 2, yy - size / 2)
+    mask = r <= radius
+    tex = np.zeros((size, size, 4), np.uint8)
+    tex[..., 3] = 255
+    tex[..., :3] = 235                                   # paper
+    tex[r <= radius - paper, :3] = (40, 30, 90)          # the line
+    tex[r <= radius - paper - line, :3] = 150            # the fill
+    return tex, mask
+
+
+def test_outline_style_reads_colour_width_and_paper_margin():
+    from nnsf.reshape.render import outline_style
+
+    tex, mask = _outlined_disc()
+    rgb, width, paper = outline_style(tex, mask)
+    assert np.allclose(rgb, (40, 30, 90), atol=1)
+    assert abs(width - 5) <= 1 and abs(paper - 2) <= 1
+    flat = tex.copy()
+    flat[mask, :3] = 150  # no outline at all: nothing to redraw
+    assert outline_style(flat, mask) is None
+
+
+def test_outline_is_redrawn_along_new_edges_only():
+    """Cut the disc in half with a straight edge through its middle: the cut (texels deep inside
+    the drawing) gets a stroke of the outline's colour, the drawn arc keeps its own pixels."""
+    from nnsf.reshape.render import MeshRenderer, outline_style
+
+    tex, mask = _outlined_disc()
+    H, W = mask.shape
+    half = mask.copy()
+    half[:, W // 2:] = False
+    # one triangle fan over the left half-disc; rest positions = texture coordinates
+    ang = np.linspace(np.pi / 2, 3 * np.pi / 2, 40)
+    rim = np.column_stack([W / 2 + 150 * np.cos(ang), H / 2 + 150 * np.sin(ang)])
+    V = np.vstack([[W / 2, H / 2], rim])
+    T = np.array([[0, k, k + 1] for k in range(1, len(rim))])
+    style = outline_style(tex, mask)
+    r = MeshRenderer(V, T, np.zeros(len(T), np.int64), tex, mask, reink=style)
+    r0 = MeshRenderer(V, T, np.zeros(len(T), np.int64), tex, mask)
+    a, b = r.render(V), r0.render(V)
+    lum = a[..., :3].astype(float) @ [0.299, 0.587, 0.114]
+    cut = (np.abs(np.arange(W)[None, :] - W / 2) <= 2) & (np.abs(np.arange(H)[:, None] - H / 2) < 120)
+    assert (lum[cut & (a[..., 3] > 128)] < 90).mean() > 0.9        # the cut is inked
+    arc = half & ~cv2.erode(half.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
+    arc &= np.abs(np.arange(W)[None, :] - W / 2) > 12                  # away from the cut's ends
+    assert np.array_equal(a[arc], b[arc])                             # the drawn outline is untouched

@@ -80,6 +80,40 @@ def holes(coverage: np.ndarray, min_area: int = 4) -> tuple[int, int]:
     return int(areas.sum()), int((areas > min_area).sum())
 
 
+def joint_gaps(coverage: np.ndarray, centres: np.ndarray, radii: np.ndarray) -> int:
+    """Pixels of the joint discs ``(k,)`` (centre ``(k, 2)`` px, radius ``(k,)`` px) not drawn.
+
+    A drawn joint is solid around its pivot: at rest the disc of each joint
+    (shoulders, elbows, hips, knees, neck) of radius 0.8 × the drawing's
+    half-width there lies inside the silhouette, and a notch or crack where
+    two parts meet shows as undrawn pixels in it, whatever caused it.
+    """
+    cov = np.asarray(coverage, dtype=bool)
+    H, W = cov.shape
+    gap = np.zeros((H, W), np.uint8)
+    for (x, y), r in zip(np.asarray(centres, dtype=np.float64), np.asarray(radii, dtype=np.float64)):
+        if r < 0.5 or not (np.isfinite(x) and np.isfinite(y)):
+            continue
+        cv2.circle(gap, (int(round(x * 8)), int(round(y * 8))), int(round(r * 8)), 1, -1, cv2.LINE_8, 3)
+    return int((gap.astype(bool) & ~cov).sum())
+
+
+#: Joints whose discs :func:`joint_gaps` checks: where two parts turn against each other.
+JOINTS_CHECKED = tuple(JOINT_INDEX[j] for j in ("l_shoulder", "r_shoulder", "l_elbow", "r_elbow", "l_hip", "r_hip",
+                                                 "l_knee", "r_knee", "neck"))
+
+
+def joint_radii(mask: np.ndarray, rest_keypoints: np.ndarray, share: float = 0.8) -> np.ndarray:
+    """Radius (px) of each joint's disc, :data:`JOINTS_CHECKED` order: ``share`` × the drawing's
+    distance to its outline at the joint (the disc lies inside the drawing at rest)."""
+    m = np.asarray(mask, dtype=np.uint8)
+    dist = cv2.distanceTransform(np.pad(m, 1), cv2.DIST_L2, 5)[1:-1, 1:-1]
+    kp = np.asarray(rest_keypoints, dtype=np.float64)[list(JOINTS_CHECKED)]
+    H, W = m.shape
+    ij = np.clip(np.rint(kp).astype(int), 0, [W - 1, H - 1])
+    return share * dist[ij[:, 1], ij[:, 0]]
+
+
 def two_parts_near(labels: np.ndarray, reach: int) -> np.ndarray:
     """Pixels ``(H, W)`` bool with two different parts within ``reach`` px (Chebyshev), from labels (−1 empty).
 
@@ -167,11 +201,29 @@ def tears(labels: np.ndarray, radius: float = 3.0, background=None) -> int:
 
 # --------------------------------------------------------------------------- outline
 
-def ink_threshold(texture: np.ndarray, mask: np.ndarray, ink: float = 0.55) -> float:
-    """Luminance (0-255) below which a pixel is ink: ``ink`` × the drawing's median luminance."""
+def ink_threshold(texture: np.ndarray, mask: np.ndarray) -> float:
+    """Luminance (0-255) below which a pixel is ink: Otsu's threshold (``cv2.threshold``) of the
+    luminance in the band along the drawing's outline (up to 4 % of its height deep), where the
+    outline's line and the fill next to it are the two classes.  (The renderer's own outline
+    estimate, ``nnsf.reshape.render.outline_style``, is not used: a measure does not borrow the
+    method's features.)"""
     lum = np.asarray(texture)[..., :3].astype(np.float64) @ np.array([0.299, 0.587, 0.114])
     m = np.asarray(mask, dtype=bool)
-    return float(ink * np.median(lum[m])) if m.any() else 0.0
+    if not m.any():
+        return 0.0
+    ys = np.flatnonzero(m.any(axis=1))
+    inner = cv2.distanceTransform(np.pad(m.astype(np.uint8), 1), cv2.DIST_L2, 3)[1:-1, 1:-1]
+    band = m & (inner <= max(0.04 * (ys[-1] - ys[0] + 1), 3.0))
+    vals = np.clip(np.rint(lum[band]), 0, 255).astype(np.uint8).reshape(-1, 1)
+    thr, _ = cv2.threshold(vals, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    return float(thr)
+
+
+def outline_reach(mask: np.ndarray) -> int:
+    """How near the edge (px) an outline's ink may be: 1 % of the drawing's height, at least 2
+    (scanned drawings keep a few pixels of paper around the line)."""
+    ys = np.flatnonzero(np.asarray(mask, dtype=bool).any(axis=1))
+    return max(int(round(0.01 * (ys[-1] - ys[0] + 1))), 2) if len(ys) else 2
 
 
 def outline_continuity(coverage: np.ndarray, rgb: np.ndarray, threshold: float, reach: int = 2) -> float:
@@ -332,20 +384,28 @@ def part_image(triangle_ids: np.ndarray, parts: np.ndarray) -> np.ndarray:
     return out
 
 
-def frame_artefacts(rgba: np.ndarray, labels: np.ndarray, ink_thr: float, spike_thr: float) -> dict[str, float]:
-    """Holes, tears, outline continuity and spikes of one rendered frame (RGBA ``(H, W, 4)``, labels ``(H, W)``)."""
+def frame_artefacts(rgba: np.ndarray, labels: np.ndarray, ink_thr: float, spike_thr: float,
+                    joints=None, reach: int = 2) -> dict[str, float]:
+    """Holes, tears, outline continuity, spikes and joint gaps of one rendered frame.
+
+    RGBA ``(H, W, 4)``, labels ``(H, W)``; ``joints``: ``(centres (k, 2),
+    radii (k,))`` for :func:`joint_gaps`; ``reach``: :func:`outline_continuity`'s.
+    """
     cov = rgba[..., 3] >= 128
     # Drawn pixels with no part (filled by the seal) are ink, not background: label them apart.
     lab = np.where(cov, np.where(labels >= 0, labels, len(PARTS)), -1)
     hp, hn = holes(cov)
-    return {"hole_px": hp, "holes_gt4": hn, "tear_px": tears(lab, background=~cov),
-            "outline_ink": outline_continuity(cov, rgba[..., :3], ink_thr),
-            "spikes": count_spikes(outline_turning(cov), spike_thr)}
+    out = {"hole_px": hp, "holes_gt4": hn, "tear_px": tears(lab, background=~cov),
+           "outline_ink": outline_continuity(cov, rgba[..., :3], ink_thr, reach),
+           "spikes": count_spikes(outline_turning(cov), spike_thr)}
+    if joints is not None:
+        out["joint_gap_px"] = joint_gaps(cov, *joints)
+    return out
 
 
 def clip_artefacts(renderer, frames: np.ndarray, orders: np.ndarray, keypoints: np.ndarray,
                    rest_vertices: np.ndarray, rest_keypoints: np.ndarray, texture, mask,
-                   every: int = 4, offset=None) -> dict[str, float]:
+                   every: int = 1, offset=None) -> dict[str, float]:
     """Artefact columns of one animation: means over every ``every``-th frame, against the rest pose.
 
     ``renderer``: a :class:`~nnsf.reshape.render.MeshRenderer` of the mesh;
@@ -357,20 +417,29 @@ def clip_artefacts(renderer, frames: np.ndarray, orders: np.ndarray, keypoints: 
     the drawing's: holes the artist did not draw), ``frames_with_holes``,
     ``tear_px`` (mean), ``tear_px_max``, ``outline_ink`` and
     ``outline_ink_rest``, ``spikes`` (mean per frame) and ``spikes_rest``,
-    the :func:`width_profile_stats`, and ``artefact_frames`` (how many
-    frames were measured).
+    the :func:`width_profile_stats`, ``joint_gap_px`` (mean), ``joint_gap_max``
+    and ``joint_gap_rest`` (:func:`joint_gaps`, around the frame's key points),
+    ``frames_with_joint_gaps`` (more than 4 px), ``frames_with_tears``, and
+    ``artefact_frames`` (how many frames were measured).  Key points are the
+    ones that drove the mesh (``rig.drive``), in the same sense as
+    ``rest_keypoints``.
     """
     off = np.zeros(2) if offset is None else np.asarray(offset, dtype=np.float64)
     thr = ink_threshold(texture, mask)
+    reach = outline_reach(mask)
     parts = renderer.parts
+    radii = joint_radii(mask, rest_keypoints)
 
     def draw(V, order):
         return renderer.render_labelled(V + off, order, labels=True)
 
+    def joints_at(kp):
+        return (np.asarray(kp, dtype=np.float64)[list(JOINTS_CHECKED)] + off, radii)
+
     rest_rgba, rest_lab = draw(np.asarray(rest_vertices, dtype=np.float64), orders[0])
     rest_cov = rest_rgba[..., 3] >= 128
     spike_thr = spike_threshold(outline_turning(rest_cov))
-    rest_frame = frame_artefacts(rest_rgba, rest_lab, thr, spike_thr)
+    rest_frame = frame_artefacts(rest_rgba, rest_lab, thr, spike_thr, joints_at(rest_keypoints), reach)
     shape = renderer.size
     rest_w = limb_widths(np.asarray(rest_vertices) + off, renderer.triangles, parts, np.asarray(rest_keypoints) + off,
                          shape)
@@ -378,7 +447,7 @@ def clip_artefacts(renderer, frames: np.ndarray, orders: np.ndarray, keypoints: 
     rows, widths = [], []
     for t in pick:
         rgba, lab = draw(frames[t], orders[t])
-        rows.append(frame_artefacts(rgba, lab, thr, spike_thr))
+        rows.append(frame_artefacts(rgba, lab, thr, spike_thr, joints_at(keypoints[t]), reach))
         widths.append(limb_widths(frames[t] + off, renderer.triangles, parts, keypoints[t] + off, shape))
     hole = np.array([r["hole_px"] for r in rows], float)
     drawn_holes = holes(np.asarray(mask, dtype=bool))[1]  # the drawing's own (the robot's arm gaps)
@@ -394,6 +463,11 @@ def clip_artefacts(renderer, frames: np.ndarray, orders: np.ndarray, keypoints: 
            "outline_ink_rest": float(rest_frame["outline_ink"]),
            "spikes": float(np.mean([r["spikes"] for r in rows])),
            "spikes_rest": int(rest_frame["spikes"]),
+           "joint_gap_px": float(np.mean([r["joint_gap_px"] for r in rows])),
+           "joint_gap_max": int(max(r["joint_gap_px"] for r in rows)),
+           "joint_gap_rest": int(rest_frame["joint_gap_px"]),
+           "frames_with_joint_gaps": int(sum(r["joint_gap_px"] > 4 for r in rows)),
+           "frames_with_tears": int(sum(r["tear_px"] > 0 for r in rows)),
            "artefact_frames": int(len(pick))}
     out.update(width_profile_stats(np.stack(widths), rest_w))
     return out

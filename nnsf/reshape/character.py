@@ -95,6 +95,10 @@ class Character:
     keypoints: np.ndarray
     source: str = "<memory>"
     notes: list[str] = field(default_factory=list)
+    #: Arms beyond the two the skeleton drives (AnimatedDrawings' char5 has three a side):
+    #: ``[{"side": "l" | "r", "joints": (3, 2) shoulder, elbow, hand}]``.  A layered mesh moves
+    #: each as the driven arm of its side turns (:mod:`nnsf.reshape.pieces`, followers).
+    extra_limbs: list = field(default_factory=list)
 
     def __post_init__(self):
         self.texture = np.asarray(self.texture)

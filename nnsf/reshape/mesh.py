@@ -44,7 +44,7 @@ gets an inpainted underlay where a limb lay over it.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -169,6 +169,21 @@ class Mesh:
     #: overlaps, else −1, ``(t,)``; a renderer draws a collar just before its
     #: parent part, so it fills the joint's gap but never covers the parent.
     collar: np.ndarray | None = None
+    #: Vertices ``[:n_core]`` are deformed (ARAP); the rest belong to joint
+    #: tabs (:mod:`nnsf.reshape.pieces`), moved rigidly with their child's
+    #: bone after the solve.  None: every vertex is deformed.
+    n_core: int | None = None
+    #: The tabs (:class:`nnsf.reshape.pieces.Tab`) of a pieced mesh.
+    tabs: list = field(default_factory=list)
+    #: Piece of every pixel of the drawing at rest ``(H, W)`` (pieced meshes), −1 outside.
+    labels: np.ndarray | None = None
+    #: The cuts between the pieces (:class:`nnsf.reshape.pieces.Cut`).
+    cuts: list = field(default_factory=list)
+    #: Rest key points ``(17, 2)`` with the pivots moved onto the cuts
+    #: (:func:`nnsf.reshape.pieces.move_pivots`); a rig drives the mesh with these.
+    pivots: np.ndarray | None = None
+    #: Pixels ``(H, W)`` of limbs drawn over the body (the body's layer-1 texture paints them out).
+    overlay: np.ndarray | None = None
 
     def __post_init__(self):
         if self.collar is None:
@@ -183,6 +198,16 @@ class Mesh:
     @property
     def n_vertices(self) -> int:
         return len(self.vertices)
+
+    @property
+    def core(self) -> int:
+        """How many vertices the deformation solves for (all but the tabs')."""
+        return self.n_vertices if self.n_core is None else int(self.n_core)
+
+    @property
+    def core_triangles(self) -> np.ndarray:
+        """Whether each triangle ``(t,)`` is deformed (not a tab's)."""
+        return np.all(self.triangles < self.core, axis=1)
 
     @property
     def is_split(self) -> bool:
@@ -608,7 +633,7 @@ def split_pieces(mesh: Mesh, keypoints: np.ndarray) -> Mesh:
 
 
 def build_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int = 800, split=False,
-               collar: float = 1.0, texture=None, **kwargs) -> Mesh:
+               collar: float = 1.0, texture=None, extra_limbs=(), **kwargs) -> Mesh:
     """Triangulate ``mask`` (:func:`triangulate_mask`) and label parts (:func:`label_parts`).
 
     ``split``: ``False`` / ``"connected"`` (one connected mesh), ``True`` /
@@ -616,6 +641,10 @@ def build_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int = 800, s
     ``"layered"`` (every segment its own piece with overlapping collars and a
     body underlay, :func:`layer_pieces`) or ``"limbs"`` (the same, but each
     whole limb one deformable piece: cut only at the shoulders, hips and neck).
+
+    ``extra_limbs``: arms beyond the skeleton's two (a layered or whole-limb
+    mesh gives each a piece that turns with the driven arm of its side,
+    :func:`nnsf.reshape.pieces.follower_regions`).
 
     ``texture`` ``(H, W, 3|4)``: the drawing.  With it, the limb capsules of
     the layered and limbs meshes give back to the body the triangles whose
@@ -625,6 +654,20 @@ def build_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int = 800, s
     if split not in (False, True) + MESH_KINDS:
         raise InputError("build_mesh", "split", "False, True, 'connected', 'split', 'layered' or 'limbs'", split)
     kp = np.asarray(keypoints, dtype=float)
+    if split in ("layered", "limbs"):
+        from nnsf.reshape.pieces import build_pieced_mesh
+
+        margin = None
+        if texture is not None:
+            # Tabs keep the paper margin and 0.4 % of the drawing's height (1-2 px) inside the
+            # parent's outline.
+            from nnsf.reshape.render import outline_style
+
+            style = outline_style(texture, mask)
+            ys = np.flatnonzero(np.asarray(mask, bool).any(axis=1))
+            margin = (style[2] if style is not None else 0.0) + float(np.clip(0.004 * np.ptp(ys), 1.0, 2.0))
+        return build_pieced_mesh(mask, kp, n_vertices=n_vertices, whole_limbs=split == "limbs",
+                                 tab_margin=margin, texture=texture, extra_limbs=extra_limbs, **kwargs)
     layered = split in ("layered", "limbs")
     cuts = joint_cuts(mask, kp) if layered else []
     if split == "limbs":

@@ -70,8 +70,10 @@ def outline_self_crossings(deformed: np.ndarray, triangles: np.ndarray, pieces=N
                            budget: int = 2_000_000) -> np.ndarray:
     """Number of crossing pairs of outline edges (edges not sharing a vertex), per frame ``(...)``.
 
-    With ``pieces`` ``(t,)`` (a split mesh) only edges of the same piece
-    count: a limb drawn over the body is an overlap, not a fold.
+    With ``pieces`` ``(t,)`` (a split mesh) only edges of the same piece,
+    and of the same edge-connected group of its triangles, count: a limb
+    drawn over the body (or a joint tab under its parent) is an overlap, not
+    a fold.
 
     Brute force over edge pairs, ``budget`` (pairs × frames) at a time:
     outlines have a few hundred edges, so O(b²) vectorised beats a sweep
@@ -81,8 +83,16 @@ def outline_self_crossings(deformed: np.ndarray, triangles: np.ndarray, pieces=N
     i, j = np.triu_indices(len(E), k=1)
     share = (E[i, 0] == E[j, 0]) | (E[i, 0] == E[j, 1]) | (E[i, 1] == E[j, 0]) | (E[i, 1] == E[j, 1])
     if pieces is not None:
-        vp = np.zeros(int(triangles.max()) + 1, dtype=np.int64)
-        vp[triangles.ravel()] = np.repeat(np.asarray(pieces), 3)
+        # Only a sheet folding over itself counts: edges of the same piece and of the same
+        # edge-connected group of its triangles (a pieced mesh's joint tab is a group of its own).
+        from nnsf.reshape.mesh import _components, triangle_adjacency
+
+        tri = np.asarray(triangles)
+        a, b = triangle_adjacency(tri)
+        same = np.asarray(pieces)[a] == np.asarray(pieces)[b]
+        group = _components(len(tri), a[same], b[same])
+        vp = np.zeros(int(tri.max()) + 1, dtype=np.int64)
+        vp[tri.ravel()] = np.repeat(group, 3)
         share |= vp[E[i, 0]] != vp[E[j, 0]]
     i, j = i[~share], j[~share]
     V = np.asarray(deformed, dtype=np.float64)
@@ -223,8 +233,8 @@ def deformed_bending(rig, frames: np.ndarray, keypoints: np.ndarray) -> np.ndarr
 
     m = rig.mesh
     V = np.asarray(frames, dtype=np.float64)
-    kp = np.asarray(keypoints, dtype=np.float64)
-    p0r, p1r = endpoints(rig.character.keypoints)
+    kp = rig.drive(keypoints)  # in the character's sense -> the rig's (pivots moved on a pieced mesh)
+    p0r, p1r = endpoints(rig.rest_keypoints)
     mid = bezier(p0r, control_from_omega(p0r, p1r, rig.rest_omega), p1r, 0.5)  # (8, 2)
     p0, p1 = endpoints(kp)
     out = np.full((len(V), N_LIMBS), np.nan)

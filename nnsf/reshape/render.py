@@ -22,8 +22,9 @@ Pixel centres are at integer coordinates (pixel (x, y) covers
 [x−½, x+½] × [y−½, y+½]), the convention of :mod:`nnsf.reshape.character`.
 
 Writers: :func:`write_png_frames` (a folder of PNGs), :func:`write_gif`
-(Pillow) and :func:`write_mp4` (OpenCV's ``VideoWriter``, codec ``mp4v``,
-works headless).  All write atomically.
+(Pillow) and :func:`write_mp4` (OpenCV's ``VideoWriter``: H.264 when the
+build has an encoder, else ``mp4v``, :func:`mp4_codec`; works headless).  All
+write atomically.
 """
 from __future__ import annotations
 
@@ -50,9 +51,12 @@ class MeshRenderer:
     """
 
     def __init__(self, rest_vertices, triangles, parts, texture, mask=None, size=None,
-                 layer=None, underlay=None, behind=None, rim=None, seal=False):
+                 layer=None, underlay=None, behind=None, rim=None, seal=False, textures=None, reink=None):
         #: Whether :meth:`render` seals holes and joint cracks (:mod:`nnsf.reshape.seal`).
         self.seal = bool(seal)
+        #: Outline redrawn along new silhouette edges (:func:`outline_style`, :meth:`_reink`):
+        #: ``(rgb, width)`` or None.
+        self.reink = reink
         self._seal_kw = {}
         if self.seal and mask is not None:
             from nnsf.reshape.seal import drawn_hole_limit
@@ -86,16 +90,38 @@ class MeshRenderer:
         # where nothing else is drawn (where a limb has moved away), and their
         # transparent texels never hide a limb.
         rim_first = self.layer == 2
+        # Layer k ≥ 3: ``textures[k]`` (a pieced mesh's joint tabs, several layers may share one image).
         extra = {1: underlay, 2: rim}
-        for k in range(1, 3):
-            if extra[k] is None:
+        extra.update(dict(textures or {}))
+        for k in np.unique(self.layer):
+            if k > 0 and extra.get(int(k)) is None:
                 self.layer[self.layer == k] = 0
-        n_layers = int(self.layer.max()) + 1 if len(self.layer) else 1
-        base = premultiplied(tex)
-        self._tex = np.hstack([base] + [premultiplied(np.asarray(extra[k])) if extra[k] is not None else base
-                                        for k in range(1, n_layers)]) if n_layers > 1 else base
-        self._shift = self.layer.astype(np.float64) * W
-        self._tex8 = np.clip(np.rint(self._tex * np.array([1, 1, 1, 255], np.float32)), 0, 255).astype(np.uint8)
+        # One atlas slot per distinct texture image in use (slot 0: the drawing).
+        slots, slot_of = [tex], {0: 0}
+        for k in sorted(int(x) for x in np.unique(self.layer) if x > 0):
+            img = extra[k]
+            for j, other in enumerate(slots):
+                if other is img:
+                    slot_of[k] = j
+                    break
+            else:
+                slot_of[k] = len(slots)
+                slots.append(img)
+        self._slots = [premultiplied(np.asarray(t)) for t in slots]
+        # Distance (px) of each texel from the drawing's outline, inside it; a tab's texels count as
+        # deep inside (every edge of a tab is new): :meth:`_reink` inks new edges only.
+        inner = np.zeros((H, W), np.float32) if mask is None else cv2.distanceTransform(
+            np.pad(np.asarray(mask, np.uint8), 1), cv2.DIST_L2, 3)[1:-1, 1:-1].astype(np.float32)
+        # Slots side by side with a clear 2 px gap, so bilinear sampling at a drawing's right edge
+        # never reads the next slot.
+        gap = 2
+        interiors = [inner if j == 0 or any(slot_of.get(k) == j for k in (1, 2))
+                     else np.where(self._slots[j][..., 3] > 0, 1e3, 0).astype(np.float32)
+                     for j in range(len(self._slots))]
+        self._interior = np.hstack([np.pad(x, ((0, 0), (0, gap))) for x in interiors])
+        self._shift = np.array([slot_of[int(k)] for k in self.layer], np.float64) * (W + gap)
+        atlas = np.hstack([np.pad(x, ((0, 0), (0, gap), (0, 0))) for x in self._slots])
+        self._tex8 = np.clip(np.rint(atlas * np.array([1, 1, 1, 255], np.float32)), 0, 255).astype(np.uint8)
         self.size = tuple(size) if size is not None else (H, W)
         # ``behind[k] = p`` (a layered mesh's collars) draws triangle k just
         # before part p instead of with its own part: under the parent, over
@@ -118,12 +144,20 @@ class MeshRenderer:
         default on for a pieced mesh (layered, whole-limb, split), off for a
         connected one (it cannot tear).
         """
-        underlay = underlay_texture(character.texture, character.mask, mesh) if (mesh.layer == 1).any() else None
+        if mesh.overlay is not None and mesh.overlay.any():
+            underlay = overlay_texture(character.texture, character.mask, mesh.overlay)
+        else:
+            underlay = underlay_texture(character.texture, character.mask, mesh) if (mesh.layer == 1).any() else None
         rim = (rim_texture(character.texture, character.mask, character.keypoints)
                if (mesh.layer == 2).any() else None)
-        return cls(mesh.vertices, mesh.triangles, mesh.parts, character.texture, character.mask,
+        textures = tab_textures(mesh, character) if mesh.tabs else None
+        pieced = mesh.is_split
+        out = cls(mesh.vertices, mesh.triangles, mesh.parts, character.texture, character.mask,
                    size=size, layer=mesh.layer, underlay=underlay, behind=mesh.collar, rim=rim,
-                   seal=seal if seal is not None else mesh.is_split)
+                   seal=seal if seal is not None else pieced, textures=textures,
+                   reink=outline_style(character.texture, character.mask) if (pieced and mesh.tabs) else None)
+        out._tab_textures = textures
+        return out
 
     def _raster(self, V: np.ndarray, order):
         """Covered pixel runs ``(y, x_first, length, triangle)``, each ``(r,)``, nearest part last.
@@ -275,12 +309,97 @@ class MeshRenderer:
             from nnsf.reshape.seal import seal
 
             crop = seal(crop, part_crop, **self._seal_kw)
+        if self.reink is not None and h:
+            # A margin for the half of the stroke that lies outside the silhouette.
+            H, W = self.size
+            r = int(np.ceil(self.reink[1])) + 2
+            py0, px0 = min(r, y0), min(r, x0)
+            py1, px1 = min(r, H - (y0 + h)), min(r, W - (x0 + w))
+            crop = np.pad(crop, ((py0, py1), (px0, px1), (0, 0)))
+            mx = np.pad(mx, ((py0, py1), (px0, px1)), constant_values=-1)
+            my = np.pad(my, ((py0, py1), (px0, px1)), constant_values=-1)
+            if part_crop is not None:
+                part_crop = np.pad(part_crop, ((py0, py1), (px0, px1)), constant_values=-1)
+            y0, x0 = y0 - py0, x0 - px0
+            h, w = crop.shape[:2]
+            inked = self._reink(crop, mx, my)
+            if self.seal and inked is not crop:
+                # A stroke half outside the silhouette can close a pocket of paper: sealed as well.
+                from nnsf.reshape.seal import seal
+
+                inked = seal(inked, part_crop, **self._seal_kw)
+            crop = inked
         part_img = None
         if labels:
             part_img = np.full((H, W), -1, np.int64)
             if h:
                 part_img[y0:y0 + h, x0:x0 + w] = part_crop
         return self._compose(crop, y0, x0, background), part_img
+
+    def _reink(self, crop: np.ndarray, mx: np.ndarray, my: np.ndarray) -> np.ndarray:
+        """Redraw the outline along silhouette edges the drawing had no outline on (premultiplied crop).
+
+        The crop must have a margin of at least the line width around the
+        drawn pixels.  An edge pixel of the silhouette (outer outline and
+        holes, ``cv2.findContours``) is new when its texel lies deeper inside
+        the drawing than the paper margin, half the line width and 2 px (a
+        cut, a tab, a body side a limb left).  Each run of new edge points is smoothed (a moving average of
+        5 points, so the stroke does not follow the pixel staircase) and
+        stroked with the drawing's outline colour, its line width plus a
+        pixel wide, anti-aliased (``cv2.polylines``, LINE_AA, 1/8 px), centred
+        on the edge: half of it inside, half outside (which also hides the
+        pixel staircase of the cut), as a pen would.  Runs shorter than three times
+        the line width are the outline's own wiggle and are left alone.  Edges
+        the drawing outlined keep their own ink.
+        """
+        rgb, width, paper = self.reink
+        cov = crop[..., 3] >= 128
+        if not cov.any():
+            return crop
+        depth = cv2.remap(self._interior, mx, my, interpolation=cv2.INTER_NEAREST,
+                          borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        contours, _ = cv2.findContours(cov.astype(np.uint8), cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
+        thr = paper + 0.5 * width + 2.0
+        min_run = max(3.0 * width, 8.0)
+        runs = []
+        for c in contours:
+            c = c[:, 0, :]
+            if len(c) < 8:
+                continue
+            new = depth[c[:, 1], c[:, 0]] > thr
+            if not new.any():
+                continue
+            # Close one- and two-point gaps, then grow each run by two points into the old ink.
+            k = np.ones(5)
+            new = np.convolve(np.r_[new[-2:], new, new[:2]].astype(float), k, "same")[2:-2] > 0
+            sm = np.stack([np.convolve(np.r_[c[-2:, i], c[:, i], c[:2, i]].astype(float), k / 5, "same")[2:-2]
+                           for i in range(2)], axis=1)
+            if new.all():
+                runs.append(np.vstack([sm, sm[:1]]))
+                continue
+            start = np.flatnonzero(new & ~np.roll(new, 1))
+            for s0 in start:
+                idx = [s0]
+                i = (s0 + 1) % len(c)
+                while new[i] and i != s0:
+                    idx.append(i)
+                    i = (i + 1) % len(c)
+                if len(idx) >= min_run:  # a few stray points are the outline's own wiggle
+                    runs.append(sm[idx])
+        if not runs:
+            return crop
+        shift = 3
+        canvas = np.zeros(cov.shape, np.uint8)
+        thick = max(int(round(width)) + 1, 1)
+        cv2.polylines(canvas, [np.rint(r * (1 << shift)).astype(np.int32).reshape(-1, 1, 2) for r in runs],
+                      False, 255, thick, cv2.LINE_AA, shift)
+        a = canvas.astype(np.float32)[..., None] / 255.0
+        out = crop.astype(np.float32)
+        ink = np.asarray(rgb, np.float32)[None, None, :]
+        # Premultiplied "over": the stroke (opaque ink, coverage a) over the frame.
+        out[..., :3] = ink * a + out[..., :3] * (1 - a)
+        out[..., 3:4] = 255.0 * a + out[..., 3:4] * (1 - a)
+        return np.clip(np.rint(out), 0, 255).astype(np.uint8)
 
     def _compose(self, crop, y0, x0, background) -> np.ndarray:
         H, W = self.size
@@ -333,6 +452,114 @@ def underlay_texture(texture: np.ndarray, mask: np.ndarray, mesh, radius: float 
     return np.dstack([filled, texture[..., 3]])
 
 
+def overlay_texture(texture: np.ndarray, mask: np.ndarray, overlay: np.ndarray) -> np.ndarray:
+    """The drawing with the limbs drawn over the body painted out, ``(H, W, 4)`` uint8 RGBA.
+
+    ``overlay``: those limbs' pixels (:attr:`nnsf.reshape.mesh.Mesh.overlay`),
+    grown by 1 % of the drawing's height (at least 2 px) to take the half of
+    their outline that lies on the body's side, and the lines around them;
+    filled with OpenCV's Telea inpainting from the rest of the silhouette
+    (pixels outside it set to the silhouette's median colour first, so the
+    paper does not bleed in).
+    """
+    m = np.asarray(mask, dtype=bool)
+    ys = np.flatnonzero(m.any(axis=1))
+    r = max(int(round(0.01 * (ys[-1] - ys[0] + 1))), 2) if len(ys) else 2
+    region = cv2.dilate(np.asarray(overlay, np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+    from nnsf.reshape.pieces import ink_mask
+
+    # The lines near the region are painted out too, so the fill comes from the body's colour,
+    # not smeared from its outline.
+    near = cv2.dilate(region, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (4 * r + 1, 4 * r + 1))) > 0
+    unknown = (region > 0) | (near & ink_mask(texture, m))
+    rgb = np.ascontiguousarray(texture[..., :3]).copy()
+    if m.any():
+        rgb[~m] = np.median(rgb[m & ~unknown] if (m & ~unknown).any() else rgb[m], axis=0).astype(np.uint8)
+    filled = cv2.inpaint(rgb, unknown.astype(np.uint8), 2 * r + 3, cv2.INPAINT_TELEA)
+    return np.dstack([filled, texture[..., 3]])
+
+
+def tab_textures(mesh, character) -> dict[int, np.ndarray]:
+    """Textures of a pieced mesh's joint tabs: ``{layer: RGBA (H, W, 4) uint8}``.
+
+    Each tab shows its limb's fill continued (:func:`nnsf.reshape.pieces.tab_texture`).
+    Tabs whose regions do not touch (2 px apart) share one image, so the
+    atlas stays a few drawings wide.
+    """
+    from nnsf.reshape.pieces import ink_mask, tab_texture
+
+    ink = ink_mask(character.texture, character.mask)
+    groups: list[tuple[np.ndarray, np.ndarray]] = []  # (taken pixels, image)
+    out = {}
+    k3 = np.ones((5, 5), np.uint8)
+    for k, tab in enumerate(mesh.tabs):
+        if tab.drawn:  # a follower's own region shows the drawing
+            continue
+        if tab.fill is not None:
+            img = tab_texture(character.texture, np.where(tab.fill, 1, 0), 1, tab.region, ink)
+        else:
+            img = tab_texture(character.texture, mesh.labels, _segment_of(mesh, tab), tab.region, ink)
+        grown = cv2.dilate(tab.region.astype(np.uint8), k3).astype(bool)
+        for taken, gimg in groups:
+            if not (taken & grown).any():
+                taken |= grown
+                gimg[tab.region] = img[tab.region]
+                out[3 + k] = gimg
+                break
+        else:
+            groups.append((grown.copy(), img))
+            out[3 + k] = img
+    return out
+
+
+def _segment_of(mesh, tab) -> int:
+    """The label (index into ``nnsf.reshape.pieces.SEGMENT_NAMES``) a tab's child region has."""
+    from nnsf.reshape.mesh import SEGMENT_PART
+
+    return int(np.flatnonzero(SEGMENT_PART == tab.part)[0])
+
+
+def outline_style(texture: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, float, float] | None:
+    """The drawing's outline: its colour ``(3,)``, line width and paper margin (px), or None without one.
+
+    Dark: pixels of the band just inside the silhouette (up to 6 % of the
+    drawing's height deep) darker than the midpoint between the band's 5th
+    percentile and the inside's median luminance.  At each depth d (px from
+    the mask's edge) the share of dark pixels is taken; the outline is the
+    first run of depths where most are dark (it must start within 6 px:
+    scanned masks keep a little paper around the line, the paper margin).
+    Width: the depths of that run where nearly all (85 %) pixels are dark,
+    plus one; colour: the median of the run's dark pixels.
+    """
+    m = np.asarray(mask, dtype=bool)
+    if m.sum() < 16:
+        return None
+    ys = np.flatnonzero(m.any(axis=1))
+    height = float(ys[-1] - ys[0] + 1)
+    inner = cv2.distanceTransform(np.pad(m.astype(np.uint8), 1), cv2.DIST_L2, 3)[1:-1, 1:-1]
+    band = m & (inner <= max(0.06 * height, 2.0))
+    lum = np.asarray(texture)[..., :3].astype(np.float64) @ np.array([0.299, 0.587, 0.114])
+    dark_thr = 0.5 * (np.percentile(lum[band], 5) + np.median(lum[m & ~band] if (m & ~band).any() else lum[m]))
+    dark = band & (lum < dark_thr)
+    # The dark share at each depth inside the outline: a drawn outline is a run of depths where
+    # most pixels are dark, after a margin of paper the mask may keep around the line.
+    depths = np.arange(1, int(max(0.06 * height, 4.0)) + 1)
+    frac = np.array([dark[m & (np.abs(inner - d) < 0.5)].mean() if (m & (np.abs(inner - d) < 0.5)).any() else 0.0
+                     for d in depths])
+    on = frac >= 0.5
+    if not on[:6].any():  # no outline along the edge: nothing to redraw
+        return None
+    first = int(np.argmax(on))
+    off = np.flatnonzero(~on[first:])
+    last = first + (int(off[0]) if len(off) else len(on) - first)
+    # The line's solid core (depths where nearly all pixels are dark) and a pixel of soft edge.
+    width = float(max(int((frac[first:last] >= 0.85).sum()) + 1, 1))
+    paper = float(depths[first] - 1)
+    ink = dark & (inner <= paper + width + 0.5)
+    rgb = np.median(np.asarray(texture)[..., :3][ink], axis=0)
+    return rgb.astype(np.float32), width, paper
+
+
 def rim_texture(texture: np.ndarray, mask: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
     """The body's drawn regions and the drawing's ink, everything else transparent, ``(H, W, 4)`` uint8 RGBA.
 
@@ -383,8 +610,45 @@ def write_gif(path, images, fps: float) -> Path:
     return path
 
 
+_MP4_CODEC: str | None = None
+
+
+def mp4_codec() -> str:
+    """The MP4 codec this OpenCV build can write: ``avc1`` (H.264, plays in browsers and
+    QuickTime) when its FFmpeg has an H.264 encoder, else ``mp4v`` (MPEG-4 Part 2, which
+    many browsers and QuickTime do not play; VLC and FFmpeg do).  Probed once per process on
+    a scratch file, with FFmpeg's complaints about a missing encoder kept off the terminal.
+    The opencv-python wheels ship FFmpeg without an H.264 encoder, so there it is ``mp4v``."""
+    global _MP4_CODEC
+    if _MP4_CODEC is None:
+        import os
+        import sys
+        import tempfile
+
+        _MP4_CODEC = "mp4v"
+        with tempfile.TemporaryDirectory() as d:
+            probe = os.path.join(d, "probe.mp4")
+            sys.stderr.flush()
+            saved = os.dup(2)
+            try:
+                with open(os.devnull, "w") as null:
+                    os.dup2(null.fileno(), 2)
+                    vw = cv2.VideoWriter(probe, cv2.VideoWriter_fourcc(*"avc1"), 24.0, (64, 64))
+                    ok = vw.isOpened()
+                    if ok:
+                        vw.write(np.zeros((64, 64, 3), np.uint8))
+                    vw.release()
+            finally:
+                os.dup2(saved, 2)
+                os.close(saved)
+            if ok and os.path.getsize(probe) > 0:
+                _MP4_CODEC = "avc1"
+    return _MP4_CODEC
+
+
 def write_mp4(path, images, fps: float) -> Path:
-    """Write RGB(A) images ``(T, H, W, 3|4)`` as MP4 (``mp4v``), atomically.
+    """Write RGB(A) images ``(T, H, W, 3|4)`` as MP4, atomically: H.264 when this OpenCV can
+    encode it, else ``mp4v`` (:func:`mp4_codec`).
 
     Odd sizes are padded by one pixel (the codec wants even dimensions);
     RGBA is composited over white.  Raises ``OSError`` if OpenCV cannot open
@@ -394,10 +658,11 @@ def write_mp4(path, images, fps: float) -> Path:
     images = [np.asarray(i) for i in images]
     H, W = images[0].shape[:2]
     He, We = H + H % 2, W + W % 2
+    codec = mp4_codec()
     with atomic_path(path) as tmp:
-        vw = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (We, He))
+        vw = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*codec), float(fps), (We, He))
         if not vw.isOpened():
-            raise OSError(f"OpenCV could not open an mp4v video writer for {path}")
+            raise OSError(f"OpenCV could not open an {codec} video writer for {path}")
         try:
             for img in images:
                 if img.shape[2] == 4:

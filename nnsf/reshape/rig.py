@@ -50,6 +50,67 @@ class Rig:
     tracker: SubkeyTracker | None
     handle_set: str
     handle_keypoints: np.ndarray
+    #: The rest key points the mesh is driven by ``(17, 2)``: the character's, or on a pieced
+    #: mesh with its pivots moved onto the cuts (:func:`nnsf.reshape.pieces.move_pivots`).
+    #: Callers always pass key points in the character's own sense; :meth:`drive` maps them.
+    rest_keypoints: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.rest_keypoints is None:
+            self.rest_keypoints = np.asarray(self.character.keypoints, dtype=np.float64).copy()
+
+    @property
+    def moved(self) -> bool:
+        """Whether the pivots differ from the character's key points."""
+        return not np.allclose(self.rest_keypoints, self.character.keypoints)
+
+    def drive(self, keypoints) -> np.ndarray:
+        """Key points ``(..., 17, 2)`` in the character's sense -> the ones that drive this rig.
+
+        Without moved pivots this is the identity.  With them, as the
+        retargeting does (docs/method.md §12): every frame's torso pose (the
+        rotation and translation fitted to the torso's key points,
+        :data:`nnsf.reshape.drive.TORSO`) carries each moved pivot; the
+        limb (or head) below it keeps its direction in the frame and the
+        length it has from the pivot at rest, and every point further down
+        moves with it.  A rigid motion of the whole figure stays exactly
+        rigid.
+        """
+        kp = self._check(keypoints)
+        if not self.moved:
+            return kp
+        from nnsf.reshape.drive import TORSO
+        from nnsf.skeleton import JOINT_INDEX as J
+
+        one = kp.ndim == 2
+        K = kp[None] if one else kp
+        rest0 = np.asarray(self.character.keypoints, dtype=np.float64)
+        rest1 = self.rest_keypoints
+        torso = list(TORSO)
+        a0 = rest0[torso] - rest0[torso].mean(0)
+        c_t = K[:, torso].mean(1)  # (T, 2)
+        b = K[:, torso] - c_t[:, None]
+        ang = np.arctan2((a0[None, :, 0] * b[..., 1] - a0[None, :, 1] * b[..., 0]).sum(1),
+                         (a0[None] * b).sum((1, 2)))
+        c, s = np.cos(ang), np.sin(ang)
+        out = K.copy()
+        chains = {J["l_shoulder"]: (J["l_elbow"], J["l_wrist"]), J["r_shoulder"]: (J["r_elbow"], J["r_wrist"]),
+                  J["l_hip"]: (J["l_knee"], J["l_ankle"]), J["r_hip"]: (J["r_knee"], J["r_ankle"]),
+                  J["neck"]: (J["head_top"],)}
+        for j, down in chains.items():
+            if np.allclose(rest0[j], rest1[j]):
+                continue
+            v = rest1[j] - rest0[torso].mean(0)
+            piv = c_t + np.stack([c * v[0] - s * v[1], s * v[0] + c * v[1]], -1)
+            nxt = down[0]
+            d = K[:, nxt] - K[:, j]
+            d = d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+            new_next = piv + d * float(np.linalg.norm(rest1[nxt] - rest1[j]))
+            out[:, j] = piv
+            shift = new_next - K[:, nxt]
+            for q in down:
+                out[:, q] = K[:, q] + shift
+        return out[0] if one else out
 
     @classmethod
     def build(cls, character: Character, n_vertices: int = 800, handle_set: str = "subkeys",
@@ -84,7 +145,12 @@ class Rig:
         kp = character.keypoints
         if mesh is None:
             mesh = build_mesh(character.mask, kp, n_vertices=n_vertices, split=split,
-                              texture=character.texture)
+                              texture=character.texture, extra_limbs=character.extra_limbs)
+        rest_kp = kp.copy()
+        if mesh.pivots is not None and not np.allclose(mesh.pivots, kp):
+            # A pieced mesh's limbs turn where they meet the body (nnsf.reshape.pieces.move_pivots).
+            rest_kp = np.asarray(mesh.pivots, dtype=np.float64).copy()
+            kp = rest_kp
         if isinstance(omega, str):
             if omega == "fit":
                 omega = fit_omega(character.mask, kp)
@@ -93,37 +159,45 @@ class Rig:
             else:
                 raise ValueError(f"omega must be an (8, 2) array, 'fit' or 'straight', got {omega!r}")
         omega = np.asarray(omega, dtype=np.float64).reshape(N_LIMBS, 2)
+        # Joint tabs (a pieced mesh's last vertices) are not solved for: they follow their bone.
+        nc = mesh.core
+        Vc, Tc = mesh.vertices[:nc], mesh.triangles[mesh.core_triangles]
+        Pc = mesh.pieces[mesh.core_triangles]
         if mesh.is_split:
             # Each piece is pinned by its own key points; a shoulder or hip
             # becomes one handle on each side of its seam.
             # (A piece without triangles, possible on a very coarse mesh, gets no handles.)
-            used = set(np.unique(mesh.pieces).tolist())
+            used = set(np.unique(Pc).tolist())
             parts = [(pc, j) for pc, kps in enumerate(mesh.piece_keypoints) if pc in used for j in kps]
             handle_kp = np.array([j for _, j in parts], dtype=np.int64)
             handles = None
             for pc, j in parts:
-                h = Handles.at_points(mesh.vertices, mesh.triangles[mesh.pieces == pc], kp[[j]],
-                                      keypoint_weight)
+                h = Handles.at_points(Vc, Tc[Pc == pc], kp[[j]], keypoint_weight)
                 handles = h if handles is None else handles + h
-            vp = mesh.vertex_pieces()
+            vp = np.zeros(nc, dtype=np.int64)
+            vp[Tc.ravel()] = np.repeat(Pc, 3)
             # A limb's subkeys come from its own piece: the one holding most of its triangles.
-            own = [np.bincount(mesh.pieces[(mesh.parts == 2 + i) & (mesh.layer == 0)],
-                               minlength=len(mesh.piece_names)).argmax() for i in range(N_LIMBS)]
-            candidates = [np.flatnonzero(vp == own[i]) for i in range(N_LIMBS)]
+            lc = mesh.layer[mesh.core_triangles]
+            own = [np.bincount(Pc[(mesh.parts[mesh.core_triangles] == 2 + i) & (lc == 0)],
+                               minlength=len(mesh.piece_names)).argmax()
+                   if ((mesh.parts[mesh.core_triangles] == 2 + i) & (lc == 0)).any() else -1
+                   for i in range(N_LIMBS)]
+            candidates = [np.flatnonzero(vp == own[i]) if own[i] >= 0 else np.zeros(0, np.int64)
+                          for i in range(N_LIMBS)]
         else:
             handle_kp = np.arange(N_JOINTS)
-            handles = Handles.at_points(mesh.vertices, mesh.triangles, kp, keypoint_weight)
+            handles = Handles.at_points(Vc, Tc, kp, keypoint_weight)
             candidates = None
         if handle_set == "subkeys":
-            subkeys = init_subkeys(mesh.vertices, kp, omega, per_limb=subkeys_per_limb, candidates=candidates)
-            handles = handles + Handles.at_vertices(mesh.n_vertices, subkeys.vertex, subkey_weight)
+            subkeys = init_subkeys(Vc, kp, omega, per_limb=subkeys_per_limb, candidates=candidates)
+            handles = handles + Handles.at_vertices(nc, subkeys.vertex, subkey_weight)
             tracker = SubkeyTracker(subkeys, kp, omega, fit=fit_subkeys, keep_offset=keep_offset,
                                     propagation=propagation)
         else:
             subkeys = Subkeys(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 2)))
             tracker = None
-        deformer = TwoStepARAP(mesh.vertices, mesh.triangles, handles)
-        return cls(character, mesh, omega, subkeys, handles, deformer, tracker, handle_set, handle_kp)
+        deformer = TwoStepARAP(Vc, Tc, handles)
+        return cls(character, mesh, omega, subkeys, handles, deformer, tracker, handle_set, handle_kp, rest_kp)
 
     # ------------------------------------------------------------------ driving
 
@@ -138,7 +212,7 @@ class Rig:
 
         Subkeys are tracked from the rest pose through every frame in order.
         """
-        kp = self._check(keypoints)
+        kp = self.drive(keypoints)
         key = kp[..., self.handle_keypoints, :]
         if self.tracker is None:
             return key
@@ -147,7 +221,16 @@ class Rig:
 
     def animate(self, keypoints, omega=None, steps: int = 2) -> np.ndarray:
         """Deformed vertices ``(T, n, 2)`` (pixels) for key points ``(T, 17, 2)``."""
-        return self.deformer.deform(self.targets(keypoints, omega), steps=steps)
+        V = self.deformer.deform(self.targets(keypoints, omega), steps=steps)
+        return self._with_tabs(V, self.drive(keypoints))
+
+    def _with_tabs(self, V: np.ndarray, kp: np.ndarray) -> np.ndarray:
+        """The solved vertices ``(T, n_core, 2)`` with the mesh's joint tabs attached (``(T, n, 2)``)."""
+        if not self.mesh.tabs:
+            return V
+        from nnsf.reshape.pieces import attach_tabs
+
+        return attach_tabs(self.mesh.tabs, V, self.rest_keypoints, kp, self.mesh.vertices)
 
     def reset(self) -> None:
         """Restart streaming (:meth:`step`) from the rest pose."""
@@ -156,7 +239,7 @@ class Rig:
 
     def step(self, keypoints, omega=None) -> np.ndarray:
         """Streaming: deform one frame ``(17, 2)`` after the previous one; returns ``(n, 2)``."""
-        kp = self._check(keypoints)
+        kp = self.drive(keypoints)
         key = kp[self.handle_keypoints]
         g = key if self.tracker is None else np.concatenate([key, self.tracker.step(kp, omega)])
-        return self.deformer.deform(g)
+        return self._with_tabs(self.deformer.deform(g)[None], kp[None])[0]

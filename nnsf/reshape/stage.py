@@ -141,8 +141,8 @@ def report(anim: Animation, depth_margin: float | None = None) -> dict:
     rig, V = anim.rig, anim.frames
     m = rig.mesh
     om = np.broadcast_to(rig.rest_omega, (len(V),) + rig.rest_omega.shape)
-    out = metrics.deformation_report(m.vertices, V, m.triangles, parts=m.parts, keypoints=anim.keypoints,
-                                     omega=om, rest_keypoints=rig.character.keypoints,
+    out = metrics.deformation_report(m.vertices, V, m.triangles, parts=m.parts, keypoints=rig.drive(anim.keypoints),
+                                     omega=om, rest_keypoints=rig.rest_keypoints,
                                      rest_omega=rig.rest_omega, pieces=m.pieces if m.is_split else None)
     bend = metrics.deformed_bending(rig, V, anim.keypoints)
     out["limb_bending_mean"] = float(np.nanmean(bend))
