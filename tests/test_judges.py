@@ -139,6 +139,7 @@ def test_a_consensus_synthesis_is_no_jerkier_than_real_clips_of_its_style(pixels
 
 
 # ------------------------------------------------------- independence of the judges
+@pytest.mark.slow
 def test_judges_module_imports_nothing_of_the_project():
     """judges.py imports numpy and scikit-learn only: not the skeleton unifier, not the
     translation or its evaluation (checked in its source and in a fresh interpreter)."""

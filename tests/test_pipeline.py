@@ -120,6 +120,7 @@ translation:
   tempo: true
   ridge: 0.5
   smooth: 0.0
+  smooth_order: 2
   max_iter: 20
   align_iter: 20
   bilinear_rank: 1
