@@ -27,7 +27,7 @@ DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 
 
 def _character(folder: Path):
-    from nnsf.animation import read_character
+    from nnsf.animate.animation import read_character
     from nnsf.reshape.character import Character, stick_figure
 
     src = DATA / "animated-drawings" / "characters" / "char1"
@@ -56,7 +56,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seconds", type=float, default=10.0)
     args = ap.parse_args(argv)
 
-    from nnsf.animation import Motion, animate_files, read_motion_spec
+    from nnsf.animate.animation import Motion, animate_files, read_motion_spec
     from nnsf.datasets import contract, synthetic
     from nnsf.factor.style_model import StyleModel, fit_model, unify_table
 

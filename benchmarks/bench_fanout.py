@@ -45,7 +45,7 @@ def run_setup(params: dict, features: Path, out: Path, runner: str, workers: int
     from prefect import flow
 
     from flows.runners import configured, prefect_mapper
-    from nnsf.evaluate.translation import heldout
+    from nnsf.evaluate.heldout_report import write_heldout as heldout
 
     @flow(name="bench-fanout", persist_result=False, validate_parameters=False)
     def stage():

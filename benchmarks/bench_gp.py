@@ -35,7 +35,8 @@ def main(argv=None):
     from nnsf.factor.gp_data import phase_bins
     from nnsf.params import load
     from nnsf.skeleton import Unifier, to_points
-    from nnsf.stages import _nnsf_params, clip_phase
+    from nnsf.evaluate.stage import clip_phase
+    from nnsf.pipeline import nnsf_params as _nnsf_params
 
     warnings.simplefilter("ignore", ConvergenceWarning)
     p = load(args.params)

@@ -51,7 +51,7 @@ def main(argv=None) -> int:
     import yaml
 
     from flows import prefect_server, runners
-    from nnsf import stages
+    from nnsf import pipeline, stages
 
     work = Path(tempfile.mkdtemp(prefix="nnsf-bench-sweep-"))
     try:
@@ -61,12 +61,12 @@ def main(argv=None) -> int:
         root = work / "project"
         root.mkdir()
         (root / "dvc.yaml").write_text("stages: {}\n")
-        stages.data(params, out_dir=root / stages.RAW_DIR)
-        stages.features(params, raw_dir=root / stages.RAW_DIR, out_dir=root / stages.FEATURES_DIR)
+        stages.data(params, out_dir=root / pipeline.RAW_DIR)
+        stages.features(params, raw_dir=root / pipeline.RAW_DIR, out_dir=root / pipeline.FEATURES_DIR)
         os.chdir(root)
         n_points = a * b * r
         print(f"sweep: {n_points} points x {opts.folds} folds, default dataset "
-              f"({sum(1 for _ in open(root / stages.FEATURES_DIR / 'features.csv')) - 1} frames), "
+              f"({sum(1 for _ in open(root / pipeline.FEATURES_DIR / 'features.csv')) - 1} frames), "
               f"max_iter {params['sweep']['max_iter']}", flush=True)
 
         with prefect_server.running(work / "prefect", ui=False) as api:

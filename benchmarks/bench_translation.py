@@ -6,7 +6,7 @@ Builds the features the pipeline would (Bandai-Namco BVH -> key points at
 * times one held-out cell with every method of the stage
   (:func:`nnsf.evaluate.translation.run_cell`, one BLAS thread), ``--repeat``
   times, the fastest kept;
-* with ``--full``, runs the whole stage (:func:`nnsf.evaluate.translation.heldout`)
+* with ``--full``, runs the whole stage (:func:`nnsf.evaluate.heldout_report.write_heldout`)
   with its cells fanned out over ``--workers`` processes (joblib) and writes
   its reports under ``--out``; without, it prints the estimate
   cells × one cell / workers.
@@ -30,7 +30,9 @@ import pandas as pd
 import yaml
 
 from nnsf.datasets import contract
-from nnsf.evaluate.translation import CellJob, STAGE_METHODS, grid_cells, heldout, run_cell, translator_params
+from nnsf.evaluate.heldout_report import write_heldout as heldout
+from nnsf.evaluate.translation import CellJob, STAGE_METHODS, grid_cells, run_cell
+from nnsf.factor.style_model import translator_params
 from nnsf.io import write_json
 from nnsf.skeleton import Unifier, to_points
 

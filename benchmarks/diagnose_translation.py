@@ -203,10 +203,11 @@ def main(argv=None) -> int:
         return 0
 
     from nnsf.datasets import bvh_source
-    from nnsf.evaluate.translation import _pick, grid_cells, translator_params
+    from nnsf.evaluate.translation import _pick, grid_cells
+    from nnsf.factor.style_model import translator_params
     from nnsf.io import write_json
     from nnsf.params import load, require
-    from nnsf.stages import _complete_grid
+    from nnsf.datasets.stage import complete_grid as _complete_grid
 
     params = load(a.params)
     kw = {"fps": float(require(params, "dataset.bvh.fps")), "azimuth": float(require(params, "dataset.bvh.azimuth")),

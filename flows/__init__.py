@@ -3,7 +3,7 @@
 This package is the only place where the orchestration and experiment-logging
 tools meet the library: every DVC stage runs ``python -m flows <stage>``, which
 wraps one ``nnsf.stages`` function (files to files) in a Prefect flow and logs
-the returned :class:`nnsf.stages.StageResult` to MLflow.
+the returned :class:`nnsf.pipeline.StageResult` to MLflow.
 
 Modules:
 

@@ -114,14 +114,14 @@ def run_stage_command(stage: str, args: list[str]) -> int:
     parser.add_argument("--params", default="params.yaml", help="the params file")
     opts = parser.parse_args(args)
     root = project.root()
-    os.chdir(root)  # nnsf.stages' default paths are relative to the project root
+    os.chdir(root)  # nnsf.pipeline's default paths are relative to the project root
 
     # Cheap checks first: a wrong params.yaml costs no Prefect start-up.
     from nnsf.params import load, require
 
     params = load(opts.params)
     require(params, "mlflow.experiment")
-    from nnsf.stages import check_outputs
+    from nnsf.pipeline import check_outputs
 
     check_outputs(stage)  # an unwritable output folder: one line now, not after the work
 

@@ -125,7 +125,7 @@ class ExperimentLog:
         return None if parent == "." else parent
 
     def log_stage(self, stage: str, result, tags: Mapping[str, str] | None = None) -> str:
-        """One finished run for a stage's :class:`~nnsf.stages.StageResult`."""
+        """One finished run for a stage's :class:`~nnsf.pipeline.StageResult`."""
         run_id = self.start_run(stage, {"nnsf.stage": stage, **(tags or {})})
         try:
             self.log(run_id, result.params, result.metrics, result.artifacts)

@@ -17,11 +17,12 @@ from prefect.states import Failed
 
 from nnsf import stages
 from nnsf.errors import InputError
+from nnsf.pipeline import StageResult
 
 from flows.mlflow_runs import ExperimentLog
 
 
-def run_stage(stage: str, fn: Callable[[dict], stages.StageResult], params: dict):
+def run_stage(stage: str, fn: Callable[[dict], StageResult], params: dict):
     """Run ``fn(params)`` inside the current flow and log its result to MLflow.
 
     Returns a small summary (metrics and the MLflow run id), or a ``Failed``

@@ -31,16 +31,16 @@ import pandas as pd
 from prefect import flow, get_run_logger
 from prefect.states import Failed
 
-from nnsf import stages
+from nnsf import pipeline, stages
 from nnsf.errors import InputError
 from nnsf.io import write_csv, write_json
 
 from flows import project, runners
 from flows.mlflow_runs import ExperimentLog
 
-SWEEP_CSV = stages.REPORTS / "sweep.csv"
-SWEEP_JSON = stages.REPORTS / "sweep.json"
-FIGURE_DIR = stages.REPORTS / "figures" / "sweep"
+SWEEP_CSV = pipeline.REPORTS / "sweep.csv"
+SWEEP_JSON = pipeline.REPORTS / "sweep.json"
+FIGURE_DIR = pipeline.REPORTS / "figures" / "sweep"
 #: The metric that ranks sweep points, best first if higher; the first one a
 #: point reports is used.
 SCORES = ("precision_mean", "precision", "accuracy_mean", "accuracy")
@@ -92,7 +92,7 @@ def _file_digest(path: Path) -> str:
 
 def code_digest() -> str:
     """SHA-256 over the ``nnsf`` package's source files (names and contents)."""
-    package = Path(stages.__file__).resolve().parent
+    package = Path(pipeline.__file__).resolve().parent
     digest = hashlib.sha256()
     for path in sorted(package.rglob("*.py")):
         digest.update(path.relative_to(package).as_posix().encode() + b"\0")
@@ -137,7 +137,7 @@ def sweep(params: dict, point_fn: str | None = None, reuse: bool = True):
         return Failed(message=str(err), data=err)
     fn = _resolve(point_fn) if point_fn else run_point
     root = project.root()
-    features_csv = root / stages.FEATURES_DIR / "features.csv"
+    features_csv = root / pipeline.FEATURES_DIR / "features.csv"
     if not features_csv.is_file():
         err = InputError(features_csv, "file", "the features stage's output (run it first)")
         logger.error("%s", err)

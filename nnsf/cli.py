@@ -144,7 +144,7 @@ def _print_metrics(command: str, metrics: dict) -> None:
 
 
 def _animate(args) -> int:
-    from nnsf.animation import animate_files
+    from nnsf.animate.animation import animate_files
     from nnsf.datasets.views import check_view
 
     check_view(args.view, "--view", "view")
@@ -179,7 +179,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "animate":  # needs no params.yaml
             return _animate(args)
         from nnsf import params as params_mod
-        from nnsf import stages
+        from nnsf import pipeline, stages
 
         params = params_mod.load(args.params)
         if args.command == "check":
@@ -188,15 +188,15 @@ def main(argv: list[str] | None = None) -> int:
         # Every output folder is checked before any work: a file in the way, no
         # permission or a read-only disk fails here in one line, and nothing is written.
         if args.command in ("translate", "reshape"):
-            stages.check_outputs(args.command, [args.out])
+            pipeline.check_outputs(args.command, [args.out])
         elif args.command in ("reshape-eval", "tracking-real"):
-            stages.check_outputs(args.command, [args.out, args.out / "figures"])
+            pipeline.check_outputs(args.command, [args.out, args.out / "figures"])
         elif args.command == "styles":
-            stages.check_outputs(args.command, [Path(args.out).parent])
+            pipeline.check_outputs(args.command, [Path(args.out).parent])
         elif args.command != "sweep":  # `nnsf sweep` writes its table to stdout only
-            stages.check_outputs(args.command)
+            pipeline.check_outputs(args.command)
             if args.command == "track" and args.export_cvat is not None:
-                stages.check_outputs(args.command, [args.export_cvat])
+                pipeline.check_outputs(args.command, [args.export_cvat])
         if args.command == "sweep":
             import pandas as pd
 
@@ -227,7 +227,7 @@ def main(argv: list[str] | None = None) -> int:
             shown = [str(a) for a in result.artifacts if str(a).endswith(".gif")]
             print(f"reshape: wrote {args.out}/" + (f"; open {shown[0]}" if shown else ""))
         elif args.command == "styles":
-            from nnsf.factor.style_model import styles_by_hand
+            from nnsf.factor.stage import styles_by_hand
 
             result = styles_by_hand(params, args.data, args.out)
             print(f"styles: wrote {args.out} ({result.metrics['styles']} styles, "
@@ -251,7 +251,7 @@ def main(argv: list[str] | None = None) -> int:
                                   kenney_annotations=args.kenney, mapper=mapper)
         elif args.command == "tracking-real":
             from nnsf.track.real import kenney_report
-            from nnsf.track.stage import track_options
+            from nnsf.track.options import track_options
 
             if args.lpc is None and args.data is None:
                 raise InputError("nnsf tracking-real", "--data",
@@ -281,22 +281,22 @@ def main(argv: list[str] | None = None) -> int:
             from nnsf.track.correct import apply_corrections, export_clips
 
             if args.corrections is not None:
-                done = apply_corrections(params, args.corrections, stages.FRAMES_DIR,
-                                         stages.TRACKS_DIR, clip=args.clip)
+                done = apply_corrections(params, args.corrections, pipeline.FRAMES_DIR,
+                                         pipeline.TRACKS_DIR, clip=args.clip)
                 print(f"track: {done['clip']}: corrected frames {done['corrected_frames']}; "
                       f"re-tracked intervals {done['resolved_intervals']}; wrote {done['curves']}")
-                from nnsf.frames.stage import keypoints_from_tracks
+                from nnsf.track.stage import keypoints_from_tracks
 
-                result = keypoints_from_tracks(params, frames_dir=stages.FRAMES_DIR,
-                                               tracks_dir=stages.TRACKS_DIR,
-                                               out_dir=stages.TRACKED_DIR)
+                result = keypoints_from_tracks(params, frames_dir=pipeline.FRAMES_DIR,
+                                               tracks_dir=pipeline.TRACKS_DIR,
+                                               out_dir=pipeline.TRACKED_DIR)
             else:
                 result = stages.track(params)
             if args.export_cvat is not None:
-                out = export_clips(stages.FRAMES_DIR, stages.TRACKS_DIR, args.export_cvat)
+                out = export_clips(pipeline.FRAMES_DIR, pipeline.TRACKS_DIR, args.export_cvat)
                 print(f"track: wrote {len(out)} CVAT for video 1.1 files to {args.export_cvat}/")
         else:
-            result = getattr(stages, args.command)(params)
+            result = stages.get(args.command)(params)
         _print_metrics(args.command, result.metrics)
         return 0
     except InputError as err:

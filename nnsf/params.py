@@ -15,6 +15,7 @@ from typing import Any, Callable
 import yaml
 
 from nnsf.errors import InputError, summarize
+from nnsf.errors import read_text
 
 DATASETS = ("synthetic", "bvh", "frames")
 FACINGS = ("first", "normalise", "none")
@@ -432,8 +433,6 @@ def load(path="params.yaml") -> dict:
     unreadable (permissions), larger than :data:`MAX_PARAMS_BYTES`, not
     UTF-8, not YAML, nested too deep, or not matching :data:`SCHEMA`.
     """
-    from nnsf.errors import read_text
-
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "file", "an existing params.yaml")

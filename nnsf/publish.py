@@ -45,9 +45,10 @@ from pathlib import Path
 from typing import Iterator
 
 from nnsf.errors import InputError
+from nnsf.io import WriteError, _write_error, read_json, renamed_write_error, write_json
 
 JOURNAL = ".commit.json"
-#: Where the stages publish (``nnsf.stages.REPORTS``); recovered by every command.
+#: Where the stages publish (``nnsf.pipeline.REPORTS``); recovered by every command.
 REPORTS = Path("reports")
 _SUFFIX = ".staging"
 
@@ -113,8 +114,6 @@ def _lock(folder: Path, wait: bool) -> int | None:
 
 
 def _move(src: Path, dst: Path) -> None:
-    from nnsf.io import _write_error
-
     try:
         dst.parent.mkdir(parents=True, exist_ok=True)
         os.replace(src, dst)
@@ -131,8 +130,6 @@ def _move(src: Path, dst: Path) -> None:
 
 def _roll_forward(reports: Path, stage: str, journal: dict) -> None:
     """Steps 3-4: move the journal's files into place, then write the manifest (idempotent)."""
-    from nnsf.io import write_json
-
     staging = staging_path(reports, stage)
     root = reports / journal.get("root", ".")
     manifest_path(reports, stage).unlink(missing_ok=True)
@@ -225,8 +222,6 @@ def publishing(reports, stage: str, root=None) -> Iterator[Path]:
     published and the previous set stays as it was.  A second run of the same
     stage publishing at the same time waits for the first.
     """
-    from nnsf.io import WriteError, _write_error, renamed_write_error, write_json
-
     reports = Path(reports)
     root = reports if root is None else Path(root)
     rel_root = os.path.relpath(root, reports)
@@ -277,6 +272,32 @@ def final_paths(paths, staging: Path, root: Path) -> list[Path]:
     return out
 
 
+def publish_stage(stage: str, reports, report, write, root=None):
+    """``write(staging)`` inside :func:`publishing`: the files it writes are one set.
+
+    Returns its result (a :class:`nnsf.pipeline.StageResult`) with the
+    artifacts at their published paths.  A stage that reports failed items
+    (clips, cells) writes its report, then raises an :class:`InputError`: if
+    ``report`` (a path relative to the staging folder) was written, the set
+    is published before the error goes on.
+    """
+    late = None
+    root = Path(reports if root is None else root)
+    with publishing(reports, stage, root=root) as out:
+        try:
+            result = write(out)
+        except InputError as err:
+            if not (out / report).is_file():
+                raise
+            late = err
+    if late is not None:
+        raise late
+    result.artifacts = final_paths(result.artifacts, out, root)
+    for child in result.runs.values():
+        child.artifacts = final_paths(child.artifacts, out, root)
+    return result
+
+
 def verify(reports, stage: str) -> dict[str, Path]:
     """The published files of ``stage`` (relative path -> path), checked against its manifest.
 
@@ -284,8 +305,6 @@ def verify(reports, stage: str) -> dict[str, Path]:
     manifest when it is missing or a file it lists is absent or differs from
     its hash (a set that is not one run's whole output).
     """
-    from nnsf.io import read_json
-
     reports = Path(reports)
     recover(reports, stage, wait=True)
     mpath = manifest_path(reports, stage)

@@ -337,7 +337,7 @@ def test_reshape_eval_and_tracking_real_need_data(capsys):
 @needs_shared
 @pytest.mark.parametrize("name", ["char1", "char2", "char3", "char4", "char5"])
 def test_every_animated_drawings_character_loads(name):
-    from nnsf.animation import read_character
+    from nnsf.animate.animation import read_character
 
     ch = read_character(AD / "characters" / name)
     assert ch.keypoints.shape == (17, 2) and ch.mask.any()
@@ -346,7 +346,7 @@ def test_every_animated_drawings_character_loads(name):
 @needs_shared
 def test_char6_is_refused_naming_its_joints():
     """char6 has four legs and no arms: refused, the joints named, one line."""
-    from nnsf.animation import read_character
+    from nnsf.animate.animation import read_character
 
     with pytest.raises(InputError) as exc:
         read_character(AD / "characters" / "char6")
@@ -358,7 +358,7 @@ def test_char6_is_refused_naming_its_joints():
 @needs_shared
 def test_char5_maps_the_arm_nearest_the_chest_and_says_so():
     """char5 has three arms a side: arm 3 (shoulders nearest the chest) drives each arm."""
-    from nnsf.animation import read_character
+    from nnsf.animate.animation import read_character
     from nnsf.reshape.character import points_in_mask
 
     ch = read_character(AD / "characters" / "char5")

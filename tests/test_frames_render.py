@@ -8,10 +8,11 @@ from nnsf.datasets.synthetic import clip_points
 from nnsf.frames.annotation import read_annotation
 from nnsf.frames.curves import GROUP_JOINTS, GROUPS, SIDE_NAMES, sample_curve
 from nnsf.frames.render import (
-    keyframe_indices, render_character, render_clip, write_rendered_character,
+    keyframe_indices, render_character, render_clip,
 )
 from nnsf.io import read_npz
 from nnsf.reshape.character import read_character
+from nnsf.reshape.stage import write_rendered_character
 from nnsf.skeleton import JOINT_INDEX
 
 SIZE, T = 128, 6

@@ -120,7 +120,7 @@ def test_a_sweep_killed_halfway_resumes_without_recomputing_finished_points(
     assert not [r for r in client.search_runs([exp.experiment_id], "attributes.status = 'RUNNING'")]
 
     # The resumed table is what the points give when computed from scratch.
-    from nnsf import stages
+    from nnsf import pipeline, stages
 
     table = pd.read_csv(root / "reports" / "sweep.csv")
     assert len(table) == total
@@ -128,7 +128,7 @@ def test_a_sweep_killed_halfway_resumes_without_recomputing_finished_points(
         if row.Index % 5:  # a fifth of the points, reused and computed ones alike
             continue
         fresh = stages.sweep_point(params, {"alpha": row.alpha, "beta": row.beta, "rank": int(row.rank)},
-                                   features_csv=root / stages.FEATURES_DIR / "features.csv")
+                                   features_csv=root / pipeline.FEATURES_DIR / "features.csv")
         assert row.precision_mean == pytest.approx(fresh.metrics["precision_mean"],
                                                     rel=5.1e-6)  # the CSV keeps 6 digits
     figures = sorted(p.name for p in (root / "reports" / "figures" / "sweep").iterdir())

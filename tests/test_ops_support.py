@@ -38,14 +38,14 @@ SMALL = {
 
 def small_project(root: Path, params: dict | None = None) -> tuple[Path, dict]:
     """Create a small project at ``root`` with features computed; return (root, params)."""
-    from nnsf import stages
+    from nnsf import pipeline, stages
 
     params = yaml.safe_load(yaml.safe_dump(params or SMALL))
     root.mkdir(parents=True, exist_ok=True)
     (root / "dvc.yaml").write_text("stages: {}\n")
     (root / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
-    stages.data(params, out_dir=root / stages.RAW_DIR)
-    stages.features(params, raw_dir=root / stages.RAW_DIR, out_dir=root / stages.FEATURES_DIR)
+    stages.data(params, out_dir=root / pipeline.RAW_DIR)
+    stages.features(params, raw_dir=root / pipeline.RAW_DIR, out_dir=root / pipeline.FEATURES_DIR)
     return root, params
 
 

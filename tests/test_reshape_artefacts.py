@@ -12,7 +12,7 @@ import pytest
 from nnsf.errors import InputError
 from nnsf.reshape import artefacts as A
 from nnsf.reshape import depth as D
-from nnsf.reshape.mesh import PART_INDEX as P
+from nnsf.reshape.parts import PART_INDEX as P
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 KENNEY_ANN = Path(__file__).resolve().parent / "data" / "kenney"

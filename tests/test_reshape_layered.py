@@ -9,9 +9,9 @@ from nnsf.errors import InputError
 from nnsf.reshape import metrics
 from nnsf.reshape.character import stick_figure
 from nnsf.reshape.drive import TORSO, read_motion, retarget
-from nnsf.reshape.mesh import (
-    COLLARS, SEGMENTS, build_mesh, joint_cuts, triangle_adjacency, triangle_areas,
-)
+from nnsf.reshape.layers import build_mesh, joint_cuts
+from nnsf.reshape.mesh import triangle_adjacency, triangle_areas
+from nnsf.reshape.parts import COLLARS, SEGMENTS
 from nnsf.reshape.rig import Rig
 from nnsf.skeleton import BONES, JOINT_INDEX as J, JOINTS, rest_pose
 from nnsf.skeleton.layout import FEATURE_COLUMNS
@@ -172,7 +172,7 @@ def test_extra_arms_turn_with_the_driven_arm_of_their_side():
     """char5 has three arms a side: the driven one and two followers.  Turning the right arm by 40°
     about its shoulder turns each right follower by 40° about its own pivot, and moves nothing
     else of the left side; at rest nothing moves."""
-    from nnsf.animation import read_character
+    from nnsf.animate.animation import read_character
     from nnsf.reshape.pieces import attach_tabs
 
     ch = read_character(_CHAR5)

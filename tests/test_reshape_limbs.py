@@ -9,7 +9,7 @@ from nnsf.reshape.limbs import (
     LIMB_PAIRS, STRAIGHT, bezier, control_from_omega, control_points, endpoints, fit_omega,
     interpolate_omega, limb_curves, omega_from_control, rot90,
 )
-from nnsf.reshape.mesh import build_mesh
+from nnsf.reshape.layers import build_mesh
 from nnsf.reshape.subkeys import SubkeyTracker, closest_on_bezier, init_subkeys, propagate
 
 rng = np.random.default_rng(7)

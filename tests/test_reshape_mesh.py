@@ -9,9 +9,9 @@ import pytest
 
 from nnsf.errors import InputError
 from nnsf.reshape.character import load_animated_drawings, stick_figure
-from nnsf.reshape.mesh import (
-    PARTS, boundary_edges, build_mesh, label_parts, triangle_angles, triangle_areas, triangulate_mask,
-)
+from nnsf.reshape.layers import build_mesh
+from nnsf.reshape.mesh import boundary_edges, label_parts, triangle_angles, triangle_areas, triangulate_mask
+from nnsf.reshape.parts import PARTS
 from nnsf.skeleton import JOINT_INDEX as J
 from nnsf.skeleton import LIMBS
 
@@ -104,7 +104,8 @@ def test_drawn_characters_mesh(name):
 
 
 def test_split_mesh_cuts_the_limbs_loose():
-    from nnsf.reshape.mesh import PIECES, split_pieces, triangle_adjacency
+    from nnsf.reshape.mesh import split_pieces, triangle_adjacency
+    from nnsf.reshape.parts import PIECES
 
     fig = stick_figure(height=300)
     whole = build_mesh(fig.mask, fig.keypoints, n_vertices=500)

@@ -6,9 +6,10 @@ import pytest
 
 from nnsf.reshape import metrics
 from nnsf.reshape.character import Character, stick_figure
-from nnsf.reshape.mesh import (
-    LIMB_PIECES, PART_INDEX, body_region_triangles, build_mesh, drawn_regions, triangle_adjacency,
-)
+from nnsf.reshape.layers import build_mesh
+from nnsf.reshape.mesh import triangle_adjacency
+from nnsf.reshape.parts import LIMB_PIECES, PART_INDEX
+from nnsf.reshape.regions import body_region_triangles, drawn_regions
 from nnsf.reshape.rig import Rig
 from nnsf.skeleton import JOINT_INDEX as J
 

@@ -7,7 +7,8 @@ import pytest
 
 from nnsf.frames import render
 from nnsf.reshape import depth
-from nnsf.reshape.mesh import PART_INDEX, drawn_regions
+from nnsf.reshape.parts import PART_INDEX
+from nnsf.reshape.regions import drawn_regions
 from nnsf.reshape.render import MeshRenderer, underlay_texture
 from nnsf.reshape.stage import build_rig
 from nnsf.reshape.character import Character

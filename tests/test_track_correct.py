@@ -13,7 +13,8 @@ from nnsf.cli import main
 from nnsf.errors import InputError
 from nnsf.frames.annotation import read_annotation
 from nnsf.frames.cvat import read_cvat_video
-from nnsf.frames.stage import read_tracks, render_frames
+from nnsf.frames.stage import render_frames
+from nnsf.track.tracks import read_tracks
 from nnsf.io import read_npz
 from nnsf.track.correct import (
     KEYFRAME_ATTRIBUTE, export_clips, export_cvat, read_corrections, read_cvat_curves, retrack, simulate_user,

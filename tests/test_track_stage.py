@@ -9,9 +9,11 @@ import pytest
 
 from nnsf.errors import InputError
 from nnsf.frames.annotation import read_annotation
-from nnsf.frames.stage import read_tracks, render_frames
+from nnsf.frames.stage import render_frames
+from nnsf.track.tracks import read_tracks
 from nnsf.io import read_json
-from nnsf.track.stage import evaluate_tracking, track_clips
+from nnsf.track.evaluation import evaluate_tracking
+from nnsf.track.stage import track_clips
 
 TRACK = {"method": "ours", "w_velocity": 3.0, "w_length": 1.0, "w_length_anchor": 4.0, "w_curvature": 1.0, "w_edge": 1.0,
          "w_sketch": 100.0, "w_colour": 100.0, "window": 3, "samples": 12, "levels": 2,

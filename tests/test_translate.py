@@ -17,7 +17,7 @@ from nnsf.factor.translate import (
     StyleTranslator, atom_cosines, dtw_accumulate, dtw_align, dtw_path, joint_distance_matrix,
     match_atoms, refit_basis, to_character_points,
 )
-from nnsf.evaluate.stick import write_stick_gif
+from nnsf.stick import write_stick_gif
 from nnsf.skeleton import Unifier, to_points
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -378,7 +378,7 @@ def test_translate_clip_resamples_to_the_target_tempo(unified, translator):
 
 def test_constructor_defaults_equal_the_pipelines_params():
     """A bare StyleTranslator() is the translator the pipeline configures (params.yaml)."""
-    from nnsf.evaluate.translation import translator_params
+    from nnsf.factor.style_model import translator_params
     from nnsf.params import load
 
     root = Path(__file__).resolve().parents[1]

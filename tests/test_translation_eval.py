@@ -13,10 +13,11 @@ from PIL import Image
 from nnsf.datasets import contract
 from nnsf.datasets.synthetic import generate
 from nnsf.errors import InputError
-from nnsf.evaluate.stick import as_clips, contact_sheet, write_stick_gif, write_stick_strip
-from nnsf.evaluate.translation import (
-    STAGE_METHODS, SyntheticTruth, UnifiedTruth, evaluate_cell, heldout, skipped_styles, translate,
-)
+from nnsf.stick import as_clips, contact_sheet, write_stick_gif, write_stick_strip
+from nnsf.evaluate.heldout_report import skipped_styles
+from nnsf.evaluate.heldout_report import write_heldout as heldout
+from nnsf.evaluate.translation import STAGE_METHODS, SyntheticTruth, UnifiedTruth, evaluate_cell
+from nnsf.factor.stage import translate_clip as translate
 from nnsf.io import write_json
 from nnsf.skeleton import Unifier, to_points
 
@@ -238,7 +239,7 @@ def test_target_check_records_every_target_of_issue_11():
     """DTW ≤ 0.17 and, for every judge family, style ≥ 0.45 and content ≥ 0.70: each recorded
     with its value; ``met`` only when all pass; baselines compared on the side."""
     from nnsf.evaluate.judges import FAMILIES
-    from nnsf.evaluate.translation import _target_check
+    from nnsf.evaluate.heldout_report import _target_check
 
     good = {"dtw_error": 0.16, **{f"style_{f}": 0.5 for f in FAMILIES}, **{f"content_{f}": 0.75 for f in FAMILIES}}
     t = _target_check({"nnsf": good})

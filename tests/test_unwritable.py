@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from nnsf import cli, stages
+from nnsf import cli, pipeline, stages
 from nnsf.errors import InputError
 from nnsf.io import atomic_dir, atomic_path, check_writable, write_json
 
@@ -22,7 +22,7 @@ PARAMS = Path(__file__).resolve().parents[1] / "params.yaml"
 
 #: (command, folder made unwritable, extra arguments): every folder each stage writes
 #: into, and the ``--out`` of the commands that take one.
-CASES = [(stage, str(folder), []) for stage, folders in stages.OUTPUT_FOLDERS.items()
+CASES = [(stage, str(folder), []) for stage, folders in pipeline.OUTPUT_FOLDERS.items()
          if stage in cli.STAGES for folder in folders]
 CASES += [(command, "blocked/out", ["--out", "blocked/out"])
           for command in ("translate", "reshape")]
@@ -76,10 +76,10 @@ def test_flows_stage_command_with_an_unwritable_output_folder(tmp_path, monkeypa
 
 
 def test_output_folders_cover_every_declared_output():
-    """stages.OUTPUT_FOLDERS holds the folder of every out, metric and plot in dvc.yaml."""
+    """pipeline.OUTPUT_FOLDERS holds the folder of every out, metric and plot in dvc.yaml."""
     spec = yaml.safe_load((PARAMS.parent / "dvc.yaml").read_text())["stages"]
     for name, stage in spec.items():
-        folders = {Path(f) for f in stages.OUTPUT_FOLDERS[name]}
+        folders = {Path(f) for f in pipeline.OUTPUT_FOLDERS[name]}
         for key in ("outs", "metrics", "plots"):
             for entry in stage.get(key) or []:
                 path = Path(next(iter(entry)) if isinstance(entry, dict) else entry)

@@ -42,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from nnsf.errors import InputError
+from nnsf.io import read_bytes
 
 __all__ = [
     "BVH", "Projection", "read_bvh", "parse_bvh", "forward_kinematics", "local_rotations",
@@ -141,7 +142,6 @@ def read_bvh(path) -> BVH:
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "file", "an existing .bvh file")
-    from nnsf.io import read_bytes
 
     data = read_bytes(path, MAX_BVH_BYTES, "a readable .bvh file")
     try:

@@ -19,6 +19,9 @@ import numpy as np
 
 from nnsf.errors import InputError
 from nnsf.params import VIEW_CHOICES  # the accepted values of dataset.bvh.view and --view
+from nnsf.datasets.bvh import project
+from nnsf.datasets.bvh_source import FACING_PAIRS, load_clip
+from nnsf.skeleton.layout import JOINT_INDEX
 
 #: Named views and their azimuths, degrees.
 VIEWS: dict[str, float] = {"front": 0.0, "side": 90.0, "three-quarter": 45.0}
@@ -92,10 +95,6 @@ def load_clip_in_view(path, view: str = "auto", fps: float | None = 30, elevatio
     (:func:`pick_view`), then projects again in the chosen view (one file
     read: the second projection reuses the 3D key points).
     """
-    from nnsf.datasets.bvh import project
-    from nnsf.datasets.bvh_source import FACING_PAIRS, load_clip
-    from nnsf.skeleton.layout import JOINT_INDEX
-
     view = check_view(view)
     azimuth = 0.0 if view == "auto" else VIEWS[view]
     clip = load_clip(path, fps=fps, azimuth=azimuth, elevation=elevation if view != "auto" else 0.0,

@@ -27,6 +27,10 @@ from sklearn.model_selection import StratifiedGroupKFold
 from threadpoolctl import threadpool_limits
 
 from nnsf.factor.baselines import BilinearModel, NMFClassifier, make_nnsc
+from nnsf.factor.cbgpm import CBGPM
+from nnsf.factor.gp_data import check_phase, phase_from_groups
+from nnsf.factor.mgpm import MGPM
+from nnsf.factor.nnsf import NNSF
 
 #: Methods in the order tables and figures list them.
 METHODS: tuple[str, ...] = ("nnsf", "nnsc", "nmf", "bilinear", "mgpm", "cbgpm")
@@ -107,7 +111,6 @@ def max_rank(method: str, n_features: int, n_styles: int, n_classes: int) -> int
 
 def _make(method, rank, max_iter, seed, nnsf_params, gp_params=None):
     if method == "nnsf":
-        from nnsf.factor.nnsf import NNSF
         return NNSF(n_components=rank, max_iter=max_iter, random_state=seed, **nnsf_params)
     if method == "nnsc":
         kw = {k: v for k, v in nnsf_params.items() if k != "beta"}
@@ -121,18 +124,15 @@ def _make(method, rank, max_iter, seed, nnsf_params, gp_params=None):
         return BilinearModel(n_components=rank)
     gp = {**GP_DEFAULTS, **(gp_params or {})}
     if method == "mgpm":
-        from nnsf.factor.mgpm import MGPM
         return MGPM(n_components=rank, phase_bins=gp["phase_bins"], max_iter=gp["max_iter"],
                     random_state=seed)
     if method == "cbgpm":
-        from nnsf.factor.cbgpm import CBGPM
         return CBGPM(n_components=rank, phase_bins=gp["phase_bins"], max_iter=gp["max_iter"])
     raise ValueError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
 
 
 def _check_nnsf_params(nnsf_params):
     nnsf_params = dict(nnsf_params or {})
-    from nnsf.factor.nnsf import NNSF
     allowed = set(NNSF().get_params()) - set(_OWN_PARAMS)
     unknown = sorted(set(nnsf_params) - allowed)
     if unknown:
@@ -298,7 +298,6 @@ def precision_vs_rank(X, y, groups, styles=None, methods=METHODS, ranks=(2, 4, 8
     if unknown:
         raise ValueError(f"gp_params: unknown parameter(s) {unknown}; allowed: {sorted(GP_DEFAULTS)}")
     if any(m in methods for m in GP_METHODS):
-        from nnsf.factor.gp_data import check_phase, phase_from_groups
         phase = phase_from_groups(groups) if phase is None else check_phase(phase, n)
     if any(m in methods for m in ("nnsf", "nnsc")):
         nnsf_params = _check_nnsf_params(nnsf_params)

@@ -1,10 +1,6 @@
 """Figures of the evaluation: precision and reconstruction vs rank, ISOMAP.
 
-Figures are built on :class:`matplotlib.figure.Figure` directly and rendered
-by the Agg canvas, never through ``pyplot``: no global backend is selected
-(importing this module leaves a user's interactive backend alone), no
-figure registry leaks memory across a sweep, and it is safe from worker
-threads.  Files are written atomically (:func:`nnsf.io.atomic_path`).
+Drawn with :mod:`nnsf.plotting` (Agg canvas, no ``pyplot``, atomic files).
 """
 from __future__ import annotations
 
@@ -12,14 +8,10 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.ticker import FuncFormatter
 
-from nnsf.io import atomic_path
-
-DPI = 150
+from nnsf.plotting import categorical_colors, new_figure, save_figure
 
 #: One fixed colour and marker per method, the same in every figure.
 METHOD_STYLE: dict[str, dict] = {
@@ -30,19 +22,6 @@ METHOD_STYLE: dict[str, dict] = {
     "mgpm": {"color": "#ff7f0e", "marker": "v", "label": "MGPM (Wang et al.)"},
     "cbgpm": {"color": "#8c564b", "marker": "P", "label": "CBGPM (after Ma et al.)"},
 }
-
-
-def new_figure(width, height):
-    fig = Figure(figsize=(width, height), dpi=DPI, layout="constrained")
-    FigureCanvasAgg(fig)
-    return fig
-
-
-def save_figure(fig, path) -> Path:
-    path = Path(path)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=DPI, format=path.suffix.lstrip(".") or "png")
-    return path
 
 
 def _style(method, i):
@@ -182,7 +161,7 @@ def isomap_figure(embedding3d, labels, dims, rv, intrinsic_dim: int, path,
     grid = fig.add_gridspec(1, 2, width_ratios=[1.15, 1])
     ax3 = fig.add_subplot(grid[0, 0], projection="3d")
     names = list(dict.fromkeys(sorted(labels.tolist())))
-    cmap = _categorical_colors(len(names))
+    cmap = categorical_colors(len(names))
     index = {name: i for i, name in enumerate(names)}
     colors = np.array([cmap[index[v]] for v in labels.tolist()])
     # One scatter in a fixed shuffled order: drawn label by label, the last
@@ -219,13 +198,3 @@ def isomap_figure(embedding3d, labels, dims, rv, intrinsic_dim: int, path,
     ax.legend(loc="upper right", fontsize=10)
     fig.suptitle(title, fontsize=13)
     return save_figure(fig, path)
-
-
-def _categorical_colors(n):
-    """``n`` distinct colours: tab10 up to 10, tab20 up to 20, then evenly spaced hues."""
-    from matplotlib import colormaps
-    if n <= 10:
-        return [colormaps["tab10"](i) for i in range(n)]
-    if n <= 20:
-        return [colormaps["tab20"](i) for i in range(n)]
-    return [colormaps["hsv"](i / n) for i in range(n)]

@@ -23,6 +23,9 @@ import pandas as pd
 
 from nnsf.errors import InputError
 from nnsf.params import require, source_of
+from nnsf.factor.cbgpm import CBGPM
+from nnsf.factor.mgpm import MGPM
+from nnsf.skeleton import N_FEATURES
 
 __all__ = ["GP_TRANSLATION_METHODS", "fit_gp_translator", "gp_translate", "translation_gp_params"]
 
@@ -53,10 +56,8 @@ def fit_gp_translator(method: str, X, content, style, clip, *, rank: int, phase_
     The fitted estimator.
     """
     if method == "mgpm":
-        from nnsf.factor.mgpm import MGPM
         model = MGPM(n_components=rank, phase_bins=phase_bins, max_iter=max_iter, random_state=seed)
     elif method == "cbgpm":
-        from nnsf.factor.cbgpm import CBGPM
         model = CBGPM(n_components=rank, phase_bins=phase_bins, max_iter=max_iter)
     else:
         raise ValueError(f"unknown GP translation method {method!r}; choose from {GP_TRANSLATION_METHODS}")
@@ -90,8 +91,6 @@ def translation_gp_params(params: dict, table: pd.DataFrame, methods=GP_TRANSLAT
     the frames of the shortest clip (the subsample cannot be larger than
     the data).  Each failure is an :class:`InputError` naming the field.
     """
-    from nnsf.skeleton import N_FEATURES
-
     rank = int(require(params, "translation.gp_rank"))
     bins = int(require(params, "translation.gp_phase_bins"))
     max_iter = int(require(params, "translation.gp_max_iter"))

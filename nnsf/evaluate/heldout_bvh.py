@@ -25,7 +25,15 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from nnsf.evaluate.translation import STAGE_METHODS
+from nnsf.datasets import bvh_source
+from nnsf.datasets.stage import complete_grid as _complete_grid
+from nnsf.errors import InputError
+from nnsf.evaluate.gp_translation import GP_TRANSLATION_METHODS, translation_gp_params
+from nnsf.evaluate.heldout_report import _target_check
+from nnsf.evaluate.translation import DEFAULT_VARIANTS, STAGE_METHODS, _pick, evaluate_cell, grid_cells
+from nnsf.factor.style_model import translator_params
+from nnsf.io import read_json, write_csv, write_json
+from nnsf.params import load, require
 
 __all__ = ["main", "summary_tables", "markdown", "target_check"]
 
@@ -80,8 +88,6 @@ def markdown(summary: dict, key: str = "methods", only=None) -> str:
 def target_check(results: pd.DataFrame, method: str = "nnsf") -> dict:
     """Issue 11's targets for ``method`` on these results
     (:func:`nnsf.evaluate.translation._target_check`)."""
-    from nnsf.evaluate.translation import _target_check
-
     cols = ["dtw_error", *[c for c in results.columns if c.startswith(("style_", "content_"))]]
     means = results.groupby("method")[cols].mean()
     per_method = {m: {k: (None if pd.isna(v) else float(v)) for k, v in row.items()} for m, row in means.iterrows()}
@@ -92,7 +98,6 @@ def _one(args):
     table, s, c, kw = args
     from threadpoolctl import threadpool_limits
 
-    from nnsf.evaluate.translation import evaluate_cell
     with threadpool_limits(1):
         t0, c0 = time.perf_counter(), time.process_time()
         r = evaluate_cell(table, s, c, **kw)
@@ -102,14 +107,6 @@ def _one(args):
 
 
 def main(argv=None) -> int:
-    from nnsf.datasets import bvh_source
-    from nnsf.errors import InputError
-    from nnsf.evaluate.gp_translation import GP_TRANSLATION_METHODS, translation_gp_params
-    from nnsf.evaluate.translation import DEFAULT_VARIANTS, _pick, grid_cells, translator_params
-    from nnsf.io import write_csv, write_json
-    from nnsf.params import load, require
-    from nnsf.stages import _complete_grid
-
     ap = argparse.ArgumentParser(prog="python -m nnsf.evaluate.heldout_bvh", description=__doc__.split("\n")[0])
     ap.add_argument("--data", help="folder of labelled .bvh clips")
     ap.add_argument("--out", required=True, help="output path without suffix (.csv and .json are written)")
@@ -124,7 +121,6 @@ def main(argv=None) -> int:
     ap.add_argument("--only", default="", help="with --markdown: comma-separated methods to show")
     a = ap.parse_args(argv)
     if a.markdown:
-        from nnsf.io import read_json
         print(markdown(read_json(Path(a.out).with_suffix(".json")), a.markdown,
                        only=[m for m in a.only.split(",") if m] or None))
         return 0

@@ -61,7 +61,6 @@ import numbers
 import time
 import warnings
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -71,7 +70,7 @@ from sklearn.preprocessing import StandardScaler
 
 from nnsf.datasets.contract import COLUMNS, features
 from nnsf.errors import InputError
-from nnsf.evaluate.gp_translation import GP_TRANSLATION_METHODS, fit_gp_translator, gp_translate, translation_gp_params
+from nnsf.evaluate.gp_translation import GP_TRANSLATION_METHODS, fit_gp_translator, gp_translate
 from nnsf.evaluate.judges import FAMILIES as JUDGE_FAMILIES
 from nnsf.evaluate.judges import Judges
 from nnsf.factor.baselines import BilinearModel
@@ -80,6 +79,7 @@ from nnsf.factor.translate import (
     StyleTranslator, dtw_accumulate, dtw_path, joint_distance_matrix,
 )
 from nnsf.skeleton import Unifier, bone_lengths, to_features, to_points
+from nnsf.datasets.synthetic import clip_points
 
 __all__ = [
     "METHODS", "DEFAULT_VARIANTS", "RESULT_COLUMNS", "SyntheticTruth", "clip_features",
@@ -220,8 +220,6 @@ class SyntheticTruth:
     canvas: tuple[int, int] = (256, 256)
 
     def __call__(self, source_clip: str, target_style: str, n_frames: int) -> np.ndarray:
-        from nnsf.datasets.synthetic import clip_points
-
         parts = str(source_clip).split("-")
         if len(parts) < 3 or not parts[-1].isdigit():
             raise ValueError(f"SyntheticTruth: clip id {source_clip!r} is not "
@@ -755,29 +753,6 @@ SUMMARY_METRICS: dict[str, str] = {
 }
 
 
-def translator_params(params: dict) -> dict:
-    """StyleTranslator keyword arguments from the ``translation`` section of params.yaml."""
-    from nnsf.params import require
-
-    label = require(params, "translation.label")
-    return {
-        "n_components": int(require(params, "translation.rank")),
-        "alpha": float(require(params, "translation.alpha")),
-        "beta": float(require(params, "translation.beta")),
-        "label": {"motion": "content", "character": "style"}.get(label, label),
-        "basis": require(params, "translation.basis"),
-        "synthesis": require(params, "translation.synthesis"),
-        "amplitude": require(params, "translation.amplitude"),
-        "tempo": bool(require(params, "translation.tempo")),
-        "ridge": float(require(params, "translation.ridge")),
-        "smooth": float(require(params, "translation.smooth")),
-        "smooth_order": int(require(params, "translation.smooth_order")),
-        "max_iter": int(require(params, "translation.max_iter")),
-        "align_iter": int(require(params, "translation.align_iter")),
-        "random_state": int(require(params, "seed")),
-    }
-
-
 @dataclass(frozen=True)
 class UnifiedTruth:
     """The synthetic ground truth in the units of a unified table.
@@ -823,164 +798,11 @@ def run_cell(job: CellJob):
     return out, None, None
 
 
-def _check_translator(params, tp):
-    from nnsf.params import source_of
-
-    if tp["synthesis"] == "consensus" and tp["basis"] != "aligned":
-        raise InputError(source_of(params), "translation.synthesis",
-                         "'source' unless translation.basis is 'aligned' (a consensus needs the "
-                         "aligned fit's shared weights)", tp["synthesis"])
-    try:
-        StyleTranslator(**tp)._check_params()
-    except ValueError as exc:
-        raise InputError(source_of(params), "translation", "valid StyleTranslator settings", reason=str(exc)) from None
-
-
 def _pick(cells, n):
     """``n`` cells spread evenly over the sorted list (all when n is 0 or ≥ len)."""
     if n <= 0 or n >= len(cells):
         return list(cells)
     return [cells[i] for i in np.unique(np.linspace(0, len(cells) - 1, n).round().astype(int))]
-
-
-def skipped_styles(table: pd.DataFrame) -> list[str]:
-    """Report lines for styles that cannot be held out: performed in one content only."""
-    pairs = table[["character", "motion"]].drop_duplicates().astype(str)
-    n = pairs.groupby("character")["motion"].agg(["nunique", "first"])
-    return [f"style {s!r} appears in one content only ({row['first']}): its cells cannot be held out "
-            "(nothing else to learn the style from)" for s, row in n.iterrows() if row["nunique"] < 2]
-
-
-def heldout(params: dict, features_csv=Path("data/features/features.csv"), reports=Path("reports"),
-            mapper=None, unifier_json=None):
-    """Stage: leave-one-cell-out translation over the style × content grid (docs/method.md §15.5).
-
-    Reads a contract table (``character`` = style, ``motion`` = content) --
-    the stage passes the raw key points in pixels, so that nothing fitted on
-    all clips (the features stage's unifier) reaches a cell; every cell's
-    unifier, models and judges are fitted on its remaining clips --,
-    holds out every cell of :func:`grid_cells` (or ``translation.max_cells``
-    of them, spread evenly), synthesises it with every method of
-    ``translation.methods`` from the remaining data and scores it against the
-    hidden clips (:func:`evaluate_cell`; the unifier, the models and the
-    classifiers are refitted without the cell).  On the synthetic dataset the
-    exact translation (:class:`SyntheticTruth`; mapped with
-    ``unifier_json`` when the table is already unified) adds ``truth_error``.
-
-    Cells fan out through ``mapper(run_cell, jobs)`` (default: ``map``).
-
-    Writes ``reports/heldout.csv`` (cell × method), ``reports/heldout.json``
-    (per-method means, the target check, skipped styles),
-    ``reports/plots/heldout_by_style.csv``, ``reports/figures/heldout_by_style.png``,
-    ``reports/figures/heldout_strip.png`` and ``reports/figures/heldout_example.gif``.
-    Returns a StageResult whose ``runs`` hold one StageResult per method.
-
-    Raises InputError for bad parameters, a table without any cell to hold
-    out, and -- after writing the other cells' results -- once for all
-    cells that failed, naming them.
-    """
-    from nnsf.datasets import contract
-    from nnsf.evaluate.stick import write_stick_gif
-    from nnsf.evaluate.translation_figures import per_style_figure, strip_figure
-    from nnsf.io import atomic_path, write_csv, write_json
-    from nnsf.params import require, source_of
-    from nnsf.stages import StageResult
-
-    mapper = mapper or (lambda fn, items: list(map(fn, items)))
-    features_csv, reports = Path(features_csv), Path(reports)
-    seed = int(require(params, "seed"))
-    tp = translator_params(params)
-    methods = tuple(require(params, "translation.methods"))
-    bad = [m for m in methods if m not in STAGE_METHODS]
-    if bad or not methods:
-        raise InputError(source_of(params), "translation.methods",
-                         f"a non-empty list of {list(STAGE_METHODS)}", bad or methods)
-    bilinear_rank = int(require(params, "translation.bilinear_rank"))
-    max_sources = int(require(params, "translation.max_sources"))
-    max_cells = int(require(params, "translation.max_cells"))
-    n_examples = int(require(params, "translation.examples"))
-    margin = float(require(params, "unify.margin"))
-    _check_translator(params, tp)
-
-    table = contract.read_table(features_csv)
-    gp = [m for m in methods if m in GP_TRANSLATION_METHODS]
-    gp_params = translation_gp_params(params, table, gp) if gp else None
-    truth = None
-    if require(params, "dataset.name") == "synthetic":
-        if unifier_json is None:        # a table in pixels: the generator's pixels are the truth
-            truth = SyntheticTruth(seed=seed)
-        else:
-            from nnsf.io import read_json
-            truth = UnifiedTruth(SyntheticTruth(seed=seed), read_json(Path(unifier_json)))
-    report = skipped_styles(table)
-    cells = grid_cells(table)
-    if not cells:
-        raise InputError(features_csv, "character/motion", "at least one (style, content) cell whose "
-                         "content another style performs and whose style performs another content", "none")
-    cells = _pick(cells, max_cells)
-    show = set(_pick(cells, n_examples)) if n_examples > 0 else set()
-    variants = {m: dict(DEFAULT_VARIANTS.get(m, {})) for m in methods if m.startswith("nnsf")}
-    kw = dict(methods=methods, translator_params=tp, variants=variants, bilinear_rank=bilinear_rank,
-              max_sources=max_sources or None, gp_params=gp_params, truth=truth, margin=margin, seed=seed)
-    jobs = [CellJob(table, s, c, {**kw, "return_examples": (s, c) in show}) for s, c in cells]
-    outs = mapper(run_cell, jobs)
-
-    parts, examples, failed = [], [], []
-    for job, (rows, ex, err) in zip(jobs, outs):
-        if err is not None:
-            failed.append(f"{job.style}/{job.content}: {err}")
-            continue
-        parts.append(rows)
-        if ex:
-            examples.append(((job.style, job.content), ex))
-    if not parts:
-        raise InputError(features_csv, "cells", "at least one cell that can be evaluated",
-                         "; ".join(failed))
-    results = pd.concat(parts, ignore_index=True).drop(columns=["seconds"])
-    summary = summarise(results)
-    by_style = per_style(results)
-
-    per_method = {}
-    for _, row in summary.iterrows():
-        per_method[row["method"]] = {k: (None if pd.isna(row[c]) else float(row[c]))
-                                     for k, c in SUMMARY_METRICS.items()}
-        per_method[row["method"]]["cells"] = int(row["cells"])
-    target = _target_check(per_method)
-    figures = reports / "figures"
-    write_csv(reports / "heldout.csv", results)
-    write_csv(reports / "plots" / "heldout_by_style.csv", by_style)
-    write_json(reports / "heldout.json", {"methods": per_method, "cells": len(cells), "target": target,
-                                          "report": report + failed})
-    fig = per_style_figure(results, figures / "heldout_by_style.png",
-                           title=f"Held-out translation per target style ({len(cells)} cells)")
-    artifacts = [reports / "heldout.csv", reports / "heldout.json", fig]
-    if examples:
-        ms = [m for m in ("nnsf", "bilinear", "identity") if m in methods] or list(methods[:1])
-        artifacts.append(strip_figure(examples, figures / "heldout_strip.png", methods=ms))
-        (s, c), ex = examples[0]
-        m = ms[0]
-        artifacts.append(write_stick_gif(
-            figures / "heldout_example.gif", [ex[m]["synth"], ex[m]["real"]],
-            titles=[f"{m}: {c} as {s}", f"real (hidden): {c}, {s}"], fps=12))
-
-    runs = {}
-    for m, vals in per_method.items():
-        runs[m] = StageResult(params={"method": m, **({"variant": repr(variants[m])} if m in variants else {})},
-                              metrics={k: v for k, v in vals.items() if v is not None},
-                              artifacts=[fig])
-    main = per_method.get("nnsf", next(iter(per_method.values())))
-    result = StageResult(
-        params={f"translation_{k}": v for k, v in tp.items()} | {"cells": len(cells),
-                                                                "methods": ",".join(methods)},
-        metrics={f"nnsf_{k}": v for k, v in main.items() if v is not None} | (
-            {} if target["met"] is None else
-            {"target_met": float(target["met"]), "targets_passed": float(target["passed"]),
-             **{"target_" + _metric_name(k): float(c["met"]) for k, c in target["checks"].items()}}),
-        artifacts=artifacts, runs=runs)
-    if failed:
-        raise InputError(features_csv, "cells", "every held-out cell to be evaluable",
-                         f"{len(failed)} failed: " + "; ".join(failed))
-    return result
 
 
 #: Issue 11's targets for the default translation (``nnsf``), on every judge family.
@@ -989,134 +811,3 @@ TARGET_STYLE: float = 0.45          # style accuracy ≥ 0.45
 TARGET_CONTENT: float = 0.70        # content accuracy ≥ 0.70
 #: Baselines the default is compared with (``beats`` in the check), where they were run.
 TARGET_BASELINES: tuple[str, ...] = ("offset", "bilinear", "identity", "mgpm", "cbgpm")
-
-
-def _metric_name(check: str) -> str:
-    """``"style_lr >= 0.45"`` -> ``"style_lr"`` (an MLflow metric name)."""
-    return check.split(" ")[0]
-
-
-def _target_check(per_method: dict, method: str = "nnsf") -> dict:
-    """Issue 11's targets for ``method``, each recorded as passed or not.
-
-    ``checks``: ``dtw_error <= 0.17`` and, for every judge family, ``style_<f> >= 0.45`` and
-    ``content_<f> >= 0.70`` -- each ``{"value", "target", "met"}``.  ``met`` is true only when
-    every check passes; ``None`` when ``method`` was not run.  ``beats`` (informative, not part
-    of ``met``): per baseline that was run, whether ``method`` is below it on DTW error and
-    above it on the mean style and the mean content accuracy over the judge families.
-    """
-    if method not in per_method:
-        return {"method": method, "met": None, "checks": {}, "beats": {}}
-    v = per_method[method]
-    checks = {"dtw_error <= 0.17": {"value": v.get("dtw_error"), "target": TARGET_DTW,
-                                    "met": v.get("dtw_error") is not None and v["dtw_error"] <= TARGET_DTW}}
-    for fam in JUDGE_FAMILIES:
-        for what, goal in (("style", TARGET_STYLE), ("content", TARGET_CONTENT)):
-            x = v.get(f"{what}_{fam}")
-            checks[f"{what}_{fam} >= {goal:.2f}"] = {"value": x, "target": goal,
-                                                     "met": x is not None and x >= goal}
-
-    def means(w):
-        xs = [w.get(f"{k}_{f}") for f in JUDGE_FAMILIES for k in ("style", "content")]
-        if any(x is None for x in xs):
-            return None, None
-        n = len(JUDGE_FAMILIES)
-        return sum(xs[0::2]) / n, sum(xs[1::2]) / n
-
-    beats = {}
-    s_m, c_m = means(v)
-    for b in TARGET_BASELINES:
-        if b in per_method and b != method:
-            w = per_method[b]
-            s_b, c_b = means(w)
-            beats[b] = {"dtw_error": v["dtw_error"] < w["dtw_error"],
-                        "style": None if s_b is None else s_m > s_b,
-                        "content": None if c_b is None else c_m > c_b}
-    return {"method": method, "met": all(c["met"] for c in checks.values()), "checks": checks,
-            "passed": sum(c["met"] for c in checks.values()), "of": len(checks), "beats": beats}
-
-
-def translate(params: dict, features_csv=Path("data/features/features.csv"),
-              unifier_json=Path("data/features/unifier.json"), content_clip: str = "", style: str = "",
-              out_dir=Path("reports/translation")):
-    """Stage/CLI: the motion of one clip performed in another style (docs/method.md §8).
-
-    Fits a :class:`~nnsf.factor.translate.StyleTranslator` (``translation.*``)
-    on every clip of ``features_csv`` and synthesises the content of
-    ``content_clip`` in ``style``: with ``translation.synthesis: source``
-    from that clip itself, X̂ = V_clip U_style (+ the clip's residual); with
-    ``consensus`` from the content's shared weights, X̂ = V_content U_style
-    (every clip of the content contributes).  X̂ goes back to pixels with the
-    target character's inverse unification (``unifier_json``).
-
-    Writes into ``out_dir``: ``translated_features.csv`` (the contract in
-    template units), ``translated_pixels.csv`` (the contract in the target's
-    pixels), ``translation.gif`` (source | translation | a real clip of the
-    target style with that content, if any, in pixels), ``translation_strip.png``
-    and ``translation.json``.  Rows are named ``{content_clip}-as-{style}``,
-    ``character`` = ``style``, ``motion`` = the clip's content.
-
-    Raises InputError naming ``content_clip`` or ``style`` when they are not
-    in the table (with the choices), or bad ``translation.*`` parameters.
-    """
-    from nnsf.datasets import contract
-    from nnsf.evaluate.stick import write_stick_gif, write_stick_strip
-    from nnsf.factor.translate import to_character_points
-    from nnsf.io import atomic_dir, read_json, write_json
-    from nnsf.stages import StageResult
-
-    features_csv, unifier_json, out_dir = Path(features_csv), Path(unifier_json), Path(out_dir)
-    tp = translator_params(params)
-    _check_translator(params, tp)
-    table = contract.read_table(features_csv, non_negative=True)
-    clips = table["clip"].astype(str).to_numpy()
-    chars = table["character"].astype(str).to_numpy()
-    motions = table["motion"].astype(str).to_numpy()
-    content_clip, style = str(content_clip), str(style)
-    names = sorted(set(clips))
-    if content_clip not in names:
-        shown = ", ".join(names[:8]) + (", …" if len(names) > 8 else "")
-        raise InputError(features_csv, "content_clip", f"a clip of the table ({shown})", content_clip)
-    styles = sorted(set(chars))
-    if style not in styles:
-        raise InputError(features_csv, "style", f"a character (style) of the table: {styles}", style)
-    unifier = Unifier.from_dict(read_json(unifier_json))
-    if style not in unifier.scales:
-        raise InputError(unifier_json, "characters", f"the target style {style!r}", sorted(unifier.scales))
-    rows = clips == content_clip
-    src_style, content = chars[rows][0], motions[rows][0]
-    X = contract.features(table)
-    tr = StyleTranslator(**tp).fit(X, motions, chars, clips)
-    X_hat = tr.synthesize_cell(content, style, X[rows], src_style)
-    P_hat = to_character_points(X_hat, style, unifier)
-    name = f"{content_clip}-as-{style}"
-
-    def frame(values):
-        t = pd.DataFrame({"clip": name, "frame": np.arange(len(values)), "character": style,
-                          "motion": content})
-        return pd.concat([t, pd.DataFrame(values, columns=list(COLUMNS[4:]))], axis=1)
-
-    real = sorted(set(clips[(chars == style) & (motions == content)]) - {content_clip})
-    seqs = [unifier.inverse_transform(X[rows], src_style), P_hat]
-    titles = [f"source: {content_clip}", f"{content} as {style} (NNSF)"]
-    if real:
-        seqs.append(unifier.inverse_transform(X[clips == real[0]], style))
-        titles.append(f"real: {real[0]}")
-    fps = float(params.get("dataset", {}).get("bvh", {}).get("fps", 12)) \
-        if params.get("dataset", {}).get("name") == "bvh" else 12.0
-    with atomic_dir(out_dir) as tmp:
-        contract.write_table(tmp / "translated_features.csv", frame(X_hat))
-        contract.write_table(tmp / "translated_pixels.csv", frame(P_hat.reshape(len(P_hat), -1)))
-        write_stick_gif(tmp / "translation.gif", seqs, titles=titles, fps=fps)
-        write_stick_strip(tmp / "translation_strip.png", seqs, titles=titles, n_frames=8)
-        write_json(tmp / "translation.json", {
-            "content_clip": content_clip, "source_style": src_style, "content": content,
-            "target_style": style, "frames": int(len(X_hat)), "synthesis": tp["synthesis"],
-            "real_reference": real[0] if real else None,
-            "files": ["translated_features.csv", "translated_pixels.csv", "translation.gif",
-                      "translation_strip.png"]})
-    return StageResult(
-        params={"content_clip": content_clip, "style": style} | {f"translation_{k}": v for k, v in tp.items()},
-        metrics={"frames": int(len(X_hat)), "feature_min": float(X_hat.min())},
-        artifacts=[out_dir / "translation.gif", out_dir / "translation_strip.png",
-                   out_dir / "translated_pixels.csv"])

@@ -17,6 +17,8 @@ import pandas as pd
 
 from nnsf.evaluate.translation import METHODS, per_style
 from nnsf.skeleton import to_points
+from nnsf.plotting import new_figure, save_figure
+from nnsf.skeleton.layout import BONES
 
 __all__ = ["TRANSLATION_STYLE", "per_style_figure", "strip_figure"]
 
@@ -55,8 +57,6 @@ def per_style_figure(results: pd.DataFrame, path, methods=None,
         except ``real`` in the error panel (its error is 0 by definition) --
         ``real`` is drawn in the accuracy panel as the ceiling.
     """
-    from nnsf.evaluate.figures import new_figure, save_figure
-
     table = per_style(results)
     if methods is None:
         methods = [m for m in METHODS if m in set(results["method"])] + \
@@ -95,7 +95,6 @@ def per_style_figure(results: pd.DataFrame, path, methods=None,
 
 
 def _draw_stick(ax, features_row, color, lw=2.0, alpha=1.0, zorder=2, ls="-"):
-    from nnsf.skeleton.layout import BONES
     p = to_points(np.asarray(features_row)[None])[0]
     for a, b in BONES:
         ax.plot([p[a, 0], p[b, 0]], [p[a, 1], p[b, 1]], color=color, linewidth=lw, alpha=alpha,
@@ -114,8 +113,6 @@ def strip_figure(examples: list, path, methods=("nnsf", "bilinear", "identity"),
     methods : one row per method and cell.
     n_frames : frames per row, spread evenly along the DTW path.
     """
-    from nnsf.evaluate.figures import new_figure, save_figure
-
     rows = [(cell, m, ex[m]) for cell, ex in examples for m in methods if m in ex]
     if not rows:
         raise ValueError("strip_figure: no examples of the requested methods")

@@ -21,6 +21,7 @@ from sklearn.decomposition import NMF
 from sklearn.utils.validation import check_array, check_is_fitted, check_non_negative
 
 from nnsf.factor.nnsf import class_map_from_grams
+from nnsf.factor.nnsf import NNSF
 
 __all__ = ["class_map", "one_hot", "NMFClassifier", "make_nnsc", "BilinearModel"]
 
@@ -224,7 +225,6 @@ def make_nnsc(**kw):
     """
     if kw.get("beta", 0.0) != 0:
         raise ValueError(f"NNSC is NNSF with beta = 0; got beta={kw['beta']!r}")
-    from nnsf.factor.nnsf import NNSF  # late import: NNSF lives beside, and imports this module
     kw["beta"] = 0.0
     return NNSF(**kw)
 

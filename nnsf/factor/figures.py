@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from nnsf.evaluate.figures import new_figure, save_figure
+from nnsf.plotting import new_figure, save_figure
 from nnsf.skeleton import BONES, to_points
 
 

@@ -1,236 +1,26 @@
-"""A fitted :class:`~nnsf.factor.translate.StyleTranslator` saved to one ``.npz`` and applied later.
+"""A saved style model applied to new motion: :func:`translate` (``nnsf.translate``) and its helpers.
 
-File format (``nnsf.style_model``, version :data:`VERSION`): an uncompressed
-``.npz`` read with ``allow_pickle=False``, holding
-
-* ``meta``: a 0-d string array, JSON with ``format``, ``version``, ``styles``,
-  ``contents``, ``params`` (the translator's ``get_params()``), ``unifier``
-  (the template unification of the training characters,
-  :meth:`nnsf.skeleton.Unifier.to_dict`), ``features_sha256`` (hash of the
-  feature table the model was fitted on, or null), ``source`` (free text)
-  and ``state``: a description of every fitted attribute (``name_``) of the
-  translator and of its pooled :class:`~nnsf.factor.nnsf.NNSF`;
-* one array per fitted array, named ``a<N>`` and referenced from ``state``.
-
-Fitted attributes are stored generically -- arrays, numbers, strings, lists,
-dicts with string or tuple-of-string keys and nested estimators -- so that a
-translator that gains an attribute still saves without a change here.
-Floats go through arrays or through JSON's shortest round-trip repr, so a
-loaded model translates bit for bit like the fitted one.
+:class:`StyleModel` is a loaded model file (:mod:`nnsf.factor.model_file`):
+the fitted :class:`~nnsf.factor.translate.StyleTranslator` and the unifier of
+its training characters.  :func:`translate` maps a clip of any body into a
+style (unify with the clip's own proportions, Eq. 4; translate, docs/method.md
+§8; back to the clip's pixels); :func:`fit_model` fits and saves one
+(the ``styles`` stage); :func:`translator_params` reads the ``translation``
+section of params.yaml.
 """
 from __future__ import annotations
 
-import hashlib
-import importlib
-import json
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
+from nnsf.datasets import contract
 from nnsf.errors import InputError
+from nnsf.factor.model_file import file_sha256, load_model, read_meta, save_model  # noqa: F401  (re-exported)
 from nnsf.io import DIGITS
-
-FORMAT = "nnsf.style_model"
-VERSION = 1
-
-
-def file_sha256(path) -> str:
-    """Hex SHA-256 of a file's bytes."""
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
-# ----------------------------------------------------------------------------- encode
-class _Writer:
-    def __init__(self):
-        self.arrays: dict[str, np.ndarray] = {}
-
-    def array(self, a: np.ndarray) -> dict:
-        key = f"a{len(self.arrays)}"
-        spec = {"kind": "array", "key": key}
-        if a.dtype == object:
-            # Labels held as object arrays: stored as unicode, restored as object.
-            spec["object"] = True
-            a = a.astype(str)
-        self.arrays[key] = a
-        return spec
-
-    def value(self, v):
-        from sklearn.base import BaseEstimator
-
-        if isinstance(v, np.ndarray):
-            return self.array(v)
-        if isinstance(v, np.generic):
-            return self.array(np.asarray(v)) | {"scalar": True}
-        if v is None or isinstance(v, (bool, str)):
-            return {"kind": "json", "value": v}
-        if isinstance(v, (int, float)):
-            return {"kind": "json", "value": v, "type": type(v).__name__}
-        if isinstance(v, (list, tuple)):
-            return {"kind": "list", "tuple": isinstance(v, tuple), "items": [self.value(x) for x in v]}
-        if isinstance(v, dict):
-            items = []
-            for k, x in v.items():
-                if isinstance(k, (str, np.str_)):
-                    key = str(k)
-                elif isinstance(k, tuple) and all(isinstance(e, (str, np.str_)) for e in k):
-                    key = [str(e) for e in k]
-                else:
-                    raise TypeError(f"cannot store a dict key of type {type(k).__name__}")
-                items.append([key, self.value(x)])
-            return {"kind": "dict", "items": items}
-        if isinstance(v, BaseEstimator):
-            return self.estimator(v)
-        raise TypeError(f"cannot store a value of type {type(v).__name__}")
-
-    def estimator(self, est) -> dict:
-        cls = type(est)
-        return {"kind": "estimator", "class": f"{cls.__module__}.{cls.__qualname__}",
-                "params": self.value(est.get_params(deep=False)), "attrs": fitted_state(est, self)}
-
-
-def fitted_state(est, writer: _Writer) -> dict:
-    """``{name: spec}`` of every fitted attribute (``name_``, not ``_name``) of ``est``."""
-    return {k: writer.value(v) for k, v in sorted(vars(est).items())
-            if k.endswith("_") and not k.startswith("_")}
-
-
-# ----------------------------------------------------------------------------- decode
-class _Reader:
-    def __init__(self, arrays, path):
-        self.arrays, self.path = arrays, path
-
-    def value(self, spec):
-        kind = spec.get("kind") if isinstance(spec, dict) else None
-        if kind == "array":
-            key = spec["key"]
-            if key not in self.arrays:
-                raise InputError(self.path, f"array {key}", "an array the model's metadata refers to",
-                                 "missing")
-            a = self.arrays[key]
-            if spec.get("object"):
-                a = a.astype(object)
-            return a[()] if spec.get("scalar") else a
-        if kind == "json":
-            v = spec["value"]
-            if spec.get("type") == "float":
-                return float(v)
-            if spec.get("type") == "int":
-                return int(v)
-            return v
-        if kind == "list":
-            items = [self.value(x) for x in spec["items"]]
-            return tuple(items) if spec.get("tuple") else items
-        if kind == "dict":
-            return {(tuple(k) if isinstance(k, list) else k): self.value(x) for k, x in spec["items"]}
-        if kind == "estimator":
-            return self.estimator(spec)
-        raise InputError(self.path, "meta.state", "a known value kind", kind)
-
-    def estimator(self, spec):
-        module, _, name = spec["class"].rpartition(".")
-        if not module.startswith("nnsf."):
-            raise InputError(self.path, "meta.state", "an nnsf estimator class", spec["class"])
-        try:
-            cls = getattr(importlib.import_module(module), name)
-        except (ImportError, AttributeError):
-            raise InputError(self.path, "meta.state", "an estimator class of this nnsf version",
-                             spec["class"]) from None
-        est = cls(**self.value(spec["params"]))
-        for k, v in spec["attrs"].items():
-            setattr(est, k, self.value(v))
-        return est
-
-
-# ----------------------------------------------------------------------------- files
-def save_model(translator, path, *, unifier=None, features_sha256: str | None = None,
-               source: str = "", view: str | None = None, digits: int | None = None) -> Path:
-    """Write a fitted translator (and the unifier of its training characters) to ``path``, atomically.
-
-    ``digits=None`` keeps every bit, so a loaded model translates exactly as
-    the fitted one.  The ``styles`` stage passes 6 significant digits
-    (:data:`nnsf.io.DIGITS`) instead, so that the versioned file, and DVC's
-    hash of it, is the same on every machine whatever BLAS noise the fit had.
-    """
-    from sklearn.utils.validation import check_is_fitted
-
-    from nnsf.io import round_floats, write_npz
-
-    check_is_fitted(translator, "style_bases_")
-    w = _Writer()
-    state = fitted_state(translator, w)
-    meta = {
-        "format": FORMAT, "version": VERSION,
-        "class": f"{type(translator).__module__}.{type(translator).__qualname__}",
-        "styles": [str(s) for s in translator.styles_],
-        "contents": [str(c) for c in translator.contents_],
-        "params": w.value(translator.get_params(deep=False)),
-        "unifier": unifier.to_dict() if unifier is not None else None,
-        "features_sha256": features_sha256,
-        "source": str(source),
-        # The camera view of a motion-capture dataset (None: drawn/synthetic 2D data).
-        "view": view,
-        "state": state,
-    }
-    if digits is not None:
-        meta = round_floats(meta, digits)
-    write_npz(path, digits=digits, meta=np.array(json.dumps(meta, sort_keys=True)), **w.arrays)
-    return Path(path)
-
-
-def read_meta(path) -> tuple[dict, dict]:
-    """``(meta, arrays)`` of a model file, or an :class:`InputError` naming the file and what is wrong."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "file", "an existing style model (.npz written by `nnsf styles`)")
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
-    except (ValueError, OSError, zipfile.BadZipFile, EOFError, KeyError) as exc:
-        raise InputError(path, "file", "a readable .npz style model", str(exc).splitlines()[0]
-                         if str(exc) else type(exc).__name__) from None
-    if "meta" not in arrays:
-        raise InputError(path, "array meta", "the model's JSON metadata", "missing")
-    try:
-        meta = json.loads(str(arrays.pop("meta")[()]))
-    except (json.JSONDecodeError, TypeError, ValueError) as exc:
-        raise InputError(path, "meta", "JSON metadata", str(exc)) from None
-    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-        raise InputError(path, "meta.format", repr(FORMAT),
-                         meta.get("format") if isinstance(meta, dict) else type(meta).__name__)
-    if meta.get("version") != VERSION:
-        raise InputError(path, "meta.version", f"format version {VERSION} (this nnsf)", meta.get("version"))
-    for key in ("styles", "contents", "params", "state"):
-        if key not in meta:
-            raise InputError(path, f"meta.{key}", "present", "missing")
-    return meta, arrays
-
-
-def load_model(path):
-    """Read a model file: ``(translator, unifier or None, meta)``."""
-    from nnsf.factor.translate import StyleTranslator
-    from nnsf.skeleton import Unifier
-
-    path = Path(path)
-    meta, arrays = read_meta(path)
-    r = _Reader(arrays, path)
-    try:
-        tr = StyleTranslator(**r.value(meta["params"]))
-        for k, v in meta["state"].items():
-            setattr(tr, k, r.value(v))
-        unifier = Unifier.from_dict(meta["unifier"]) if meta.get("unifier") else None
-    except InputError:
-        raise
-    except (KeyError, TypeError, ValueError) as exc:
-        raise InputError(path, "meta.state", "a style model this nnsf can read",
-                         f"{type(exc).__name__}: {exc}") from None
-    if not hasattr(tr, "style_bases_"):
-        raise InputError(path, "meta.state.style_bases_", "the fitted per-style bases", "missing")
-    return tr, unifier, meta
+from nnsf.factor.translate import StyleTranslator
+from nnsf.params import get, require, source_of
+from nnsf.skeleton import Unifier, character_scale, to_features, to_points
 
 
 # ----------------------------------------------------------------------------- applying a model
@@ -246,7 +36,7 @@ class StyleModel:
 
     @classmethod
     def load(cls, path) -> "StyleModel":
-        tr, unifier, meta = load_model(path)
+        tr, unifier, meta = load_model(path, StyleTranslator)
         return cls(tr, unifier, meta, path)
 
     def check_style(self, style, field: str = "style") -> str:
@@ -265,8 +55,6 @@ def unify_clip(points, unifier, margin: float | None = None) -> tuple[np.ndarray
     coordinate that would fall below zero (a pose far outside the training
     range) is clipped to zero.
     """
-    from nnsf.skeleton import Unifier, character_scale, to_features
-
     P = np.asarray(points, dtype=float)
     scale = character_scale(P)
     if unifier is not None:
@@ -316,8 +104,6 @@ def translate_features(content_clip, style, model, source_style=None):
     Returns ``(points (m, 17, 2), X_hat (m, 34) or None, unifier or None)``;
     the last two are None for style ``"none"``.
     """
-    from nnsf.skeleton import to_points
-
     P = np.asarray(content_clip, dtype=float)
     if P.ndim == 2 and P.shape[1] == 34:
         P = to_points(P)
@@ -347,9 +133,6 @@ def fit_model(table, unifier, translator_params: dict, out, *, features_sha256=N
     """
     from threadpoolctl import threadpool_limits
 
-    from nnsf.datasets import contract
-    from nnsf.factor.translate import StyleTranslator
-
     X = contract.features(table)
     clips = table["clip"].astype(str).to_numpy()
     chars = table["character"].astype(str).to_numpy()
@@ -367,9 +150,6 @@ def fit_model(table, unifier, translator_params: dict, out, *, features_sha256=N
 
 def unify_table(raw, margin: float, source="keypoints"):
     """Unify a raw contract table (pixels): ``(features table, Unifier)`` (the features stage's step)."""
-    from nnsf.datasets import contract
-    from nnsf.skeleton import Unifier, to_points
-
     points = to_points(contract.features(raw))
     try:
         unifier = Unifier(margin=margin).fit(points, raw["character"].to_numpy())
@@ -383,8 +163,6 @@ def unify_table(raw, margin: float, source="keypoints"):
 
 def dataset_view(params: dict) -> str | None:
     """The view a ``dataset.name: bvh`` dataset is projected in (a view name or ``azimuth N``), else None."""
-    from nnsf.params import get
-
     try:
         if get(params, "dataset.name") != "bvh":
             return None
@@ -403,38 +181,34 @@ def dataset_view(params: dict) -> str | None:
     return "front"
 
 
-def styles_by_hand(params: dict, data=None, out=Path("models/styles.npz")):
-    """``nnsf styles``: fit and save a model from a features folder or a folder of BVH clips.
+def translator_params(params: dict) -> dict:
+    """StyleTranslator keyword arguments from the ``translation`` section of params.yaml."""
+    label = require(params, "translation.label")
+    return {
+        "n_components": int(require(params, "translation.rank")),
+        "alpha": float(require(params, "translation.alpha")),
+        "beta": float(require(params, "translation.beta")),
+        "label": {"motion": "content", "character": "style"}.get(label, label),
+        "basis": require(params, "translation.basis"),
+        "synthesis": require(params, "translation.synthesis"),
+        "amplitude": require(params, "translation.amplitude"),
+        "tempo": bool(require(params, "translation.tempo")),
+        "ridge": float(require(params, "translation.ridge")),
+        "smooth": float(require(params, "translation.smooth")),
+        "smooth_order": int(require(params, "translation.smooth_order")),
+        "max_iter": int(require(params, "translation.max_iter")),
+        "align_iter": int(require(params, "translation.align_iter")),
+        "random_state": int(require(params, "seed")),
+    }
 
-    ``data`` None reads ``data/features`` (the pipeline's configured
-    dataset); a folder with ``features.csv`` and ``unifier.json`` is read as
-    it is; any other folder is read as labelled BVH clips with the
-    ``dataset.bvh`` settings, unified with ``unify.margin``.  Returns the
-    stage's :class:`~nnsf.stages.StageResult`.
-    """
-    from nnsf import stages
-    from nnsf.params import require
 
-    folder = Path("data/features") if data is None else Path(data)
-    if not folder.is_dir():
-        raise InputError(folder, "--data", "a folder of labelled .bvh clips or a features folder")
-    if (folder / "features.csv").is_file():
-        return stages.styles(params, features_csv=folder / "features.csv", out=out)
-    from nnsf.evaluate.translation import _check_translator, translator_params
-
-    tp = translator_params(params)
-    _check_translator(params, tp)
-    bvh_params = dict(params)
-    bvh_params["dataset"] = {**params.get("dataset", {}), "name": "bvh", "path": str(folder)}
-    import tempfile
-
-    with tempfile.TemporaryDirectory(prefix="nnsf-styles-") as tmp:
-        stages.data(bvh_params, out_dir=Path(tmp) / "raw")
-        from nnsf.datasets import contract
-
-        raw = contract.read_table(Path(tmp) / "raw" / "keypoints.csv")
-    table, unifier = unify_table(raw, float(require(params, "unify.margin")), folder)
-    tr = fit_model(table, unifier, tp, out, source=str(folder), view=dataset_view(bvh_params))
-    return stages.StageResult(params={f"translation_{k}": v for k, v in tp.items()},
-                              metrics={"styles": len(tr.styles_), "contents": len(tr.contents_),
-                                       "frames": len(table)}, artifacts=[Path(out)])
+def check_translator(params, tp):
+    """InputError unless ``tp`` (:func:`translator_params`) are valid StyleTranslator settings."""
+    if tp["synthesis"] == "consensus" and tp["basis"] != "aligned":
+        raise InputError(source_of(params), "translation.synthesis",
+                         "'source' unless translation.basis is 'aligned' (a consensus needs the "
+                         "aligned fit's shared weights)", tp["synthesis"])
+    try:
+        StyleTranslator(**tp)._check_params()
+    except ValueError as exc:
+        raise InputError(source_of(params), "translation", "valid StyleTranslator settings", reason=str(exc)) from None

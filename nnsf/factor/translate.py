@@ -72,6 +72,7 @@ from sklearn.utils.validation import check_array, check_is_fitted, check_non_neg
 
 from nnsf.factor.nnsf import EPSILON, NNSF, _basis_step, weights_for_basis
 from nnsf.skeleton.layout import BONES, N_FEATURES, N_JOINTS, to_points
+from nnsf.factor.model_file import load_model, save_model
 
 __all__ = [
     "READINGS", "BASES", "SYNTHESES", "AMPLITUDES", "StyleTranslator", "resample_clip", "refit_basis", "match_atoms", "atom_cosines",
@@ -1101,9 +1102,7 @@ class StyleTranslator(BaseEstimator):
         return X_hat
 
     def save(self, path, *, unifier=None, features_sha256=None, source="") -> Path:
-        """Write the fitted translator to one ``.npz`` (:mod:`nnsf.factor.style_model`); returns the path."""
-        from nnsf.factor.style_model import save_model
-
+        """Write the fitted translator to one ``.npz`` (:mod:`nnsf.factor.model_file`); returns the path."""
         return save_model(self, path, unifier=unifier, features_sha256=features_sha256, source=source)
 
     @classmethod
@@ -1113,9 +1112,7 @@ class StyleTranslator(BaseEstimator):
         Raises :class:`nnsf.errors.InputError` naming the file and what is
         wrong (not a model, another format version, an array missing).
         """
-        from nnsf.factor.style_model import load_model
-
-        return load_model(path)[0]
+        return load_model(path, cls)[0]
 
 
 # --------------------------------------------------------------------------- #

@@ -46,6 +46,7 @@ from nnsf.errors import InputError
 from nnsf.frames.curves import GROUPS, SIDE_INDEX, SIDE_NAMES
 from nnsf.io import atomic_path, read_json
 from nnsf.skeleton.layout import JOINT_INDEX, JOINTS, N_JOINTS
+from nnsf.io import round_floats
 
 FORMAT = "nnsf.annotation"
 VERSION = 1
@@ -294,8 +295,6 @@ def dumps(ann: Annotation) -> str:
 
     Numbers are rounded like every other output (``nnsf.io.DIGITS`` significant digits).
     """
-    from nnsf.io import round_floats
-
     text = json.dumps(round_floats(ann.to_dict()), indent=2, sort_keys=True)
     # Put innermost number pairs on one line; the file stays diff-friendly.
     num = r"-?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?"

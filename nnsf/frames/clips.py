@@ -1,10 +1,11 @@
-"""Reading a clip's frame images, with clear errors for bad folders and files."""
+"""Reading a frame set: its ``index.csv`` and each clip's frame images, with clear errors for bad folders and files."""
 from __future__ import annotations
 
 from pathlib import Path
 
 import cv2
 import numpy as np
+import pandas as pd
 
 from nnsf.errors import InputError
 from nnsf.frames.annotation import Annotation, check_relative, read_annotation
@@ -102,3 +103,29 @@ def read_clip(folder, annotation: Annotation | str | Path | None = None) -> np.n
                              f"{got[0]}x{got[1]}")
         frames.append(img)
     return np.stack(frames)
+
+
+#: Columns of a frame set's ``index.csv``.
+INDEX_COLUMNS = ("clip", "character", "motion", "folder", "frames")
+
+
+def read_index(frames_dir) -> pd.DataFrame:
+    """``<frames_dir>/index.csv`` checked: columns, unique clips, folders inside ``frames_dir``."""
+    path = Path(frames_dir) / "index.csv"
+    if not path.is_file():
+        raise InputError(path, "file", "the frame-set index written by the render_frames stage")
+    try:
+        index = pd.read_csv(path, dtype=str, keep_default_na=False)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, OSError) as exc:
+        raise InputError(path, "file", "a readable CSV table", reason=str(exc)) from None
+    missing = [c for c in ("clip", "folder") if c not in index.columns]
+    if missing:
+        raise InputError(path, missing[0], "columns " + ", ".join(INDEX_COLUMNS))
+    if index.empty:
+        raise InputError(path, "rows", "at least one clip")
+    dup = index["clip"].duplicated()
+    if dup.any():
+        raise InputError(path, "clip", "each clip once", index["clip"][dup].iloc[0])
+    for i, f in enumerate(index["folder"]):
+        check_relative(f, path, f"folder (row {i + 1})")
+    return index

@@ -48,6 +48,7 @@ from nnsf.errors import InputError
 from nnsf.frames.annotation import Annotation, from_dict, write_annotation
 from nnsf.frames.curves import SIDE_INDEX, SIDE_NAMES
 from nnsf.skeleton.layout import JOINT_INDEX, JOINTS
+from nnsf.io import read_bytes
 
 SHAPES = ("polyline", "points")
 CVAT_FRAME_PATTERN = "frame_{:06d}.png"
@@ -103,7 +104,6 @@ def read_cvat_video(path, clip: str | None = None, character: str = "unknown",
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "file", "an existing CVAT XML export")
-    from nnsf.io import read_bytes
 
     data = read_bytes(path, 256_000_000, "a readable CVAT XML export")
     if b"<!DOCTYPE" in data or b"<!ENTITY" in data:

@@ -348,20 +348,10 @@ def render_character(character_name: str, size: int = 256):
     return rgba, mask, kp
 
 
-def write_rendered_character(name: str, folder, size: int = 256) -> Path:
-    """Write ``<folder>/<name>.json`` (+ texture and mask PNGs) in the
-    :func:`nnsf.reshape.character.write_character` format; returns the JSON path."""
-    from nnsf.reshape.character import Character, write_character
-
-    rgba, mask, kp = render_character(name, size)
-    ch = Character(name=character(name).name, texture=rgba, mask=mask, keypoints=kp,
-                   source=f"<rendered {name}>")
-    return write_character(ch, Path(folder) / f"{ch.name}.json")
-
 
 __all__ = [
     "BACKGROUND", "CANVAS", "CONTROL_POINTS", "DRAW_ORDER", "FAR_SHADE", "SIDE_SAMPLES",
     "annotation_from_truth", "body_geometry", "draw_frames", "frame_name", "keyframe_indices",
-    "render_character", "render_clip", "rest_keypoints", "visibility", "write_rendered_character",
+    "render_character", "render_clip", "rest_keypoints", "visibility",
     "JOINTS",
 ]

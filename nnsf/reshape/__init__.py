@@ -34,9 +34,9 @@ from nnsf.reshape.limbs import (
     LIMB_NAMES, LIMB_PAIRS, STRAIGHT, bezier, control_from_omega, control_points, fit_omega,
     interpolate_omega, limb_curves, omega_from_control,
 )
-from nnsf.reshape.mesh import (
-    PARTS, SEGMENTS, Mesh, build_mesh, joint_cuts, label_parts, layer_pieces, triangulate_mask,
-)
+from nnsf.reshape.layers import build_mesh, joint_cuts, layer_pieces
+from nnsf.reshape.mesh import Mesh, label_parts, triangulate_mask
+from nnsf.reshape.parts import PARTS, SEGMENTS
 from nnsf.reshape.depth import default_order, depth_metric, depth_orders, part_depths, part_overlaps
 from nnsf.reshape.drive import read_motion, retarget
 from nnsf.reshape.render import MeshRenderer, write_gif, write_mp4, write_png_frames

@@ -40,7 +40,7 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from nnsf.reshape.mesh import PART_INDEX, PARTS
+from nnsf.reshape.parts import PARTS, PART_INDEX
 from nnsf.skeleton import JOINT_INDEX, LIMBS
 
 #: Part pairs joined in the drawing (parent, child): where a tear can open.

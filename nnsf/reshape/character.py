@@ -34,6 +34,7 @@ import yaml
 from nnsf.errors import InputError
 from nnsf.io import atomic_path, read_json, write_json
 from nnsf.skeleton import JOINT_INDEX, JOINTS, N_JOINTS, rest_pose
+from nnsf.io import read_text
 
 #: The AnimatedDrawings joint names a supported ``char_cfg.yaml`` holds, each once.
 AD_JOINTS: tuple[str, ...] = (
@@ -225,7 +226,6 @@ def load_animated_drawings(path, name: str | None = None) -> Character:
     folder = cfg_path.parent
     if not cfg_path.is_file():
         raise InputError(cfg_path, "file", "an AnimatedDrawings char_cfg.yaml")
-    from nnsf.io import read_text
 
     try:
         cfg = yaml.safe_load(read_text(cfg_path, 10_000_000, "an AnimatedDrawings char_cfg.yaml"))

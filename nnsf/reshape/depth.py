@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from nnsf.errors import InputError
-from nnsf.reshape.mesh import PARTS, PART_BONES, PART_INDEX
+from nnsf.reshape.parts import PARTS, PART_BONES, PART_INDEX
 from nnsf.skeleton import JOINT_INDEX, N_JOINTS
 
 N_PARTS = len(PARTS)

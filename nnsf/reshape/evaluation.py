@@ -66,9 +66,20 @@ import numpy as np
 import pandas as pd
 
 from nnsf.errors import InputError
+from nnsf.datasets.bvh_source import load_clip
+from nnsf.io import atomic_path, write_csv, write_json
+from nnsf.params import checked, source_of
+from nnsf.pipeline import StageResult
+from nnsf.reshape.artefacts import clip_artefacts
+from nnsf.reshape.formats import read_character
+from nnsf.reshape.kenney import CHARACTERS as KC, check_character, kenney_character
+from nnsf.reshape.limbs import LIMB_PAIRS
+from nnsf.reshape.layers import build_mesh
+from nnsf.reshape.render import MeshRenderer, contact_sheet, write_gif
+from nnsf.reshape.stage import animate, build_rig, canvas, report
 
 #: The AnimatedDrawings examples evaluated: the bipeds, and char5, whose three arms a side are
-#: mapped by :func:`nnsf.animation.read_character` (the arm nearest the chest drives each side).
+#: mapped by :func:`nnsf.reshape.formats.read_character` (the arm nearest the chest drives each side).
 CHARACTERS = ("char1", "char2", "char3", "char4", "char5")
 #: Examples the loader refuses, reported with its reason (char6: a quadruped, four legs, no arms).
 REFUSED = ("char6",)
@@ -103,8 +114,6 @@ GIF_PANELS = ("limbs/keypoints", "limbs/ours", "layered/ours")
 
 def subkey_slide(rig, keypoints: np.ndarray) -> float:
     """Mean |u_t − u_0| of the subkeys (u: position along the bone / its length); NaN without subkeys."""
-    from nnsf.reshape.limbs import LIMB_PAIRS
-
     if rig.tracker is None or len(rig.subkeys) == 0:
         return float("nan")
     rig.tracker.reset()
@@ -123,10 +132,7 @@ def subkey_slide(rig, keypoints: np.ndarray) -> float:
 def _character(item: dict):
     """The item's character: an AnimatedDrawings folder, or a Kenney sprite (``item["kenney"]``)."""
     if item.get("kenney"):
-        from nnsf.reshape.kenney import kenney_character
-
         return kenney_character(item["kenney"], item["kenney_root"], item["kenney_annotations"])[0]
-    from nnsf.animation import read_character
 
     return read_character(item["character"])
 
@@ -140,12 +146,6 @@ def evaluate_item(item: dict) -> dict:
     ``max_frames``, ``subkeys_per_limb``, ``figure`` (bool), ``gif_dir``
     (or None).  Module-level and picklable for a task-runner map.
     """
-    from nnsf.datasets.bvh_source import load_clip
-    from nnsf.reshape.artefacts import clip_artefacts
-    from nnsf.reshape.mesh import build_mesh
-    from nnsf.reshape.render import MeshRenderer, write_gif
-    from nnsf.reshape.stage import animate, build_rig, canvas, report
-
     ch = _character(item)
     clip = load_clip(item["motion"], fps=30, azimuth=float(item.get("azimuth", 0.0)))
     T = min(len(clip.points), item["max_frames"])
@@ -295,8 +295,6 @@ def figure_widths(table: pd.DataFrame, path: Path) -> None:
     """Bar chart of :func:`width_table` (PNG): key points vs subkeys per mesh and source, one panel per measure."""
     from matplotlib.figure import Figure
 
-    from nnsf.io import atomic_path
-
     fig = Figure(figsize=(12, 3.4), dpi=110)
     groups = [(src, mesh) for src, mesh in dict.fromkeys((a, b) for a, b, _ in table.index)]
     for k, (col, what) in enumerate(WIDTH_MEASURES):
@@ -328,9 +326,6 @@ def run(data_root, out_dir=Path("reports"), characters=CHARACTERS, motions=MOTIO
     all six of :mod:`nnsf.reshape.kenney` when their images and
     ``kenney_annotations`` exist), meshed with ``kenney_vertices``.
     """
-    from nnsf.io import atomic_path, write_csv, write_json
-    from nnsf.reshape.render import contact_sheet
-
     data_root, out_dir = Path(data_root), Path(out_dir)
     chars = data_root / "animated-drawings" / "characters"
     mots = data_root / "bandai-namco-1" / "data"
@@ -346,8 +341,6 @@ def run(data_root, out_dir=Path("reports"), characters=CHARACTERS, motions=MOTIO
     ann = Path(kenney_annotations) if kenney_annotations is not None else None
     kroot = data_root / "kenney-toon"
     if ann is not None and ann.is_dir() and kroot.is_dir():
-        from nnsf.reshape.kenney import CHARACTERS as KC
-
         for c in (KC if kenney_characters is None else kenney_characters):
             items += [{"kenney": c, "kenney_root": str(kroot), "kenney_annotations": str(ann),
                        "motion": str(mots / f"dataset-1_{m}.bvh"), "n_vertices": kenney_vertices,
@@ -412,8 +405,6 @@ def run(data_root, out_dir=Path("reports"), characters=CHARACTERS, motions=MOTIO
         figure_widths(wt, out_dir / "reshape_fig8_widths.png")
         artifacts.append(out_dir / "reshape_fig8_widths.png")
     if ann is not None and ann.is_dir() and (data_root / "kenney-toon").is_dir():
-        from nnsf.reshape.kenney import CHARACTERS as KC, check_character
-
         krows = []
         for c in KC:
             try:
@@ -454,9 +445,6 @@ def reshape_eval(params: dict, data_root, out_dir=Path("reports"),
     """Stage wrapper of :func:`run`; reads ``reshape_eval.{characters, motions, n_vertices, max_frames,
     subkeys_per_limb}`` (defaults: the module's constants, 800, 240, 4).  Raises one
     :class:`InputError` naming the failed items after writing the others' results."""
-    from nnsf.params import checked, source_of
-    from nnsf.stages import StageResult
-
     def get(key, default):  # the schema's check when present (nnsf.params.SCHEMA)
         return checked(params, f"reshape_eval.{key}", default)
 

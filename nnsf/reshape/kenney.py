@@ -24,6 +24,8 @@ from nnsf.errors import InputError
 from nnsf.io import read_json
 from nnsf.reshape.character import Character
 from nnsf.skeleton import JOINTS, N_JOINTS
+from nnsf.reshape.render import MeshRenderer
+from nnsf.reshape.stage import build_rig
 
 CHARACTERS = ("female_adventurer", "female_person", "male_adventurer", "male_person", "robot", "zombie")
 WALK = tuple(f"walk{i}" for i in range(8))
@@ -109,9 +111,6 @@ def check_character(name: str, image_root, annotation_dir, n_vertices: int = 300
                     variants=(("layered", "ours"), ("layered", "keypoints"), ("limbs", "ours"), ("limbs", "keypoints"),
                               ("connected", "keypoints"))) -> list[dict]:
     """IoU rows (one per walk frame and variant, plus the identity baseline) for one character."""
-    from nnsf.reshape.render import MeshRenderer
-    from nnsf.reshape.stage import build_rig
-
     ch, moves = kenney_character(name, image_root, annotation_dir)
     ann = Path(annotation_dir) / f"{name}.keypoints.json"
     folder = Path(image_root) / name

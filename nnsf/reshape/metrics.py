@@ -12,9 +12,13 @@ from __future__ import annotations
 import numpy as np
 
 from nnsf.reshape.limbs import N_LIMBS, control_from_omega, endpoints
-from nnsf.reshape.mesh import PART_INDEX, boundary_edges, triangle_areas
+from nnsf.reshape.mesh import boundary_edges, triangle_areas
+from nnsf.reshape.parts import PART_INDEX
 from nnsf.reshape.subkeys import closest_on_bezier
 from nnsf.skeleton import LIMBS
+from nnsf.reshape.arap import barycentric
+from nnsf.reshape.limbs import bezier, omega_from_control
+from nnsf.reshape.mesh import _components, triangle_adjacency
 
 
 def jacobians(rest: np.ndarray, deformed: np.ndarray, triangles: np.ndarray) -> np.ndarray:
@@ -85,7 +89,6 @@ def outline_self_crossings(deformed: np.ndarray, triangles: np.ndarray, pieces=N
     if pieces is not None:
         # Only a sheet folding over itself counts: edges of the same piece and of the same
         # edge-connected group of its triangles (a pieced mesh's joint tab is a group of its own).
-        from nnsf.reshape.mesh import _components, triangle_adjacency
 
         tri = np.asarray(triangles)
         a, b = triangle_adjacency(tri)
@@ -228,9 +231,6 @@ def deformed_bending(rig, frames: np.ndarray, keypoints: np.ndarray) -> np.ndarr
     hence ω_t (Eq. 10) and its bending.  A limb that stays straight scores
     0; a rigidly moved bent limb keeps its rest score.
     """
-    from nnsf.reshape.arap import barycentric
-    from nnsf.reshape.limbs import bezier, omega_from_control
-
     m = rig.mesh
     V = np.asarray(frames, dtype=np.float64)
     kp = rig.drive(keypoints)  # in the character's sense -> the rig's (pivots moved on a pieced mesh)

@@ -55,6 +55,10 @@ import cv2
 import numpy as np
 
 from nnsf.skeleton import JOINT_INDEX, LIMBS
+from nnsf.reshape import mesh as meshmod
+from nnsf.reshape import parts
+from nnsf.reshape.drive import TORSO
+from nnsf.reshape.regions import body_region_triangles, drawn_regions
 
 J = JOINT_INDEX
 #: Pieces of the layered mesh: the body, each limb segment and the head.
@@ -498,8 +502,6 @@ def label_pieces(mask: np.ndarray, keypoints: np.ndarray, cuts: list[Cut], whole
     # Cut lines and components without bones: the neighbouring piece (nearest labelled pixel).
     label = _fill_unlabelled(label, m)
     if texture is not None:
-        from nnsf.reshape.mesh import body_region_triangles
-
         body_only = body_region_triangles(None, None, kp, texture, m, pixels=True)
         label = np.where(body_only & (label > 0) & (label != HEAD), 0, label)
         for seg, region in limb_regions(texture, m, kp).items():
@@ -522,8 +524,6 @@ def limb_regions(texture: np.ndarray, mask: np.ndarray, keypoints: np.ndarray) -
     outline leaves the body, and the body under them is painted in
     (:func:`overlay_texture`).
     """
-    from nnsf.reshape.mesh import drawn_regions
-
     kp = np.asarray(keypoints, dtype=np.float64)
     m = np.asarray(mask, dtype=bool)
     lab = drawn_regions(texture, m)
@@ -865,8 +865,6 @@ def torso_pose(rest_kp: np.ndarray, kp: np.ndarray):
     """The torso's rigid pose per frame: rest centroid ``(2,)``, frame centroids ``(T, 2)`` and the
     rotation's cos, sin ``(T,)``, fitted (2-D Procrustes) to the key points of
     :data:`nnsf.reshape.drive.TORSO`."""
-    from nnsf.reshape.drive import TORSO
-
     torso = list(TORSO)
     rest_kp = np.asarray(rest_kp, dtype=np.float64)
     K = np.asarray(kp, dtype=np.float64)
@@ -950,8 +948,6 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
     after all the pieces' (``Mesh.n_core``).  Returns a
     :class:`nnsf.reshape.mesh.Mesh`.
     """
-    from nnsf.reshape import mesh as meshmod
-
     m = np.asarray(mask, dtype=bool)
     kp = np.asarray(keypoints, dtype=np.float64)
     all_cuts = find_cuts(m, kp)
@@ -975,14 +971,14 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
                 jitter=kwargs.get("jitter", 0.0), smooth_sweeps=kwargs.get("smooth_sweeps", 3),
                 seed=kwargs.get("seed", 0))
     if whole_limbs:
-        names = meshmod.LIMB_PIECES
+        names = parts.LIMB_PIECES
         piece_of = {0: 0, HEAD: len(names) - 1}
         piece_of.update({i: 1 + (i - 1) // 2 for i in range(1, HEAD)})
-        piece_kp = meshmod.LIMB_PIECE_KEYPOINTS
+        piece_kp = parts.LIMB_PIECE_KEYPOINTS
     else:
-        names = meshmod.SEGMENTS
+        names = parts.SEGMENTS
         piece_of = {i: i for i in range(len(SEGMENT_NAMES))}
-        piece_kp = meshmod.SEGMENT_KEYPOINTS
+        piece_kp = parts.SEGMENT_KEYPOINTS
     ys = np.flatnonzero(m.any(axis=1))
     ov = int(np.clip(round(OVERLAP * (ys[-1] - ys[0] + 1)), 1, 2)) if len(ys) else 1
     grow = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ov + 1, 2 * ov + 1))
@@ -1036,10 +1032,10 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
         T.append(t + count)
         count += len(v)
         PC.append(np.full(len(t), int(pc)))
-        PT.append(meshmod.SEGMENT_PART[seg].astype(np.int64))
+        PT.append(parts.SEGMENT_PART[seg].astype(np.int64))
     n_core = count
     drawn_parts = set(np.concatenate(PT).tolist()) if PT else set()
-    drawn = {seg for seg in range(len(SEGMENT_NAMES)) if int(meshmod.SEGMENT_PART[seg]) in drawn_parts}
+    drawn = {seg for seg in range(len(SEGMENT_NAMES)) if int(parts.SEGMENT_PART[seg]) in drawn_parts}
     parent_of = {c.child: c.parent for c in cuts}
 
     def shown_parent(seg: int) -> int:
@@ -1080,16 +1076,16 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
         pc = piece_of[cut.child]
         # A whole limb's tab follows its upper bone; a segment's, its own.
         PC.append(np.full(len(t), pc))
-        part = int(meshmod.SEGMENT_PART[cut.child])
+        part = int(parts.SEGMENT_PART[cut.child])
         PT.append(np.full(len(t), part))
         layer.append(np.full(len(t), 3 + len(tabs), np.int64))
-        under = int(meshmod.SEGMENT_PART[shown_parent(cut.parent)])
+        under = int(parts.SEGMENT_PART[shown_parent(cut.parent)])
         collar.append(np.full(len(t), under))
         tabs.append(Tab(idx, _child_bone(cut.child), region, pc, part, under))
     for f in followers:
         # The extra arm (the part of the driven arm of its side) and its tab.
         cut = f["cut"]
-        part = int(meshmod.SEGMENT_PART[cut.child])
+        part = int(parts.SEGMENT_PART[cut.child])
         a_b = _child_bone(cut.child)
         grown = f["region"] | (cv2.dilate(f["region"].astype(np.uint8), grow).astype(bool) & m & near_cut_f(cut, m, ov))
         tab = tab_region(np.where(f["region"], cut.child, label), cut, margin)

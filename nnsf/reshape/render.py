@@ -34,7 +34,11 @@ import cv2
 import numpy as np
 
 from nnsf.io import atomic_dir, atomic_path
-from nnsf.reshape.mesh import PARTS
+from nnsf.reshape.parts import PARTS
+from nnsf.reshape.parts import SEGMENT_PART
+from nnsf.reshape.regions import body_line
+from nnsf.reshape.pieces import ink_mask, tab_texture
+from nnsf.reshape.seal import drawn_hole_limit, seal
 
 
 class MeshRenderer:
@@ -59,8 +63,6 @@ class MeshRenderer:
         self.reink = reink
         self._seal_kw = {}
         if self.seal and mask is not None:
-            from nnsf.reshape.seal import drawn_hole_limit
-
             self._seal_kw["hole_max"] = drawn_hole_limit(mask)
             # Cracks are closed over a radius that scales with the drawing (4 px
             # on a 600 px character, 1 px on a 128 px sprite whose drawn gaps are a few px).
@@ -306,8 +308,6 @@ class MeshRenderer:
         if ids is not None and h:
             part_crop = np.where(ids >= 0, self.parts[np.maximum(ids, 0)], -1)
         if self.seal and h:
-            from nnsf.reshape.seal import seal
-
             crop = seal(crop, part_crop, **self._seal_kw)
         if self.reink is not None and h:
             # A margin for the half of the stroke that lies outside the silhouette.
@@ -325,7 +325,6 @@ class MeshRenderer:
             inked = self._reink(crop, mx, my)
             if self.seal and inked is not crop:
                 # A stroke half outside the silhouette can close a pocket of paper: sealed as well.
-                from nnsf.reshape.seal import seal
 
                 inked = seal(inked, part_crop, **self._seal_kw)
             crop = inked
@@ -466,7 +465,6 @@ def overlay_texture(texture: np.ndarray, mask: np.ndarray, overlay: np.ndarray) 
     ys = np.flatnonzero(m.any(axis=1))
     r = max(int(round(0.01 * (ys[-1] - ys[0] + 1))), 2) if len(ys) else 2
     region = cv2.dilate(np.asarray(overlay, np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
-    from nnsf.reshape.pieces import ink_mask
 
     # The lines near the region are painted out too, so the fill comes from the body's colour,
     # not smeared from its outline.
@@ -486,8 +484,6 @@ def tab_textures(mesh, character) -> dict[int, np.ndarray]:
     Tabs whose regions do not touch (2 px apart) share one image, so the
     atlas stays a few drawings wide.
     """
-    from nnsf.reshape.pieces import ink_mask, tab_texture
-
     ink = ink_mask(character.texture, character.mask)
     groups: list[tuple[np.ndarray, np.ndarray]] = []  # (taken pixels, image)
     out = {}
@@ -514,8 +510,6 @@ def tab_textures(mesh, character) -> dict[int, np.ndarray]:
 
 def _segment_of(mesh, tab) -> int:
     """The label (index into ``nnsf.reshape.pieces.SEGMENT_NAMES``) a tab's child region has."""
-    from nnsf.reshape.mesh import SEGMENT_PART
-
     return int(np.flatnonzero(SEGMENT_PART == tab.part)[0])
 
 
@@ -566,8 +560,6 @@ def rim_texture(texture: np.ndarray, mask: np.ndarray, keypoints: np.ndarray) ->
     Texture of a layered mesh's rim copies (``Mesh.layer`` 2): the body
     keeps its outline where a limb met it, without bits of the limb's fill.
     """
-    from nnsf.reshape.mesh import body_line
-
     keep = body_line(keypoints, texture, mask)
     out = np.array(texture, dtype=np.uint8, copy=True)
     out[..., 3] = np.where(keep, out[..., 3], 0)

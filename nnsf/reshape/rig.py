@@ -21,9 +21,13 @@ import numpy as np
 from nnsf.reshape.arap import Handles, TwoStepARAP
 from nnsf.reshape.character import Character
 from nnsf.reshape.limbs import N_LIMBS, STRAIGHT, fit_omega
-from nnsf.reshape.mesh import Mesh, build_mesh
+from nnsf.reshape.layers import build_mesh
+from nnsf.reshape.mesh import Mesh
 from nnsf.reshape.subkeys import SubkeyTracker, Subkeys, init_subkeys
 from nnsf.skeleton import N_JOINTS
+from nnsf.reshape.drive import TORSO
+from nnsf.reshape.pieces import attach_tabs
+from nnsf.skeleton import JOINT_INDEX as J
 
 HANDLE_SETS = ("subkeys", "keypoints")
 
@@ -79,8 +83,6 @@ class Rig:
         kp = self._check(keypoints)
         if not self.moved:
             return kp
-        from nnsf.reshape.drive import TORSO
-        from nnsf.skeleton import JOINT_INDEX as J
 
         one = kp.ndim == 2
         K = kp[None] if one else kp
@@ -228,7 +230,6 @@ class Rig:
         """The solved vertices ``(T, n_core, 2)`` with the mesh's joint tabs attached (``(T, n, 2)``)."""
         if not self.mesh.tabs:
             return V
-        from nnsf.reshape.pieces import attach_tabs
 
         return attach_tabs(self.mesh.tabs, V, self.rest_keypoints, kp, self.mesh.vertices)
 

@@ -30,6 +30,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 from scipy import ndimage
+from nnsf.reshape.artefacts import two_parts_near
 
 
 
@@ -50,8 +51,6 @@ def seal_mask(labels: np.ndarray, alpha: np.ndarray, close: int = 4, hole_share:
     closed = cv2.morphologyEx(cov.astype(np.uint8), cv2.MORPH_CLOSE, ker).astype(bool)
     fill = closed & ~cov
     if fill.any():
-        from nnsf.reshape.artefacts import two_parts_near
-
         fill &= two_parts_near(np.where(cov, labels, -1), close + 1)
     drawn = cov | fill
     bg = (~drawn).astype(np.uint8)

@@ -33,12 +33,17 @@ from pathlib import Path
 import numpy as np
 
 from nnsf.errors import InputError
+from nnsf.io import atomic_dir, write_json
 from nnsf.reshape import depth as depth_mod
 from nnsf.reshape import metrics
-from nnsf.reshape.character import Character, load_character, stick_figure
+from nnsf.datasets.synthetic import character as synthetic_character_spec
+from nnsf.frames.render import render_character
+from nnsf.reshape.character import Character, load_character, write_character
 from nnsf.reshape.drive import read_motion, retarget
 from nnsf.reshape.render import MeshRenderer, contact_sheet, write_gif, write_mp4, write_png_frames
 from nnsf.reshape.rig import Rig
+from nnsf.pipeline import RESHAPE_DIR, TRANSLATION_DIR, StageResult
+from nnsf.params import checked, source_of
 
 METHODS = {"ours": "subkeys", "keypoints": "keypoints"}
 MESHES = {"layered": "layered", "limbs": "limbs", "split": True, "connected": False}
@@ -51,15 +56,20 @@ BACKGROUND = (255, 255, 255)
 def synthetic_character(name: str, size: int = 512, source="params.yaml") -> Character:
     """A built-in synthetic character drawn at rest (``nnsf.frames.render``); the stick figure if absent."""
     try:
-        from nnsf.frames.render import render_character
-    except ImportError:  # the frames package is optional for this stage
-        return stick_figure(height=size, name=name)
-    try:
         rgba, mask, kp = render_character(name, size)
     except ValueError as exc:
         raise InputError(source, "reshape.character", "a built-in character name or a character "
                          "file/folder", reason=str(exc)) from None
     return Character(name=name, texture=rgba, mask=mask, keypoints=kp, source=f"<rendered {name}>")
+
+
+def write_rendered_character(name: str, folder, size: int = 256) -> Path:
+    """Write ``<folder>/<name>.json`` (+ texture and mask PNGs) in the
+    :func:`nnsf.reshape.character.write_character` format; returns the JSON path."""
+    rgba, mask, kp = render_character(name, size)
+    ch = Character(name=synthetic_character_spec(name).name, texture=rgba, mask=mask, keypoints=kp,
+                   source=f"<rendered {name}>")
+    return write_character(ch, Path(folder) / f"{ch.name}.json")
 
 
 def resolve_character(spec, size: int = 512, root=Path("."), source="params.yaml") -> Character:
@@ -185,8 +195,6 @@ def _params(params: dict) -> dict:
     The ranges are :data:`nnsf.params.SCHEMA`'s, the ones ``nnsf check``
     applies; errors name the params file the section came from.
     """
-    from nnsf.params import checked, source_of
-
     defaults = {"clip": None, "character": "bruno", "character_size": 512, "n_vertices": 800,
                 "subkeys_per_limb": 4, "method": "ours", "mesh": "layered", "propagation": "limb-frame",
                 "fps": 24, "max_frames": 240, "formats": list(FORMATS),
@@ -197,18 +205,15 @@ def _params(params: dict) -> dict:
     return p
 
 
-def reshape(params: dict, motion_csv=Path("data/features/features.csv"), character_path=None,
-            out_dir=Path("reports/reshape"), mapper=None):
+def reshape(params: dict, motion_csv=TRANSLATION_DIR / "translated_features.csv", character_path=None,
+            out_dir=RESHAPE_DIR, mapper=None) -> StageResult:
     """Render a character performing one clip of ``motion_csv`` into ``out_dir`` (module docstring).
 
+    By default the translate stage's output, on ``reshape.character``;
     ``character_path`` (a character ``.json`` or AnimatedDrawings folder)
-    overrides ``reshape.character``.  Returns a :class:`nnsf.stages.StageResult`.
+    overrides ``reshape.character``.  Writes PNG frames, GIF, MP4, a contact
+    sheet and ``metrics.json`` (docs/method.md §10-§14).
     """
-    from nnsf.stages import StageResult
-    from nnsf.io import atomic_dir, write_json
-
-    from nnsf.params import source_of
-
     p = _params(params)
     source = source_of(params)
     character = (load_character(character_path) if character_path is not None

@@ -33,6 +33,16 @@ from pathlib import Path
 import numpy as np
 
 from nnsf.errors import InputError
+from nnsf.frames.annotation import read_annotation
+from nnsf.frames.clips import read_clip
+from nnsf.frames.cvat import _meta, _parse_points
+from nnsf.frames.clips import read_index
+from nnsf.track.tracks import read_tracks
+from nnsf.io import atomic_path, read_npz, write_npz
+from nnsf.track.curves import project_to_polyline
+from nnsf.track.solve import ClipTracker, TrackOptions, plan
+from nnsf.track.options import method as _method
+from nnsf.track.options import track_options
 
 DECIMALS = 2
 KEYFRAME_ATTRIBUTE = "nnsf_keyframe"
@@ -97,8 +107,6 @@ def cvat_xml(control: np.ndarray, names: list[str], n_points, keyframes, clip: s
 
 def export_cvat(path, control, names, n_points, keyframes, clip: str, image_size) -> Path:
     """Write :func:`cvat_xml` to ``path`` atomically; returns the path."""
-    from nnsf.io import atomic_path
-
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     text = cvat_xml(control, names, n_points, keyframes, clip, image_size)
@@ -120,8 +128,6 @@ def read_cvat_curves(path, clip: str, names: list[str], n_points, n_frames: int
     not one of ``names``, a vertex count other than the curve's, malformed
     points or XML.
     """
-    from nnsf.frames.cvat import _meta, _parse_points
-
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "file", "an existing CVAT XML file (CVAT for video 1.1)")
@@ -225,8 +231,6 @@ def solve_intervals(tracker, names: list[str], kfs: dict, control: np.ndarray,
     Keyframe rows are set from ``kfs``; rows outside the solved intervals are
     left as they are in ``control``.
     """
-    from nnsf.track.solve import plan
-
     out = np.array(control, np.float64, copy=True)
     _, _, batches = plan({"keyframes": [{"frame": f, "curves": c} for f, c in kfs.items()]})
     for b in batches:
@@ -288,8 +292,6 @@ def simulate_user(tracker, names: list[str], kfs: dict, truth: np.ndarray, n_poi
     points still off at the cap), "left_curves" (curves with such points),
     "control", "tracked", "keyframes"}``.
     """
-    from nnsf.track.metrics import project_to_polyline
-
     T = truth.shape[0]
     P = max(int(c) for c in n_points)
     if control is None:
@@ -343,13 +345,9 @@ def simulate_user(tracker, names: list[str], kfs: dict, truth: np.ndarray, n_poi
 
 # --------------------------------------------------------------------------- the track command
 def _clip_tracks(frames_dir: Path, tracks_dir: Path, row):
-    from nnsf.frames.annotation import read_annotation
-    from nnsf.frames.stage import read_tracks
-
     ann = read_annotation(frames_dir / row.folder / "annotation.json")
     path = tracks_dir / row.clip / "curves.npz"
     control, names, n_points = read_tracks(path, ann)
-    from nnsf.io import read_npz
 
     z = read_npz(path)
     keys = [int(k) for k in z["keyframes"]] if "keyframes" in z else ann.keyframe_indices
@@ -358,8 +356,6 @@ def _clip_tracks(frames_dir: Path, tracks_dir: Path, row):
 
 def export_clips(frames_dir, tracks_dir, out_dir) -> list[Path]:
     """Write ``<out_dir>/<clip>.xml`` (CVAT for video 1.1) for every tracked clip of the index."""
-    from nnsf.frames.stage import read_index
-
     frames_dir, tracks_dir, out_dir = Path(frames_dir), Path(tracks_dir), Path(out_dir)
     written = []
     for row in read_index(frames_dir).itertuples():
@@ -379,13 +375,6 @@ def apply_corrections(params: dict, xml_path, frames_dir, tracks_dir, clip: str 
     curves and the enlarged keyframe list.  Returns a summary (clip,
     corrected frames, re-solved intervals, keyframes).
     """
-    from nnsf.frames.clips import read_clip
-    from nnsf.frames.cvat import _meta
-    from nnsf.frames.stage import read_index
-    from nnsf.io import write_npz
-    from nnsf.track.solve import ClipTracker, TrackOptions
-    from nnsf.track.stage import _method, track_options
-
     xml_path, frames_dir, tracks_dir = Path(xml_path), Path(frames_dir), Path(tracks_dir)
     index = read_index(frames_dir)
     if clip is None:

@@ -107,3 +107,35 @@ def dense(P: np.ndarray, spacing: float = 0.25) -> np.ndarray:
     length = float(np.linalg.norm(np.diff(coarse, axis=0), axis=1).sum())
     n = int(np.clip(np.ceil(length / spacing), 2, 20000)) + 1
     return sample(P, n)
+
+
+def project_to_polyline(points: np.ndarray, polyline: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest points on polylines.
+
+    points (..., N, 2), polyline (..., M, 2) with the same leading shape.
+    Returns ``dist (..., N)`` and ``nearest (..., N, 2)`` (px); brute force
+    over all M-1 segments, exact.  :func:`nearest_vertex` gives the index.
+    """
+    dist, nearest, _ = _project(points, polyline)
+    return dist, nearest
+
+
+def nearest_vertex(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
+    """Index (..., N) of the polyline vertex closest to each point's projection."""
+    return _project(points, polyline)[2]
+
+
+def _project(points, polyline):
+    q = np.asarray(points, np.float64)[..., :, None, :]            # (..., N, 1, 2)
+    c = np.asarray(polyline, np.float64)
+    a = c[..., None, :-1, :]                                        # (..., 1, M-1, 2)
+    ab = c[..., None, 1:, :] - a
+    u = ((q - a) * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-300)
+    u = np.clip(u, 0.0, 1.0)
+    near = a + u[..., None] * ab                                    # (..., N, M-1, 2)
+    d = np.linalg.norm(q - near, axis=-1)
+    k = np.argmin(d, axis=-1)
+    dist = np.take_along_axis(d, k[..., None], -1)[..., 0]
+    nearest = np.take_along_axis(near, k[..., None, None], -2)[..., 0, :]
+    uk = np.take_along_axis(u, k[..., None], -1)[..., 0]
+    return dist, nearest, k + (uk > 0.5)

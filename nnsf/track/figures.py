@@ -14,8 +14,9 @@ from pathlib import Path
 import numpy as np
 from matplotlib.lines import Line2D
 
-from nnsf.evaluate.figures import new_figure, save_figure
+from nnsf.plotting import new_figure, save_figure
 from nnsf.track import curves
+from nnsf.track.curves import project_to_polyline
 
 TRACKER_STYLE: dict[str, dict] = {
     "ours": {"color": "#d62728", "label": "ours (sketch + colour)"},
@@ -46,8 +47,6 @@ def tracking_overlay(frames: np.ndarray, tracked: dict[str, np.ndarray], truth: 
     truth   : (T, N, S, 2) dense true curves, or None (then no failures are marked).
     show    : frame indices to draw (columns).
     """
-    from nnsf.track.metrics import project_to_polyline
-
     methods = [m for m in TRACKER_STYLE if m in tracked] + \
         [m for m in tracked if m not in TRACKER_STYLE]
     T, H, W, _ = frames.shape

@@ -21,6 +21,12 @@ import numpy as np
 import pandas as pd
 
 from nnsf.errors import InputError
+from nnsf.frames.annotation import read_annotation
+from nnsf.io import write_csv, write_json
+from nnsf.track.figures import tracking_overlay
+from nnsf.track.metrics import length_ratio
+from nnsf.track.real import REPORTED, coverage, score_silhouette, silhouette_summary
+from nnsf.track.solve import interpolate_clip, track_clip
 
 #: px from the silhouette that count as on it.  Why not Kenney's 1.5: the annotated control
 #: points sit on the centres of outline pixels, 0.5 px inside the alpha boundary (0.7 on a
@@ -60,11 +66,6 @@ def read_tiles(sheet_path, names: list[str]) -> tuple[np.ndarray, np.ndarray]:
 def track_lpc(data_root, annotations_dir, methods=("ours", "agarwala", "lk"), bodies=BODIES,
               tol: float = 1.5, **options) -> tuple[pd.DataFrame, dict]:
     """Run the trackers on the annotated walk rows; the table and tracks as :func:`nnsf.track.real.track_kenney`."""
-    from nnsf.frames.annotation import read_annotation
-    from nnsf.track.metrics import length_ratio
-    from nnsf.track.real import coverage, score_silhouette
-    from nnsf.track.solve import interpolate_clip, track_clip
-
     rows, tracked = [], {}
     for body in bodies:
         path = Path(annotations_dir) / f"{body}.annotation.json"
@@ -95,11 +96,6 @@ def lpc_report(data_root, annotations_dir, out_dir, tol: float = TOL, **options)
     ``<out_dir>/figures/tracking_lpc.png`` (the first body, four in-between
     frames, enlarged ×6).  Returns the JSON summary.
     """
-    from nnsf.frames.annotation import read_annotation
-    from nnsf.io import write_csv, write_json
-    from nnsf.track.figures import tracking_overlay
-    from nnsf.track.real import REPORTED, silhouette_summary
-
     data_root, out_dir = Path(data_root), Path(out_dir)
     if not data_root.is_dir():
         raise InputError(data_root, "folder", "the lpc-bodies folder of the shared data")

@@ -25,39 +25,9 @@ from __future__ import annotations
 import numpy as np
 
 from nnsf.track import curves
+from nnsf.track.curves import _project, nearest_vertex, project_to_polyline  # noqa: F401  (re-exported for callers)
 from nnsf.track.solve import ClipTracker, TrackOptions, plan
-
-
-def project_to_polyline(points: np.ndarray, polyline: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Nearest points on polylines.
-
-    points (..., N, 2), polyline (..., M, 2) with the same leading shape.
-    Returns ``dist (..., N)`` and ``nearest (..., N, 2)`` (px); brute force
-    over all M-1 segments, exact.  :func:`nearest_vertex` gives the index.
-    """
-    dist, nearest, _ = _project(points, polyline)
-    return dist, nearest
-
-
-def nearest_vertex(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
-    """Index (..., N) of the polyline vertex closest to each point's projection."""
-    return _project(points, polyline)[2]
-
-
-def _project(points, polyline):
-    q = np.asarray(points, np.float64)[..., :, None, :]            # (..., N, 1, 2)
-    c = np.asarray(polyline, np.float64)
-    a = c[..., None, :-1, :]                                        # (..., 1, M-1, 2)
-    ab = c[..., None, 1:, :] - a
-    u = ((q - a) * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-300)
-    u = np.clip(u, 0.0, 1.0)
-    near = a + u[..., None] * ab                                    # (..., N, M-1, 2)
-    d = np.linalg.norm(q - near, axis=-1)
-    k = np.argmin(d, axis=-1)
-    dist = np.take_along_axis(d, k[..., None], -1)[..., 0]
-    nearest = np.take_along_axis(near, k[..., None, None], -2)[..., 0, :]
-    uk = np.take_along_axis(u, k[..., None], -1)[..., 0]
-    return dist, nearest, k + (uk > 0.5)
+from nnsf.track.correct import simulate_user
 
 
 def curve_errors(control: np.ndarray, truth: np.ndarray, n_samples: int = 32,
@@ -195,8 +165,6 @@ def edit_ratio(frames: np.ndarray, annotation, truth: np.ndarray, names_truth: l
     :func:`nnsf.track.solve.track_clip` returns); ``capped_curves`` counts
     the curves with control points still off when the cap stopped the loop.
     """
-    from nnsf.track.correct import simulate_user
-
     opts = TrackOptions.from_kwargs(**options)
     tracker = ClipTracker(frames, method, opts)
     names, kfs, batches = plan(annotation)

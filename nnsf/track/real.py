@@ -28,6 +28,12 @@ import pandas as pd
 from scipy.spatial import cKDTree
 
 from nnsf.track import curves
+from nnsf.errors import InputError
+from nnsf.frames.annotation import read_annotation
+from nnsf.io import write_csv, write_json
+from nnsf.track.figures import tracking_overlay
+from nnsf.track.metrics import _project, length_ratio
+from nnsf.track.solve import interpolate_clip, track_clip
 
 #: the rows of the real-frame reports: the three trackers and the do-nothing floor
 REPORTED = ("ours", "agarwala", "lk", "linear")
@@ -83,8 +89,6 @@ def covered_boundary(control: np.ndarray, alpha: np.ndarray, tol: float = 1.5,
     :func:`silhouette_boundary`) closer than ``tol`` to any curve are counted
     and weighted by their spacing along the traced boundary.
     """
-    from nnsf.track.metrics import _project
-
     pts = silhouette_boundary(alpha)
     if len(pts) < 2:
         return 0.0
@@ -136,8 +140,6 @@ def _hits(control, alpha, tol, n_samples) -> np.ndarray:
 
 def read_rgba(folder: Path, names: list[str]) -> tuple[np.ndarray, np.ndarray]:
     """Frames composited over white (T, H, W, 3) uint8 RGB and their alpha (T, H, W) uint8."""
-    from nnsf.errors import InputError
-
     rgb, alpha = [], []
     for n in names:
         img = cv2.imread(str(Path(folder) / n), cv2.IMREAD_UNCHANGED)
@@ -163,10 +165,6 @@ def track_kenney(data_root, annotations_dir, methods=("ours", "agarwala", "lk"),
     method ``"linear"`` is no tracker: the keyframes interpolated linearly
     (:func:`nnsf.track.solve.interpolate_clip`), the floor a tracker must beat.
     """
-    from nnsf.frames.annotation import read_annotation
-    from nnsf.track.metrics import length_ratio
-    from nnsf.track.solve import interpolate_clip, track_clip
-
     rows, tracked = [], {}
     for ch in characters:
         path = Path(annotations_dir) / f"{ch}.annotation.json"
@@ -219,11 +217,6 @@ def kenney_report(data_root, annotations_dir, out_dir, tol: float = 1.5, **optio
     ``<out_dir>/figures/tracking_kenney.png`` (the tracked outlines of the first
     character on four in-between frames).  Returns the JSON summary.
     """
-    from nnsf.errors import InputError
-    from nnsf.frames.annotation import read_annotation
-    from nnsf.io import write_csv, write_json
-    from nnsf.track.figures import tracking_overlay
-
     data_root, out_dir = Path(data_root), Path(out_dir)
     if not data_root.is_dir():
         raise InputError(data_root, "folder", "the Kenney toon characters folder (female_adventurer/, robot/, ...)")

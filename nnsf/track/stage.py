@@ -1,12 +1,12 @@
-"""Pipeline stages of contour tracking: track every clip, and evaluate the trackers.
+"""The ``track`` stage: track every clip's side contours (Eq. 1), then derive its key points (Eq. 2-3).
 
 ``track_clips`` reads ``<frames_dir>/index.csv`` and each clip's frames and
 ``annotation.json`` (written by the render stage, or by hand for real
 frames) and writes ``<out_dir>/<clip>/curves.npz`` in the TRACKS format
-(``control (T, C, P, 2)``, ``curve_names``, ``n_points``, plus
-``keyframes``).  ``evaluate_tracking`` runs the three trackers on the clips
-that have ground truth (``truth.npz``) and writes ``reports/tracking.json``,
-``reports/tracking.csv`` and ``reports/figures/tracking_overlay.png``.
+(:mod:`nnsf.track.tracks`).  ``keypoints_from_tracks`` turns those into the
+feature-matrix contract table ``keypoints.csv`` plus ``characters.json``
+(the ``frames`` source of the ``data`` stage).  The ``tracking`` stage that
+scores the trackers is :mod:`nnsf.track.evaluation`.
 
 Both fan out over clips through ``mapper``; a clip failing on bad input is
 reported by name, the others are kept, and the stage then raises one
@@ -21,66 +21,21 @@ import numpy as np
 import pandas as pd
 
 from nnsf.errors import InputError
-from nnsf.io import atomic_dir, read_npz, write_csv, write_json, write_npz
-from nnsf.params import checked, require
-
-FRAMES_DIR = Path("data/frames")
-TRACKS_DIR = Path("data/tracks")
-REPORTS = Path("reports")
-TRACKERS = ("ours", "agarwala", "lk")
-
-#: params.yaml ``track.<key>`` -> (TrackOptions field, kind, lower bound)
-OPTION_PARAMS: dict[str, tuple[str, str, float]] = {
-    "w_velocity": ("velocity", "num", 0.0),
-    "w_length": ("length", "num", 0.0),
-    "w_length_anchor": ("length_anchor", "num", 0.0),
-    "w_curvature": ("curvature", "num", 0.0),
-    "w_edge": ("edge", "num", 0.0),
-    "w_sketch": ("sketch", "num", 0.0),
-    "w_colour": ("colour", "num", 0.0),
-    "window": ("K", "int", 1),
-    "samples": ("n_samples", "int", 3),
-    "levels": ("levels", "int", 1),
-    "max_iter": ("max_nfev", "int", 1),
-}
-#: the same for keys that may be absent (then 0: the term is off, as before they existed)
-OPTIONAL_PARAMS: dict[str, tuple[str, str, float]] = {
-    "w_slide": ("slide", "num", 0.0),
-    "edge_gate": ("edge_gate", "num", 0.0),
-}
-
-
-def _map(mapper, fn, items) -> list:
-    return list(map(fn, items)) if mapper is None else list(mapper(fn, items))
-
-
-def track_options(params: dict) -> dict:
-    """TrackOptions keyword arguments from the ``track`` section (InputError naming the field).
-
-    Each value is checked by :func:`nnsf.params.require` against the params
-    schema, the ranges ``nnsf check`` applies.
-    """
-    out = {name: require(params, f"track.{key}") for key, (name, _, _) in OPTION_PARAMS.items()}
-    out["init"] = require(params, "track.init")
-    out["lk_end"] = require(params, "track.lk_end")
-    for key, (name, _, _) in OPTIONAL_PARAMS.items():     # absent in older params files: off
-        out[name] = checked(params, f"track.{key}", 0.0)
-    return out
-
-
-def _method(params: dict) -> str:
-    return require(params, "track.method")  # one of TRACKERS (the params schema)
-
-
-def _failures(failed: dict) -> str:
-    return ", ".join(failed) + ". " + " | ".join(f"{c}: {e}" for c, e in failed.items())
-
+from nnsf.io import atomic_dir, write_json, write_npz
+from nnsf.pipeline import FRAMES_DIR, RAW_DIR, TRACKED_DIR, TRACKS_DIR, StageResult, failures, map_items
+from nnsf.datasets import contract
+from nnsf.frames.annotation import read_annotation
+from nnsf.frames.clips import read_clip
+from nnsf.frames.clips import read_index
+from nnsf.skeleton import FEATURE_COLUMNS, JOINTS
+from nnsf.track.keypoints import fit_keypoint_model, keypoints_from_curves
+from nnsf.track.options import method as _method
+from nnsf.track.options import track_options
+from nnsf.track.solve import keyframe_curves, track_clip
+from nnsf.track.tracks import read_tracks
 
 def _load(item: dict):
     """(annotation, frames) of one indexed clip; InputError on bad input."""
-    from nnsf.frames.annotation import read_annotation
-    from nnsf.frames.clips import read_clip
-
     folder = Path(item["frames_dir"]) / item["folder"]
     ann = read_annotation(folder / "annotation.json")
     if ann.clip != item["clip"]:
@@ -91,8 +46,6 @@ def _load(item: dict):
 # --------------------------------------------------------------------------- track_clips
 def _track_item(item: dict) -> dict:
     """Track one clip and write its curves.npz (module-level, picklable)."""
-    from nnsf.track.solve import keyframe_curves, track_clip
-
     clip = item["clip"]
     out = Path(item["out"]) / clip
     try:
@@ -127,9 +80,6 @@ def track_clips(params: dict, frames_dir=FRAMES_DIR, out_dir=TRACKS_DIR, mapper=
     succeeds (the folder is swapped in complete); failed clips are listed in
     ``<out_dir>/failed.json`` and named in the InputError raised at the end.
     """
-    from nnsf.frames.stage import read_index
-    from nnsf.stages import StageResult
-
     method = _method(params)
     options = track_options(params)
     frames_dir, out_dir = Path(frames_dir), Path(out_dir)
@@ -138,14 +88,14 @@ def track_clips(params: dict, frames_dir=FRAMES_DIR, out_dir=TRACKS_DIR, mapper=
         items = [{"clip": r.clip, "folder": r.folder, "frames_dir": str(frames_dir),
                   "out": str(tmp), "method": method, "options": options}
                  for r in index.itertuples()]
-        results = _map(mapper, _track_item, items)
+        results = map_items(mapper, _track_item, items)
         failed = {r["clip"]: r["error"] for r in results if not r["ok"]}
         if failed:
             write_json(tmp / "failed.json", failed)
     ok = [r for r in results if r["ok"]]
     if failed:
         raise InputError(frames_dir, "clips", f"every clip tracked; {len(failed)} failed (the other "
-                         f"{len(ok)} were written to {out_dir}): " + _failures(failed))
+                         f"{len(ok)} were written to {out_dir}): " + failures(failed))
     return StageResult(
         params={"track_method": method, **{f"track_{k}": v for k, v in options.items()}},
         metrics={"clips": len(ok), "frames": int(sum(r["frames"] for r in ok)),
@@ -153,144 +103,103 @@ def track_clips(params: dict, frames_dir=FRAMES_DIR, out_dir=TRACKS_DIR, mapper=
 
 
 # --------------------------------------------------------------------------- evaluate_tracking
-def _evaluate_item(item: dict) -> dict:
-    """All metrics of one (clip, tracker) pair (module-level, picklable)."""
-    from nnsf.frames.keypoints import fit_keypoint_model, keypoints_from_curves
-    from nnsf.skeleton import JOINT_INDEX
-    from nnsf.track.metrics import curve_errors, edit_ratio, length_ratio, pck, reverse_errors
 
-    clip, method = item["clip"], item["method"]
+
+# --------------------------------------------------------------------------- tracks -> key points (Eq. 2-3)
+
+
+def _keypoints_item(item: dict) -> dict:
+    """Key points of one clip from its tracks (module-level, picklable)."""
+    clip = item["clip"]
     try:
-        ann, frames = _load(item)
-        truth = read_npz(Path(item["frames_dir"]) / item["folder"] / "truth.npz")
-        side_names = [str(n) for n in truth["side_names"]]
-        res = edit_ratio(frames, ann, truth["sides"], side_names, method, tol=item["tol"],
-                         max_edits=item["max_edits"], **item["options"])
-        names, control = res["names"], res["tracked"]
-        idx = [side_names.index(n) for n in names]
-        inb = np.ones(len(frames), bool)
-        inb[ann.keyframe_indices] = False
-        err, vis = curve_errors(control[inb], truth["sides"][inb][:, idx],
-                                visible=truth["visible"][inb][:, idx])
-        rev = reverse_errors(control[inb], truth["sides"][inb][:, idx])
+        ann = read_annotation(Path(item["frames_dir"]) / item["folder"] / "annotation.json")
+        if ann.clip != clip:
+            raise InputError(ann.source, "clip", f"the clip id {clip!r} of index.csv", ann.clip)
+        control, names, n_points = read_tracks(Path(item["tracks_dir"]) / clip / "curves.npz", ann)
         model = fit_keypoint_model(ann)
-        kp = keypoints_from_curves(control, names, model)
-        tk = truth["keypoints"]
-        torso = np.linalg.norm(tk[:, JOINT_INDEX["thorax"]] - tk[:, JOINT_INDEX["pelvis"]], axis=-1)
-        score = pck(kp[inb], tk[inb], torso[inb], 0.05)
-        return {"ok": True, "clip": clip, "method": method, "errors": err[np.isfinite(err)],
-                "errors_visible": err[np.isfinite(err) & vis], "errors_rev": rev[np.isfinite(rev)],
-                "length_ratio": length_ratio(control, ann.keyframe_indices), "pck": score,
-                "edit_ratio": res["edit_ratio"], "edits": res["edits"],
-                "control_points": res["control_points"], "capped_curves": res["capped_curves"],
-                "corrected_frames": res["corrected_frames"], "rounds": res["rounds"],
-                "control": control if item["keep"] else None, "names": names}
+        kp = keypoints_from_curves(control, names, model, n_points)
+        good = np.isfinite(kp).all(axis=(1, 2))
+        if not good.any():
+            missing = [j for j in range(kp.shape[1]) if not np.isfinite(kp[:, j]).any()]
+
+            raise InputError(Path(item["tracks_dir"]) / clip / "curves.npz", "curves",
+                             "curves giving all 17 key points in at least one frame",
+                             "never: " + ", ".join(JOINTS[j] for j in missing) if missing else None)
+        return {"ok": True, "clip": clip, "character": ann.character, "motion": ann.motion,
+                "frame": np.flatnonzero(good), "points": kp[good], "frames": len(ann.frames),
+                "dropped": int((~good).sum()), "model": model.to_dict()}
     except InputError as exc:
-        return {"ok": False, "clip": clip, "method": method, "error": str(exc)}
+        return {"ok": False, "clip": clip, "error": str(exc)}
 
 
-def evaluate_tracking(params: dict, frames_dir=FRAMES_DIR, reports=REPORTS, mapper=None):
-    """Compare the three trackers on the rendered clips with ground truth (docs/method.md §15.6).
+def keypoints_from_tracks(params: dict, frames_dir=FRAMES_DIR, tracks_dir=TRACKS_DIR,
+                          out_dir=RAW_DIR, mapper=None):
+    """Key points of every clip from the tracked side curves (Eq. 2-3).
 
-    Reads ``track`` options, ``track.eval_clips`` (how many clips, in index
-    order, that have a ``truth.npz``), ``track.edit_tol_px`` and
-    ``track.max_edits``.  Writes ``<reports>/tracking.json`` (per tracker:
-    mean_px, p95_px (tracked -> truth), mean_px_rev, p95_px_rev (truth ->
-    tracked), mean_px_sym, p95_px_sym (both; see
-    :func:`nnsf.track.metrics.symmetric_summary`), mean_px_visible,
-    p95_px_visible, length_ratio (in-between over keyframe curve length,
-    mean over clips), pck, edit_ratio, clips),
-    ``<reports>/tracking.csv`` (per clip × tracker) and
-    ``<reports>/figures/tracking_overlay.png`` (first evaluated clip).
+    Reads ``<frames_dir>/index.csv``, each clip's ``annotation.json`` (ω is
+    fitted on its keyframes' key points) and ``<tracks_dir>/<clip>/curves.npz``.
+    Writes ``<out_dir>/keypoints.csv`` (the feature-matrix contract, pixels;
+    frames where some key point has no estimate are left out) and
+    ``<out_dir>/characters.json`` (per clip: labels, frame counts, fitted ω).
+    Reads no parameters (``params`` is only used to name the params file).
     """
-    from nnsf.frames.stage import read_index
-    from nnsf.stages import StageResult
-    from nnsf.track.figures import tracking_overlay
-    from nnsf.track.metrics import error_summary, symmetric_summary
-
-    options = track_options(params)
-    n_clips = require(params, "track.eval_clips")      # each checked by the params schema
-    tol = require(params, "track.edit_tol_px")
-    max_edits = require(params, "track.max_edits")
-    frames_dir, reports = Path(frames_dir), Path(reports)
+    frames_dir, tracks_dir, out_dir = Path(frames_dir), Path(tracks_dir), Path(out_dir)
     index = read_index(frames_dir)
-    rows = [r for r in index.itertuples() if (frames_dir / r.folder / "truth.npz").is_file()]
-    rows = rows[:n_clips]
-    if not rows:
-        raise InputError(frames_dir / "index.csv", "clips",
-                         "at least one clip with ground truth (truth.npz) to evaluate tracking")
-    items = [{"clip": r.clip, "folder": r.folder, "frames_dir": str(frames_dir), "method": m,
-              "options": options, "tol": float(tol), "max_edits": max_edits, "keep": i == 0}
-             for i, r in enumerate(rows) for m in TRACKERS]
-    results = _map(mapper, _evaluate_item, items)
+    items = [{"clip": r.clip, "folder": r.folder, "frames_dir": str(frames_dir),
+              "tracks_dir": str(tracks_dir)} for r in index.itertuples()]
+    results = map_items(mapper, _keypoints_item, items)
     ok = [r for r in results if r["ok"]]
-    failed = {f"{r['clip']} ({r['method']})": r["error"] for r in results if not r["ok"]}
-    table, summary = [], {}
-    for m in TRACKERS:
-        mine = [r for r in ok if r["method"] == m]
-        for r in mine:
-            table.append({"clip": r["clip"], "tracker": m,
-                          **symmetric_summary(r["errors"], r["errors_rev"]),
-                          **{k + "_visible": v for k, v in error_summary(r["errors_visible"]).items()},
-                          "length_ratio": r["length_ratio"], "pck": r["pck"],
-                          "edit_ratio": r["edit_ratio"], "edits": r["edits"],
-                          "control_points": r["control_points"],
-                          "capped_curves": r["capped_curves"],
-                          "corrected_frames": r["corrected_frames"], "rounds": r["rounds"]})
-        if not mine:
-            continue
-        allerr = np.concatenate([r["errors"] for r in mine])
-        allvis = np.concatenate([r["errors_visible"] for r in mine])
-        allrev = np.concatenate([r["errors_rev"] for r in mine])
-        edits = sum(r["edits"] for r in mine)
-        slots = sum(r["control_points"] for r in mine)
-        summary[m] = {**symmetric_summary(allerr, allrev),
-                      **{k + "_visible": v for k, v in error_summary(allvis).items()},
-                      "length_ratio": float(np.mean([r["length_ratio"] for r in mine])),
-                      "pck": float(np.mean([r["pck"] for r in mine])),
-                      "edit_ratio": edits / slots if slots else float("nan"),
-                      "edits": edits, "corrected_frames": sum(r["corrected_frames"] for r in mine),
-                      "rounds": max(r["rounds"] for r in mine),
-                      "clips": len(mine)}
-    figure = reports / "figures" / "tracking_overlay.png"
-    keep = [r for r in ok if r["control"] is not None]
-    artifacts = []
-    if keep:
-        first = rows[0]
-        from nnsf.frames.annotation import read_annotation
-        from nnsf.frames.clips import read_clip
-
-        folder = frames_dir / first.folder
-        ann = read_annotation(folder / "annotation.json")
-        frames = read_clip(folder, ann)
-        truth = read_npz(folder / "truth.npz")
-        side_names = [str(n) for n in truth["side_names"]]
-        names = keep[0]["names"]
-        true_sides = truth["sides"][:, [side_names.index(n) for n in names]]
-        show = _frames_to_show(len(frames), ann.keyframe_indices)
-        tracking_overlay(frames, {r["method"]: r["control"] for r in keep}, true_sides, show,
-                         figure, title=f"{first.clip}: tracked side contours between keyframes "
-                         f"{ann.keyframe_indices}")
-        artifacts.append(figure)
-    write_json(reports / "tracking.json", {"trackers": summary, "failed": failed,
-                                           "clips": [r.clip for r in rows],
-                                           "edit_tol_px": float(tol), "max_edits": max_edits})
-    write_csv(reports / "tracking.csv", pd.DataFrame(table))
+    failed = {r["clip"]: r["error"] for r in results if not r["ok"]}
+    if not ok:
+        raise InputError(tracks_dir, "clips", "at least one clip with usable tracks; failed: "
+                         + failures(failed))
+    blocks = []
+    for r in ok:
+        n = len(r["frame"])
+        block = pd.DataFrame(r["points"].reshape(n, -1), columns=list(FEATURE_COLUMNS))
+        block.insert(0, "motion", r["motion"])
+        block.insert(0, "character", r["character"])
+        block.insert(0, "frame", r["frame"].astype(np.int64))
+        block.insert(0, "clip", r["clip"])
+        blocks.append(block)
+    table = contract.validate(pd.concat(blocks, ignore_index=True), "tracked key points")
+    described = {
+        "source": "frames",
+        "frames_dir": str(frames_dir), "tracks_dir": str(tracks_dir),
+        "clips": {r["clip"]: {"character": r["character"], "motion": r["motion"],
+                              "frames": r["frames"], "dropped_frames": r["dropped"],
+                              "keypoint_model": r["model"]} for r in ok},
+        "failed": failed,
+    }
+    with atomic_dir(out_dir) as tmp:
+        contract.write_table(tmp / "keypoints.csv", table)
+        write_json(tmp / "characters.json", described)
     if failed:
-        raise InputError(frames_dir, "clips", f"every clip evaluated; {len(failed)} failed: "
-                         + _failures(failed))
-    metrics = {f"{m}_{k}": v for m, s in summary.items() for k, v in s.items() if k != "clips"}
-    return StageResult(params={"track_eval_clips": n_clips, "track_edit_tol_px": tol,
-                               "track_max_edits": max_edits},
-                       metrics=metrics, artifacts=[reports / "tracking.json",
-                                                   reports / "tracking.csv", *artifacts])
+        raise InputError(tracks_dir, "clips", f"key points for every clip; {len(failed)} failed "
+                         f"(the other {len(ok)} were written to {out_dir}): " + failures(failed))
+    return StageResult(
+        params={"frames_dir": str(frames_dir), "tracks_dir": str(tracks_dir)},
+        metrics={"clips": len(ok), "frames": len(table),
+                 "dropped_frames": int(sum(r["dropped"] for r in ok)),
+                 "characters": table["character"].nunique(), "motions": table["motion"].nunique()},
+    )
 
 
-def _frames_to_show(T: int, keyframes: list[int], n: int = 4) -> list[int]:
-    """``n`` in-between frames spread over the clip, each far from keyframes (mid-interval)."""
-    keys = sorted(keyframes)
-    mids = [(a + b) // 2 for a, b in zip(keys[:-1], keys[1:]) if b - a >= 2]
-    if not mids:
-        return list(np.linspace(0, T - 1, n).round().astype(int))
-    pick = np.linspace(0, len(mids) - 1, min(n, len(mids))).round().astype(int)
-    return [mids[i] for i in dict.fromkeys(pick)]
+# --------------------------------------------------------------------------- the stages
+def track(params: dict, frames_dir=FRAMES_DIR, tracks_dir=TRACKS_DIR, tracked_dir=TRACKED_DIR,
+          mapper=None) -> StageResult:
+    """Track every clip's side contours, then derive its key points (the ``frames`` source).
+
+    Writes ``<tracks_dir>/<clip>/curves.npz`` (:func:`track_clips`)
+    and ``<tracked_dir>/keypoints.csv`` + ``characters.json`` in the
+    feature-matrix contract, pixels (:func:`keypoints_from_tracks`),
+    which the data stage reads with ``dataset.name: frames`` and
+    ``dataset.path: data/tracked``.  ``mapper`` fans out over clips.
+    """
+    tracked = track_clips(params, frames_dir=frames_dir, out_dir=tracks_dir, mapper=mapper)
+    points = keypoints_from_tracks(params, frames_dir=frames_dir, tracks_dir=tracks_dir,
+                                   out_dir=tracked_dir, mapper=mapper)
+    return StageResult(params=tracked.params,
+                       metrics={**tracked.metrics, **{f"keypoints_{k}": v for k, v in points.metrics.items()}})
+
+

@@ -1,0 +1,250 @@
+"""Your character, your motion, a style: ``nnsf animate`` and the ``animate`` stage.
+
+:func:`animate_files` runs the whole job: read a drawn character
+(:func:`read_character`), read a motion (:func:`read_motion_spec`: a BVH file
+projected in a chosen view, a feature-matrix CSV, or a built-in synthetic
+clip), translate it into a style of a saved style model
+(:func:`nnsf.factor.style_model.translate`), retarget it to the character's
+proportions (:func:`nnsf.reshape.drive.retarget`), deform the character's
+mesh (:mod:`nnsf.reshape.rig`), render every frame
+(:class:`nnsf.reshape.render.MeshRenderer`) and encode MP4, GIF, PNG frames
+and a contact sheet.  It reports the time of each part.
+
+Character formats: :func:`nnsf.reshape.formats.read_character`.
+
+Motion formats (:func:`read_motion_spec`): ``*.bvh`` (any skeleton family
+:mod:`nnsf.datasets.bvh_skeletons` maps), ``*.csv`` in the feature-matrix
+contract (one clip), or ``synthetic:<character>/<motion>[/<frames>]``.
+"""
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from nnsf.errors import InputError
+from nnsf.reshape.formats import read_character
+from nnsf.datasets import synthetic, views
+from nnsf.factor.style_model import StyleModel, translate as style_translate
+from nnsf.factor.translate import resample_clip
+from nnsf.io import atomic_path, check_writable
+from nnsf.reshape import depth as depth_mod
+from nnsf.reshape.character import Character
+from nnsf.reshape.drive import read_motion, retarget
+from nnsf.reshape.render import MeshRenderer, contact_sheet, write_gif, write_mp4, write_png_frames
+from nnsf.reshape.stage import BACKGROUND, build_rig, canvas
+
+#: Frame rate of a built-in synthetic clip (nnsf.datasets.synthetic.FPS).
+SYNTHETIC_FPS = 24.0
+OUTPUT_KINDS = ("mp4", "gif", "png", "sheet")
+
+
+# --------------------------------------------------------------------------- motion
+@dataclass
+class Motion:
+    """A 17-point clip: ``points (T, 17, 2)`` (y down), optional ``depth (T, 17)``, its ``fps``."""
+
+    name: str
+    points: np.ndarray
+    fps: float
+    depth: np.ndarray | None = None
+    view: str | None = None
+    source: str = ""
+    notes: list[str] = field(default_factory=list)
+
+
+def read_motion_spec(spec, view: str = "auto", fps: float | None = None, clip: str | None = None,
+                     elevation: float = 0.0) -> Motion:
+    """A motion from a ``.bvh``, a contract ``.csv`` or ``synthetic:<character>/<motion>[/<frames>]``.
+
+    A BVH is projected in ``view`` (:mod:`nnsf.datasets.views`; ``auto``
+    picks the one it moves most in) and resampled to ``fps`` (default: the
+    file's rate).  Raises :class:`InputError` naming the file and field.
+    """
+    text = str(spec)
+    if text.startswith("synthetic:"):
+        parts = text[len("synthetic:"):].split("/")
+        if len(parts) not in (2, 3):
+            raise InputError("--motion", "synthetic", "synthetic:<character>/<motion>[/<frames>]", text)
+        ch, mo = parts[0], parts[1]
+        n = 48
+        if len(parts) == 3:
+            if not parts[2].isdigit() or not 2 <= int(parts[2]) <= 5000:
+                raise InputError("--motion", "synthetic frames", "an integer 2..5000", parts[2])
+            n = int(parts[2])
+        if ch not in synthetic.CHARACTER_NAMES:
+            raise InputError("--motion", "synthetic character", ", ".join(synthetic.CHARACTER_NAMES), ch)
+        if mo not in synthetic.MOTIONS:
+            raise InputError("--motion", "synthetic motion", ", ".join(synthetic.MOTIONS), mo)
+        out_fps = float(fps) if fps else SYNTHETIC_FPS
+        # A loop of the clip's own duration, sampled at the requested rate.
+        pts = synthetic.clip_points(ch, mo, int(round(n * out_fps / SYNTHETIC_FPS)))
+        return Motion(name=f"{ch}-{mo}", points=pts, fps=out_fps, source=text)
+    p = Path(text)
+    if not p.is_file():
+        raise InputError(p, "file", "an existing .bvh or feature-matrix .csv motion, or "
+                         "synthetic:<character>/<motion>")
+    if p.suffix.lower() == ".bvh":
+        views.check_view(view)
+        # Motion capture is often 120 fps: 30 is smooth for drawn animation.
+        clip_obj, picked = views.load_clip_in_view(p, view=view, fps=float(fps) if fps else 30.0,
+                                                   elevation=elevation)
+        return Motion(name=p.stem, points=clip_obj.points, fps=clip_obj.fps, depth=clip_obj.depth,
+                      view=picked, source=str(p))
+    if p.suffix.lower() == ".csv":
+        name, _, pts = read_motion(p, clip)
+        return Motion(name=name, points=pts, fps=float(fps) if fps else SYNTHETIC_FPS, source=str(p))
+    raise InputError(p, "file", "a .bvh or .csv motion file", p.suffix or "no extension")
+
+
+# --------------------------------------------------------------------------- the job
+@dataclass
+class AnimateResult:
+    files: dict[str, Path]
+    seconds: dict[str, float]       # wall time per part
+    cpu_seconds: dict[str, float]   # CPU time of this process per part (all its threads)
+    frames: int
+    fps: float
+    view: str | None
+    style: str
+    character: str
+    motion: str
+    notes: list[str] = field(default_factory=list)
+
+
+def _say(progress, text):
+    if progress:
+        print(text, file=sys.stderr, flush=True)
+
+
+def output_targets(out) -> dict[str, Path]:
+    """What ``--out`` asks for: ``{kind: path}`` with kind in mp4, gif, png (a folder) and sheet."""
+    out = Path(out)
+    suffix = out.suffix.lower()
+    if suffix in (".mp4", ".gif"):
+        return {suffix[1:]: out, "sheet": out.with_name(out.stem + "_sheet.png")}
+    if suffix:
+        raise InputError(out, "--out", "FILE.mp4, FILE.gif or a folder (PNG frames)", suffix)
+    return {"png": out, "sheet": out.with_name(out.name + "_sheet.png")}
+
+
+def animate_files(character, motion, style="none", model=None, view="auto", out="animation.mp4",
+                  fps=None, joints=None, source_style=None, n_vertices=800, max_frames=5000,
+                  outputs=None, progress=True, size=512, clip=None) -> AnimateResult:
+    """Run the whole job (module docstring) and write the outputs; returns what was written and the times.
+
+    Parameters
+    ----------
+    character : a character spec for :func:`read_character`, or a ``Character``.
+    motion : a motion spec for :func:`read_motion_spec`, or a :class:`Motion`.
+    style : a style of ``model``, or ``"none"`` (the motion as it is).
+    model : path of a style model (``nnsf styles``), or a loaded
+        :class:`~nnsf.factor.style_model.StyleModel`; needed unless style is none.
+    view : front | side | three-quarter | auto, for a BVH motion.
+    out : ``FILE.mp4``, ``FILE.gif`` or a folder for PNG frames; a contact
+        sheet ``<stem>_sheet.png`` is written beside.  Ignored when
+        ``outputs`` (``{kind: path}``, kinds of :data:`OUTPUT_KINDS`) is given.
+    fps : output frame rate (default: the motion's).
+    """
+    views.check_view(view)
+    targets = dict(outputs) if outputs is not None else output_targets(out)
+    # Every output folder is checked before any work (a file in the way, a read-only
+    # disk): one line naming the folder, and nothing rendered in vain.
+
+    for folder in sorted({path if kind == "png" else path.parent for kind, path in targets.items()}):
+        check_writable(folder)
+    seconds: dict[str, float] = {}
+    cpu: dict[str, float] = {}
+    t0, c0 = time.perf_counter(), time.process_time()
+    # ---- load: check everything before any work, so bad input leaves nothing behind
+    style = "none" if style is None else str(style)
+    sm = None
+    if style != "none":
+        if model is None:
+            raise InputError("--model", "model", "a style model file (nnsf styles) for --style " + style)
+        sm = model if isinstance(model, StyleModel) else StyleModel.load(model)
+        sm.check_style(style, "--style")
+        if source_style is not None:
+            sm.check_style(source_style, "--source-style")
+    ch = character if isinstance(character, Character) else read_character(character, joints, size)
+    mo = motion if isinstance(motion, Motion) else read_motion_spec(motion, view=view, fps=fps, clip=clip)
+    points, depth = mo.points[:max_frames], None if mo.depth is None else mo.depth[:max_frames]
+    learned = sm.meta.get("view") if sm is not None else None
+    if learned not in (None, "auto") and mo.view is not None and learned != mo.view:
+        mo.notes.append(f"{sm.path}: the styles were learned in the {learned} view; this motion is seen "
+                        f"in the {mo.view} view (--view {learned} matches the model)")
+    out_fps = float(fps) if fps else mo.fps
+    seconds["load"], cpu["load"] = time.perf_counter() - t0, time.process_time() - c0
+    if mo.view is not None:
+        _say(progress, f"animate: view {mo.view}" + (" (auto: the view the motion moves most in)"
+                                                     if view == "auto" else ""))
+    _say(progress, f"animate: {len(points)} frames of {mo.name} at {out_fps:g} fps onto {ch.name} "
+                   f"({ch.shape[1]}x{ch.shape[0]} px), style {style}")
+    # ---- translate
+    t, c = time.perf_counter(), time.process_time()
+    moved = points if sm is None else style_translate(points, style, sm, source_style=source_style)
+    if depth is not None and len(moved) != len(depth):
+        # The style's tempo resampled the motion (nnsf.translate); the depths follow.
+
+        depth = resample_clip(depth, len(moved))
+    moved = moved[:max_frames]              # a slower style's tempo may lengthen the motion
+    depth = None if depth is None else depth[:max_frames]
+    if len(moved) != len(points):
+        _say(progress, f"animate: {len(points)} -> {len(moved)} frames at the tempo of style {style}")
+    seconds["translate"], cpu["translate"] = time.perf_counter() - t, time.process_time() - c
+    # ---- retarget
+    t, c = time.perf_counter(), time.process_time()
+    kp = retarget(moved, ch.keypoints, source=mo.source or mo.name)
+    seconds["retarget"], cpu["retarget"] = time.perf_counter() - t, time.process_time() - c
+    # ---- deform
+    t, c = time.perf_counter(), time.process_time()
+    rig = build_rig(ch, n_vertices=n_vertices)
+    V = rig.animate(kp)
+    if depth is None:
+        orders = np.tile(depth_mod.default_order(), (len(V), 1))
+    else:
+        z = depth_mod.part_depths(depth)
+        height = float(np.median(np.ptp(moved[..., 1], axis=1)))
+        pairs = depth_mod.part_overlaps(V, rig.mesh.triangles, rig.mesh.parts)
+        orders = depth_mod.depth_orders(z, 0.015 * height, pairs=pairs)
+    seconds["deform"], cpu["deform"] = time.perf_counter() - t, time.process_time() - c
+    _say(progress, f"animate: deformed {len(V)} frames ({rig.mesh.n_vertices} vertices) in "
+                   f"{seconds['deform']:.2f} s")
+    # ---- render
+    t, c = time.perf_counter(), time.process_time()
+    offset, sz = canvas(ch, V)
+    renderer = MeshRenderer.for_mesh(rig.mesh, ch, size=sz)
+    images = np.empty((len(V), sz[0], sz[1], 3), np.uint8)
+    step = max(1, len(V) // 10)
+    for i in range(len(V)):
+        images[i] = renderer.render(V[i] + offset, orders[i], background=BACKGROUND)
+        if (i + 1) % step == 0 or i + 1 == len(V):
+            _say(progress, f"animate: rendered frame {i + 1}/{len(V)}")
+    seconds["render"], cpu["render"] = time.perf_counter() - t, time.process_time() - c
+    # ---- encode
+    t, c = time.perf_counter(), time.process_time()
+    files = {}
+    if "mp4" in targets:
+        files["mp4"] = write_mp4(targets["mp4"], images, out_fps)
+    if "gif" in targets:
+        files["gif"] = write_gif(targets["gif"], images, out_fps)
+    if "png" in targets:
+        write_png_frames(targets["png"], images)
+        files["png"] = Path(targets["png"])
+    if "sheet" in targets:
+        import cv2
+
+        pick = np.linspace(0, len(images) - 1, min(12, len(images))).astype(int)
+        sheet = contact_sheet(images[pick], columns=6, scale=0.5 if sz[0] > 200 else 1.0,
+                              labels=[f"t={k}" for k in pick])
+        with atomic_path(targets["sheet"]) as tmp:
+            if not cv2.imwrite(str(tmp), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR)):
+                raise OSError(f"could not write {targets['sheet']}")
+        files["sheet"] = Path(targets["sheet"])
+    seconds["encode"], cpu["encode"] = time.perf_counter() - t, time.process_time() - c
+    seconds["total"], cpu["total"] = time.perf_counter() - t0, time.process_time() - c0
+    return AnimateResult(files=files, seconds=seconds, cpu_seconds=cpu, frames=len(images), fps=out_fps, view=mo.view,
+                         style=style, character=ch.name, motion=mo.name, notes=list(ch.notes) + mo.notes)
