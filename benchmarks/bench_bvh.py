@@ -17,7 +17,8 @@ import argparse
 import time
 from pathlib import Path
 
-from nnsf.datasets.bvh import detect_up_axis, forward_kinematics, project, read_bvh
+from nnsf.datasets.bvh import forward_kinematics, read_bvh
+from nnsf.datasets.projection import detect_up_axis, project
 from nnsf.datasets.bvh_skeletons import detect_family, keypoints_3d
 from nnsf.datasets.bvh_source import FACING_PAIRS, read_folder
 from nnsf.skeleton.layout import JOINT_INDEX

@@ -71,7 +71,8 @@ def diagnose_cell(args):
     from nnsf.datasets.contract import features
     from nnsf.evaluate import translation as ev
     from nnsf.evaluate.judges import Judges, angle_statistics, pose_statistics
-    from nnsf.factor.translate import StyleTranslator, dtw_accumulate, dtw_path, joint_distance_matrix, resample_clip
+    from nnsf.factor.timewarp import dtw_accumulate, dtw_path, joint_distance_matrix, resample_clip
+    from nnsf.factor.translate import StyleTranslator
     from nnsf.skeleton import Unifier, to_points
 
     t0 = time.perf_counter()

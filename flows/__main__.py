@@ -25,13 +25,15 @@ from pathlib import Path
 
 import flows  # noqa: F401  (telemetry switches, before any heavy import)
 from flows import project
-from flows.console import error_line, one_line
+from flows.console import error_line
+from nnsf.errors import exception_line
+from nnsf.params import STAGE_NAMES
 
-# nnsf is imported only by the commands that run stages: importing it pulls in
-# scikit-learn (about 2 s), which a no-op `python -m flows repro` does not need.
+# nnsf's stages are imported only by the commands that run them: they pull in
+# scikit-learn (about 2 s), which a no-op `python -m flows repro` does not need
+# (nnsf.errors and nnsf.params are light).
 
-STAGES = ("frames", "track", "tracking", "data", "features", "factorize", "evaluate", "isomap", "sweep",
-          "heldout", "translate", "reshape", "styles", "animate")
+STAGES = STAGE_NAMES
 USAGE = __doc__.split("Commands::", 1)[1].split("Exit codes", 1)[0].rstrip()
 
 
@@ -78,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
         # A bug or an environment problem: one line unless debugging.
         if os.environ.get("NNSF_DEBUG"):
             raise
-        error_line(f"{command}: {one_line(err)} (set NNSF_DEBUG=1 for the traceback)")
+        error_line(f"{command}: {exception_line(err)} (set NNSF_DEBUG=1 for the traceback)")
         return 1
 
 
@@ -155,7 +157,7 @@ def run_stage_command(stage: str, args: list[str]) -> int:
     if isinstance(exc, BaseException):
         if os.environ.get("NNSF_DEBUG"):
             raise exc
-        error_line(f"{stage}: {one_line(exc)} (the Prefect UI has the traceback; "
+        error_line(f"{stage}: {exception_line(exc)} (the Prefect UI has the traceback; "
                    "NNSF_DEBUG=1 prints it)")
     else:
         error_line(f"{stage}: flow run ended in state {state.type.value}: {state.message}")
@@ -173,17 +175,7 @@ def _record_imports(stage: str, root: Path) -> None:
     folder = os.environ.get("NNSF_RECORD_IMPORTS")
     if not folder:
         return
-    files = set()
-    for module in list(sys.modules.values()):
-        path = getattr(module, "__file__", None)
-        if not path:
-            continue
-        try:
-            rel = Path(path).resolve().relative_to(root)
-        except ValueError:
-            continue
-        if rel.parts[0] in ("nnsf", "flows"):
-            files.add(rel.as_posix())
+    files = project.loaded_files(root)
     # What the fan-out's items loaded in worker processes (the held-out cells' process pool).
     runners = sys.modules.get("flows.runners")        # loaded by the stages that fan out
     files |= {f for f in getattr(runners, "WORKER_FILES", ()) if (root / f).is_file()}

@@ -12,6 +12,8 @@ from __future__ import annotations
 import logging
 import sys
 
+from nnsf.errors import exception_line
+
 
 class NoTracebackFormatter(logging.Formatter):
     """Wraps a formatter; an exception shows as ``(Type: message)``, never a traceback.
@@ -34,14 +36,8 @@ class NoTracebackFormatter(logging.Formatter):
         finally:
             record.exc_info, record.exc_text, record.stack_info = saved
         if exc is not None and str(exc) not in text:
-            text += f" ({one_line(exc)})"
+            text += f" ({exception_line(exc)})"
         return text
-
-
-def one_line(exc: BaseException) -> str:
-    """``Type: first line of the message``."""
-    msg = str(exc).strip().splitlines()
-    return f"{type(exc).__name__}: {msg[0]}" if msg else type(exc).__name__
 
 
 def quiet_prefect_console() -> None:

@@ -24,6 +24,7 @@ from nnsf.errors import InputError
 
 from flows import project
 from flows.repro import dvc, stage_env
+from flows.runners import retry_unless_bad_input
 
 DEFAULT_CRON = "0 3 * * *"  # every night at 03:00 (the server's time zone is UTC by default)
 DEPLOYMENT = "nnsf-pipeline"
@@ -43,16 +44,6 @@ class StageInputError(InputError):
         self.source, self.field, self.expected, self.got = "dvc repro", stage, message, None
 
 
-def _no_retry_on_bad_input(task, task_run, state) -> bool:
-    try:
-        state.result()
-    except StageInputError:
-        return False
-    except Exception:
-        return True
-    return True
-
-
 @task(name="dvc-status", cache_policy=NO_CACHE, persist_result=False)
 def dvc_status(root: str) -> dict:
     """``dvc status --json``: which stages are out of date, and why."""
@@ -64,7 +55,7 @@ def dvc_status(root: str) -> dict:
 
 
 @task(name="dvc-repro", cache_policy=NO_CACHE, persist_result=False, retries=1,
-      retry_delay_seconds=30, retry_condition_fn=_no_retry_on_bad_input)
+      retry_delay_seconds=30, retry_condition_fn=retry_unless_bad_input)
 def dvc_repro(root: str, args: list[str]) -> list[str]:
     """Run ``dvc repro``, streaming its output to the run log; return the stages it ran.
 

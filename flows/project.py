@@ -33,6 +33,28 @@ def root(start: str | os.PathLike | None = None) -> Path:
     return here
 
 
+def loaded_files(start: str | os.PathLike | None = None) -> set[str]:
+    """The project's module files (``nnsf/…``, ``flows/…``, relative POSIX paths) loaded in this process.
+
+    ``start`` is the project root (default: the folder above ``flows/``).
+    """
+    import sys
+
+    base = Path(start).resolve() if start is not None else Path(__file__).resolve().parents[1]
+    files = set()
+    for module in list(sys.modules.values()):
+        path = getattr(module, "__file__", None)
+        if not path:
+            continue
+        try:
+            rel = Path(path).resolve().relative_to(base)
+        except ValueError:
+            continue
+        if rel.parts[0] in ("nnsf", "flows"):
+            files.add(rel.as_posix())
+    return files
+
+
 def mlflow_uri(project: Path | None = None) -> str:
     """The MLflow tracking URI: ``$MLFLOW_TRACKING_URI`` or the project's sqlite file.
 

@@ -43,7 +43,9 @@ from __future__ import annotations
 import os
 from typing import Any, Callable, Iterable
 
-from nnsf.errors import InputError
+from nnsf.errors import InputError, exception_line
+
+from flows import project
 
 CHOICES = ("threads", "processes", "dask")
 #: Default number of retries of one item: a worker lost with its machine, a
@@ -131,7 +133,7 @@ class FanOutError(RuntimeError):
 
     def __init__(self, task_name: str, failed: dict[str, BaseException], results: list):
         self.task_name, self.failed, self.results = task_name, failed, results
-        shown = "; ".join(f"{name}: {_one_line(err)}" for name, err in failed.items())
+        shown = "; ".join(f"{name}: {exception_line(err, with_type=False)}" for name, err in failed.items())
         super().__init__(f"{task_name}: {len(failed)} of {len(results)} items failed: {shown}")
 
 
@@ -147,12 +149,7 @@ class FanOutInputError(FanOutError, InputError):
         self.got = None
 
 
-def _one_line(err: BaseException) -> str:
-    text = str(err).strip().splitlines()
-    return text[0] if text else type(err).__name__
-
-
-def _retry_unless_bad_input(task, task_run, state) -> bool:
+def retry_unless_bad_input(task, task_run, state) -> bool:
     """Prefect's retry condition: retry anything but an :class:`InputError`."""
     try:
         state.result()
@@ -209,7 +206,7 @@ def prefect_mapper(task_name: str, retries: int = RETRIES,
         recording = bool(os.environ.get("NNSF_RECORD_IMPORTS"))
         base = task(_recorded if recording else fn, name=task_name, retries=retries,
                     retry_delay_seconds=retry_delay_seconds,
-                    retry_condition_fn=_retry_unless_bad_input, cache_policy=NO_CACHE,
+                    retry_condition_fn=retry_unless_bad_input, cache_policy=NO_CACHE,
                     persist_result=False)
         futures = [base.with_options(task_run_name=_escape(f"{task_name} {label}"))
                    .submit((fn, item) if recording else item)
@@ -247,30 +244,10 @@ def prefect_mapper(task_name: str, retries: int = RETRIES,
 WORKER_FILES: set[str] = set()
 
 
-def project_files() -> set[str]:
-    """The project's module files (``nnsf/…``, ``flows/…``, relative POSIX paths) loaded here."""
-    import sys
-    from pathlib import Path
-
-    root = Path(__file__).resolve().parents[1]
-    files = set()
-    for module in list(sys.modules.values()):
-        path = getattr(module, "__file__", None)
-        if not path:
-            continue
-        try:
-            rel = Path(path).resolve().relative_to(root)
-        except ValueError:
-            continue
-        if rel.parts[0] in ("nnsf", "flows"):
-            files.add(rel.as_posix())
-    return files
-
-
 def _recorded(call):
     """``fn(item)`` and the project files loaded in the process that ran it (a worker's, too)."""
     fn, item = call
-    return fn(item), project_files()
+    return fn(item), project.loaded_files()
 
 
 def local_mapper(fn: Callable[[Any], Any], items: Iterable[Any]) -> list:

@@ -34,18 +34,15 @@ import os
 import sys
 from pathlib import Path
 
-from nnsf.errors import InputError
+from nnsf.errors import InputError, exception_line
+from nnsf.params import STAGE_NAMES
 
 #: OS errors that mean "this output cannot be written here": reported like bad input (exit 2).
 UNWRITABLE = {errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOTDIR, errno.EISDIR, errno.ENOSPC,
               errno.EDQUOT}
 
-STAGES = ("frames", "track", "tracking", "data", "features", "factorize", "evaluate", "isomap", "heldout")
-
-
-def _one_line(exc: BaseException) -> str:
-    lines = str(exc).strip().splitlines()
-    return f"{type(exc).__name__}: {lines[0]}" if lines else type(exc).__name__
+#: The stages run as plain ``nnsf <stage>`` on params.yaml (the others have commands of their own).
+STAGES = tuple(s for s in STAGE_NAMES if s not in ("sweep", "translate", "reshape", "styles", "animate"))
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -161,7 +158,7 @@ def _animate(args) -> int:
     print(f"animate: {res.frames} frames at {res.fps:g} fps in {res.seconds['total']:.2f} s ({parts})")
     for kind, path in res.files.items():
         if kind == "mp4":
-            from nnsf.reshape.render import mp4_codec
+            from nnsf.reshape.video import mp4_codec
 
             codec = mp4_codec()
             print(f"animate: {kind}: {path}" + ("" if codec == "avc1" else
@@ -332,7 +329,7 @@ def _unexpected(command: str, err: BaseException) -> int:
     """A bug or an environment problem: one line (the traceback with ``NNSF_DEBUG=1``), exit 1."""
     if os.environ.get("NNSF_DEBUG"):
         raise err
-    print(f"error: {command}: {_one_line(err)} (set NNSF_DEBUG=1 for the traceback)", file=sys.stderr)
+    print(f"error: {command}: {exception_line(err)} (set NNSF_DEBUG=1 for the traceback)", file=sys.stderr)
     return 1
 
 

@@ -86,6 +86,14 @@ def one_line(text, limit: int = REASON_LIMIT) -> str:
     return _cut(" | ".join(parts), limit)
 
 
+def exception_line(exc: BaseException, with_type: bool = True) -> str:
+    """An exception on one line: ``Type: first line of its message`` (or the first line alone)."""
+    msg = str(exc).strip().splitlines()
+    if not msg:
+        return type(exc).__name__
+    return f"{type(exc).__name__}: {msg[0]}" if with_type else msg[0]
+
+
 class InputError(ValueError):
     """Bad input: a file, a field in it, and what was expected there.
 

@@ -23,6 +23,16 @@ INITS = ("random", "nndsvd", "nndsvda", "nndsvdar")
 METHODS = ("nnsf", "nnsc", "nmf", "bilinear", "mgpm", "cbgpm")
 LABELS = ("motion", "character")
 TRACKERS = ("ours", "agarwala", "lk")
+TRACK_INITS = ("linear", "lk", "flow", "limb")
+LK_ENDS = ("blend", "none")
+#: StyleTranslator settings (nnsf.factor.translate).
+BASES = ("aligned", "refit", "separate")
+SYNTHESES = ("consensus", "source")
+AMPLITUDES = ("restore", "style", "none")
+RESHAPE_FORMATS = ("png", "gif", "mp4")
+#: The pipeline's stages, in dvc.yaml order (nnsf.stages maps each to its function).
+STAGE_NAMES = ("frames", "track", "tracking", "data", "features", "factorize", "evaluate", "isomap", "sweep",
+               "heldout", "translate", "reshape", "styles", "animate")
 #: Camera views of projected motion capture (nnsf.datasets.views).
 VIEW_CHOICES = ("front", "side", "three-quarter", "auto")
 TRANSLATION_METHODS = ("nnsf", "nnsf_smooth", "nnsf_nosmooth", "nnsf_styleamp", "nnsf_swapped", "nnsf_beta0",
@@ -174,8 +184,8 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "track.max_iter": _int(1, 10000),
     "track.w_slide": _num(0, 1e6),
     "track.edge_gate": _num(0, 1000),
-    "track.init": _choice(("linear", "lk", "flow", "limb")),
-    "track.lk_end": _choice(("blend", "none")),
+    "track.init": _choice(TRACK_INITS),
+    "track.lk_end": _choice(LK_ENDS),
     "track.eval_clips": _int(1, 1000),
     "track.edit_tol_px": _num(0, 1000, strict=True),
     "track.max_edits": _int(0, 10000),
@@ -212,9 +222,9 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "translation.alpha": _num(0, 1e6),
     "translation.beta": _num(0, 1e9),
     "translation.label": _choice(LABELS),
-    "translation.basis": _choice(("aligned", "refit", "separate")),
-    "translation.synthesis": _choice(("consensus", "source")),
-    "translation.amplitude": _choice(("restore", "style", "none")),
+    "translation.basis": _choice(BASES),
+    "translation.synthesis": _choice(SYNTHESES),
+    "translation.amplitude": _choice(AMPLITUDES),
     "translation.tempo": _bool(),
     "translation.ridge": _num(0, 1e6),
     "translation.smooth": _num(0, 1e6),
@@ -238,7 +248,7 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "reshape.propagation": _choice(("limb-frame", "eq12")),
     "reshape.fps": _num(1, 120),
     "reshape.max_frames": _size(1, 5000, 512 * 512 * 3, "rendered frames of 512x512 px"),
-    "reshape.formats": _list(_choice(("png", "gif", "mp4")), 3),
+    "reshape.formats": _list(_choice(RESHAPE_FORMATS), 3),
     # Parts and frame ranges are checked against the clip by nnsf.reshape.depth.parse_overrides.
     "reshape.depth_overrides": ((lambda v: isinstance(v, list) and len(v) <= 1000
                                  and all(isinstance(x, (str, dict)) for x in v)),

@@ -135,6 +135,19 @@ def need_several(table: pd.DataFrame, column: str, source, purpose: str, at_leas
                          reason=f"found {len(values)}: {', '.join(map(str, values[:3]))}")
 
 
+def cv_table(features_csv, label: str):
+    """``(table, X, y)`` of the features stage's table for a cross-validation grouped by clip.
+
+    Refused (naming the file and column) unless it holds at least two clips
+    and two classes of ``label``.
+    """
+    table = read_features(features_csv)
+    need_several(table, "clip", features_csv, "to hold out in cross-validation grouped by clip")
+    need_several(table, label, features_csv, f"(nnsf.label: {label}): precision over one class is "
+                 "1.0 for any model")
+    return table, contract.features(table), table[label].to_numpy()
+
+
 def read_unifier(features_dir=FEATURES_DIR) -> Unifier:
     """The unifier fitted by the features stage (``unifier.json``)."""
     path = Path(features_dir) / "unifier.json"

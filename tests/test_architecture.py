@@ -3,6 +3,8 @@
 * no import cycle between modules, and none between sub-packages;
 * only the CLI imports the stage registry ``nnsf.stages`` (flows/ and the
   tests may too): no module below it depends on the set of stages;
+* no module longer than 600 lines unless its docstring says why it is one
+  concept;
 * no import of a project module inside a function, except in the modules of
   :data:`DEFERRED_IMPORTS` (each with its reason): such imports hide the
   route from a reader and hid the cycles this test now forbids.
@@ -13,7 +15,10 @@ import ast
 from collections import defaultdict
 from pathlib import Path
 
+import pytest
+
 PACKAGE = Path(__file__).resolve().parents[1] / "nnsf"
+MAX_LINES = 600
 
 #: Modules that may import project modules inside functions, and why.
 DEFERRED_IMPORTS = {
@@ -154,3 +159,29 @@ def test_no_project_import_inside_a_function():
              for name, path in MODULES.items() if name not in DEFERRED_IMPORTS
              for target, node, inside in _imports(name, path) if inside]
     assert found == []
+
+
+def test_stage_names_are_defined_once_and_every_stage_is_registered():
+    """dvc.yaml's stages are nnsf.params.STAGE_NAMES, and the registry runs each (sweep by its points)."""
+    import yaml
+
+    from nnsf.params import STAGE_NAMES
+    from nnsf.stages import REGISTRY, get
+
+    dvc = yaml.safe_load((PACKAGE.parent / "dvc.yaml").read_text())
+    assert tuple(dvc["stages"]) == STAGE_NAMES
+    assert set(STAGE_NAMES) - {"sweep"} | {"sweep_grid", "sweep_point"} == set(REGISTRY)
+    for name in REGISTRY:
+        assert callable(get(name))
+
+
+@pytest.mark.parametrize("name", sorted(MODULES))
+def test_module_is_at_most_600_lines_or_says_why_it_is_one_concept(name):
+    path = MODULES[name]
+    lines = len(path.read_text().splitlines())
+    if lines <= MAX_LINES:
+        return
+    doc = ast.get_docstring(ast.parse(path.read_text())) or ""
+    assert "one concept" in doc.lower(), (
+        f"{path.relative_to(PACKAGE.parent)} has {lines} lines (> {MAX_LINES}) and its docstring "
+        "does not say why it is one concept")

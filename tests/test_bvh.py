@@ -10,9 +10,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from nnsf.datasets.bvh import (
-    detect_up_axis, forward_kinematics, parse_bvh, project, read_bvh, resample, resample_times,
-)
+from nnsf.datasets.bvh import forward_kinematics, parse_bvh, read_bvh
+from nnsf.datasets.projection import detect_up_axis, project, resample, resample_times
 from nnsf.datasets.bvh_skeletons import (
     FAMILIES, detect_family, family_from_mapping, keypoints_3d, parse_rule,
 )

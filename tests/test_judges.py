@@ -12,9 +12,9 @@ import pytest
 from nnsf.datasets import contract
 from nnsf.datasets.synthetic import generate
 from nnsf.evaluate.judges import FAMILIES, Judges, angle_statistics, pose_statistics
-from nnsf.evaluate.translation import (
-    JUDGE_COLUMNS, CellData, evaluate_cell, jerk, style_offset, BASELINES,
-)
+from nnsf.evaluate.cell_baselines import BASELINES, CellData, style_offset
+from nnsf.evaluate.scores import jerk
+from nnsf.evaluate.translation import JUDGE_COLUMNS, evaluate_cell
 from nnsf.factor.translate import StyleTranslator
 from nnsf.skeleton import Unifier, to_points
 

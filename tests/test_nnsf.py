@@ -14,7 +14,7 @@ from sklearn.pipeline import Pipeline
 from sklearn.utils.estimator_checks import check_estimator
 
 from nnsf import NNSF
-from nnsf.factor.nnsf import weights_for_basis
+from nnsf.factor.updates import weights_for_basis
 
 
 def _random_basis(rng, k, d):

@@ -9,7 +9,8 @@ from sklearn.decomposition._nmf import _initialize_nmf
 
 from nnsf import NNSF
 from nnsf.factor import nnsf as nnsf_module
-from nnsf.factor.nnsf import LARGE_INIT_ROWS, _initialize_nndsvd_lean, _residual_norm, _weight_pass, weight_step
+from nnsf.factor.nnsf import LARGE_INIT_ROWS, _initialize_nndsvd_lean
+from nnsf.factor.updates import _residual_norm, _weight_pass, weight_step
 
 
 def _exact_rank(n, d, k, seed=0):

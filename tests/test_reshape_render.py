@@ -11,7 +11,8 @@ from nnsf.reshape.depth import (
     default_order, depth_metric, depth_orders, order_ranks, part_depths, part_overlaps,
 )
 from nnsf.reshape.parts import PARTS, PART_INDEX
-from nnsf.reshape.render import MeshRenderer, write_gif, write_mp4, write_png_frames
+from nnsf.reshape.render import MeshRenderer
+from nnsf.reshape.video import write_gif, write_mp4, write_png_frames
 from nnsf.reshape.rig import Rig
 
 

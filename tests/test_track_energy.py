@@ -4,9 +4,8 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from nnsf.track.energy import (
-    SpaceTimeProblem, Weights, build_pyramid, levenberg_marquardt, solve_block_tridiagonal,
-)
+from nnsf.track.energy import SpaceTimeProblem, Weights, build_pyramid
+from nnsf.track.lm import levenberg_marquardt, solve_block_tridiagonal
 
 
 def _problem(image_terms=True, seed=0, gated=False):

@@ -10,13 +10,11 @@ from PIL import Image
 
 from nnsf.datasets.synthetic import generate
 from nnsf.errors import InputError
-from nnsf.evaluate.translation import (
-    SyntheticTruth, clip_features, evaluate_cell, grid_cells, leave_one_cell_out, summarise,
-)
-from nnsf.factor.translate import (
-    StyleTranslator, atom_cosines, dtw_accumulate, dtw_align, dtw_path, joint_distance_matrix,
-    match_atoms, refit_basis, to_character_points,
-)
+from nnsf.evaluate.scores import SyntheticTruth, clip_features
+from nnsf.evaluate.translation import evaluate_cell, grid_cells, leave_one_cell_out, summarise
+from nnsf.factor.align import atom_cosines, match_atoms, refit_basis
+from nnsf.factor.timewarp import dtw_accumulate, dtw_align, dtw_path, joint_distance_matrix
+from nnsf.factor.translate import StyleTranslator, to_character_points
 from nnsf.stick import write_stick_gif
 from nnsf.skeleton import Unifier, to_points
 
@@ -282,7 +280,7 @@ def test_one_bandai_cell_runs_end_to_end():
 
 # ------------------------------------------------------ consensus synthesis
 def test_resample_clip_is_linear_interpolation():
-    from nnsf.factor.translate import resample_clip
+    from nnsf.factor.timewarp import resample_clip
 
     X = np.outer(np.arange(10.0), np.ones(34)) + np.arange(34.0)
     Y = resample_clip(X, 19)                       # half steps of a linear ramp
@@ -292,7 +290,7 @@ def test_resample_clip_is_linear_interpolation():
 
 
 def test_style_tempo_is_the_median_length_ratio():
-    from nnsf.factor.translate import _style_tempo
+    from nnsf.factor.timewarp import _style_tempo
 
     z = lambda n: np.zeros((n, 34))                # noqa: E731
     clips = {("a", "walk"): [z(10)], ("b", "walk"): [z(30)], ("a", "jump"): [z(20)],
@@ -326,7 +324,7 @@ def test_restored_amplitude_matches_the_real_clips_on_average(unified, translato
 
 # ------------------------------------------------------ temporal smoothness, public path
 def test_second_difference_split_is_the_acceleration_penalty_along_each_chain():
-    from nnsf.factor.translate import second_difference_split
+    from nnsf.factor.timewarp import second_difference_split
 
     rng = np.random.default_rng(0)
     chains, R = [(0, 5), (5, 12), (12, 14)], 14            # the last chain is too short to bend
@@ -345,7 +343,7 @@ def test_second_difference_split_is_the_acceleration_penalty_along_each_chain():
 
 
 def test_smoothed_encoding_removes_jitter_and_zero_is_the_per_frame_encoding(unified, translator):
-    from nnsf.factor.nnsf import weights_for_basis
+    from nnsf.factor.updates import weights_for_basis
 
     X, mo, ch, cl = unified
     Xq = X[cl == cl[0]]

@@ -16,7 +16,8 @@ from nnsf.errors import InputError
 from nnsf.stick import as_clips, contact_sheet, write_stick_gif, write_stick_strip
 from nnsf.evaluate.heldout_report import skipped_styles
 from nnsf.evaluate.heldout_report import write_heldout as heldout
-from nnsf.evaluate.translation import STAGE_METHODS, SyntheticTruth, UnifiedTruth, evaluate_cell
+from nnsf.evaluate.scores import SyntheticTruth, UnifiedTruth
+from nnsf.evaluate.translation import STAGE_METHODS, evaluate_cell
 from nnsf.factor.stage import translate_clip as translate
 from nnsf.io import write_json
 from nnsf.skeleton import Unifier, to_points

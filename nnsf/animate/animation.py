@@ -29,12 +29,13 @@ from nnsf.errors import InputError
 from nnsf.reshape.formats import read_character
 from nnsf.datasets import synthetic, views
 from nnsf.factor.style_model import StyleModel, translate as style_translate
-from nnsf.factor.translate import resample_clip
+from nnsf.factor.timewarp import resample_clip
 from nnsf.io import atomic_path, check_writable
 from nnsf.reshape import depth as depth_mod
 from nnsf.reshape.character import Character
 from nnsf.reshape.drive import read_motion, retarget
-from nnsf.reshape.render import MeshRenderer, contact_sheet, write_gif, write_mp4, write_png_frames
+from nnsf.reshape.render import MeshRenderer
+from nnsf.reshape.video import contact_sheet, write_gif, write_mp4, write_png_frames
 from nnsf.reshape.stage import BACKGROUND, build_rig, canvas
 
 #: Frame rate of a built-in synthetic clip (nnsf.datasets.synthetic.FPS).

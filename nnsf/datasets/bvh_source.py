@@ -2,7 +2,7 @@
 
 Each clip goes BVH -> forward kinematics -> the 17 key points in 3D
 (:mod:`~nnsf.datasets.bvh_skeletons`) -> resampled to ``fps`` -> projected to
-2D (:func:`nnsf.datasets.bvh.project`).  Rows are ``clip, frame, character,
+2D (:func:`nnsf.datasets.projection.project`).  Rows are ``clip, frame, character,
 motion, x1, y1 … x17, y17`` with ``clip`` = file stem, ``character`` = the
 style and ``motion`` = the content (styles play the paper's characters).
 Coordinates are in the BVH's own units times ``scale`` (Bandai-Namco:
@@ -33,9 +33,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from nnsf.datasets.bvh import (
-    detect_up_axis, forward_kinematics, project, read_bvh, resample, up_rotation,
-)
+from nnsf.datasets.bvh import forward_kinematics, read_bvh
+from nnsf.datasets.projection import detect_up_axis, project, resample, up_rotation
 from nnsf.datasets.bvh_skeletons import FAMILIES, SkeletonFamily, detect_family, keypoints_3d
 from nnsf.datasets.contract import validate
 from nnsf.errors import InputError
@@ -234,7 +233,7 @@ def read_folder(path, fps: float | None = 30, azimuth: float = 0.0, elevation: f
     path : the folder with ``*.bvh`` (and optional ``*.json`` labels), or a
         dataset folder whose ``data/`` holds them (Bandai-Namco's layout).
     fps : output frame rate (linear resampling of 3D positions,
-        :func:`nnsf.datasets.bvh.resample`); None keeps each file's rate.
+        :func:`nnsf.datasets.projection.resample`); None keeps each file's rate.
     azimuth, elevation : camera angles in degrees; ``0, 0`` is the front view.
     facing : ``"first"`` turns the whole clip once so that the body faces the
         camera at its start (a turn within the clip is kept), ``"normalise"``

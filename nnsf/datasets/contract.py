@@ -59,16 +59,20 @@ def validate(table: pd.DataFrame, source, non_negative: bool = False) -> pd.Data
     return table.sort_values(["clip", "frame"], kind="stable").reset_index(drop=True)
 
 
-def read_table(path, non_negative: bool = False) -> pd.DataFrame:
-    """Read and validate a contract CSV."""
+def read_csv(path) -> pd.DataFrame:
+    """A feature-matrix CSV as read, not yet validated (labels as strings); InputError naming the file."""
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "file", "an existing feature-matrix CSV")
     try:
-        table = pd.read_csv(path, dtype={"clip": str, "character": str, "motion": str})
+        return pd.read_csv(path, dtype={"clip": str, "character": str, "motion": str})
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, OSError) as exc:
         raise InputError(path, "file", "a readable CSV table", reason=str(exc)) from None
-    return validate(table, path, non_negative=non_negative)
+
+
+def read_table(path, non_negative: bool = False) -> pd.DataFrame:
+    """Read and validate a contract CSV."""
+    return validate(read_csv(path), Path(path), non_negative=non_negative)
 
 
 def write_table(path, table: pd.DataFrame) -> None:

@@ -1,7 +1,7 @@
 """Named camera views for projecting 3D motion, and the automatic choice of one.
 
 A view is an azimuth about the vertical axis, applied after facing
-normalisation (:func:`nnsf.datasets.bvh.project`), so it is relative to the
+normalisation (:func:`nnsf.datasets.projection.project`), so it is relative to the
 body: ``front`` looks at the chest (azimuth 0°), ``side`` at the body's left
 side (90°), ``three-quarter`` half-way between (45°).
 
@@ -19,7 +19,7 @@ import numpy as np
 
 from nnsf.errors import InputError
 from nnsf.params import VIEW_CHOICES  # the accepted values of dataset.bvh.view and --view
-from nnsf.datasets.bvh import project
+from nnsf.datasets.projection import project
 from nnsf.datasets.bvh_source import FACING_PAIRS, load_clip
 from nnsf.skeleton.layout import JOINT_INDEX
 

@@ -31,9 +31,9 @@ from nnsf.factor.cbgpm import CBGPM
 from nnsf.factor.gp_data import check_phase, phase_from_groups
 from nnsf.factor.mgpm import MGPM
 from nnsf.factor.nnsf import NNSF
+from nnsf.params import METHODS
 
-#: Methods in the order tables and figures list them.
-METHODS: tuple[str, ...] = ("nnsf", "nnsc", "nmf", "bilinear", "mgpm", "cbgpm")
+# METHODS (nnsf.params): the methods, in the order tables and figures list them.
 
 #: The methods fitted on (style, content, phase) rather than on frames alone.
 GP_METHODS: tuple[str, ...] = ("mgpm", "cbgpm")

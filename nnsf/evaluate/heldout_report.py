@@ -17,9 +17,9 @@ from nnsf.datasets import contract
 from nnsf.errors import InputError
 from nnsf.evaluate.judges import FAMILIES as JUDGE_FAMILIES
 from nnsf.evaluate.gp_translation import GP_TRANSLATION_METHODS, translation_gp_params
+from nnsf.evaluate.scores import SyntheticTruth, UnifiedTruth
 from nnsf.evaluate.translation import (
-    DEFAULT_VARIANTS, STAGE_METHODS, SUMMARY_METRICS, TARGET_BASELINES, TARGET_CONTENT, TARGET_DTW,
-    TARGET_STYLE, CellJob, SyntheticTruth, UnifiedTruth, _pick, grid_cells, per_style, run_cell, summarise,
+    CellJob, DEFAULT_VARIANTS, STAGE_METHODS, SUMMARY_METRICS, TARGET_BASELINES, TARGET_CONTENT, TARGET_DTW, TARGET_STYLE, _pick, grid_cells, per_style, run_cell, summarise,
 )
 from nnsf.evaluate.translation_figures import per_style_figure, strip_figure
 from nnsf.factor.style_model import check_translator, translator_params

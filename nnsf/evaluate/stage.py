@@ -19,7 +19,6 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from nnsf.datasets import contract
 from nnsf.errors import InputError
 from nnsf.evaluate.crossval import precision_vs_rank, summarise, wide
 from nnsf.evaluate.figures import isomap_figure, precision_vs_rank_figure, reconstruction_figure
@@ -28,8 +27,7 @@ from nnsf.factor.figures import fold_figure
 from nnsf.io import read_npz, write_csv, write_json
 from nnsf.params import require, source_of
 from nnsf.pipeline import (
-    FEATURES_CSV, MODEL_PATH, REPORTS, StageResult, check_rank, label_column, need_several, nnsf_params,
-    read_features,
+    FEATURES_CSV, MODEL_PATH, REPORTS, StageResult, check_rank, cv_table, label_column, nnsf_params,
 )
 from nnsf.publish import publish_stage, publishing, recover
 
@@ -54,12 +52,7 @@ def evaluate(params: dict, features_csv=FEATURES_CSV, reports=REPORTS, mapper=No
     label = label_column(params)
     kw = nnsf_params(params)
     nnsf_rank = int(require(params, "nnsf.rank"))
-    table = read_features(features_csv)
-    need_several(table, "clip", features_csv, "to hold out in cross-validation grouped by clip")
-    need_several(table, label, features_csv, f"(nnsf.label: {label}): precision over one class is "
-                  "1.0 for any model")
-    X = contract.features(table)
-    y = table[label].to_numpy()
+    table, X, y = cv_table(features_csv, label)
     groups = table["clip"].to_numpy()
     styles = table["character"].to_numpy()
     gp_params, phase = _gp_settings(params, table, methods)
@@ -237,12 +230,7 @@ def sweep_point(params: dict, point: dict, features_csv=FEATURES_CSV, figure_dir
     n_splits = int(require(params, "sweep.folds"))
     max_iter = int(require(params, "sweep.max_iter"))
     label = label_column(params)
-    table = read_features(features_csv)
-    need_several(table, "clip", features_csv, "to hold out in cross-validation grouped by clip")
-    need_several(table, label, features_csv, f"(nnsf.label: {label}): precision over one class is "
-                  "1.0 for any model")
-    X = contract.features(table)
-    y = table[label].to_numpy()
+    table, X, y = cv_table(features_csv, label)
     folds_table = precision_vs_rank(
         X, y, table["clip"].to_numpy(), methods=["nnsf"], ranks=[rank], n_splits=n_splits, seed=seed,
         max_iter=max_iter, nnsf_params=kw, n_jobs=1,

@@ -51,22 +51,22 @@ which content it is; the content classifier likewise is conditioned on the
 style.  The classifiers were chosen by their accuracy on the *real* hidden
 clips (the ``real`` row), never by the methods' scores.
 
-The stages :func:`heldout` (the DVC stage writing ``reports/heldout*``) and
-:func:`translate` (one clip into one style, with a stick-figure GIF) are at
-the end of this module.
+This module is the protocol (the cells, what each method is fitted on, the
+rows of the results table); the scores are :mod:`nnsf.evaluate.scores`, the
+per-source baselines :mod:`nnsf.evaluate.cell_baselines`, the judges
+:mod:`nnsf.evaluate.judges`.  Every model is refitted through the library
+(:mod:`nnsf.factor`), never through a stage.  The ``heldout`` stage that runs
+it and writes ``reports/heldout*`` is :mod:`nnsf.evaluate.heldout_report`; the
+``translate`` stage (one clip into one style) is :func:`nnsf.factor.stage.translate`.
 """
 from __future__ import annotations
 
 import numbers
 import time
-import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-from sklearn.discriminant_analysis import LinearDiscriminantAnalysis
-from sklearn.pipeline import make_pipeline
-from sklearn.preprocessing import StandardScaler
 
 from nnsf.datasets.contract import COLUMNS, features
 from nnsf.errors import InputError
@@ -75,16 +75,15 @@ from nnsf.evaluate.judges import FAMILIES as JUDGE_FAMILIES
 from nnsf.evaluate.judges import Judges
 from nnsf.factor.baselines import BilinearModel
 from nnsf.factor.style_model import StyleModel, translate_features
-from nnsf.factor.translate import (
-    StyleTranslator, dtw_accumulate, dtw_path, joint_distance_matrix,
-)
-from nnsf.skeleton import Unifier, bone_lengths, to_features, to_points
-from nnsf.datasets.synthetic import clip_points
+from nnsf.factor.timewarp import dtw_accumulate, dtw_path, joint_distance_matrix
+from nnsf.factor.translate import StyleTranslator
+from nnsf.skeleton import Unifier, to_points
+from nnsf.evaluate.scores import ClipClassifiers, _compare, _unify, clip_features, jerk
+from nnsf.evaluate.cell_baselines import BASELINES, CellData
 
 __all__ = [
-    "METHODS", "DEFAULT_VARIANTS", "RESULT_COLUMNS", "SyntheticTruth", "clip_features",
-    "ClipClassifiers", "grid_cells", "evaluate_cell", "leave_one_cell_out", "summarise",
-    "per_style",
+    "METHODS", "DEFAULT_VARIANTS", "RESULT_COLUMNS", "grid_cells", "evaluate_cell", "leave_one_cell_out",
+    "summarise", "per_style",
 ]
 
 #: Every method the evaluation knows, in table order.  ``real`` is the hidden
@@ -130,197 +129,16 @@ RESULT_COLUMNS: tuple[str, ...] = (
 # --------------------------------------------------------------------------- #
 # Per-source baselines: name -> factory(cell) -> translate(X_source, source_style)
 # --------------------------------------------------------------------------- #
-@dataclass(frozen=True)
-class CellData:
-    """The training side of one held-out cell, for a baseline factory.
-
-    ``X`` (n, 34) unified training features (template units), ``clip_rows``
-    the rows of every training clip, ``clip_style``/``clip_content`` their
-    labels, ``style``/``content`` the hidden cell.  Nothing of the hidden
-    cell is in it.
-    """
-
-    X: np.ndarray
-    clip_rows: list
-    clip_style: np.ndarray
-    clip_content: np.ndarray
-    style: str
-    content: str
-
-
-def style_offset(cell: CellData, source_style: str, target_style: str) -> np.ndarray:
-    """Mean pose offset from ``source_style`` to ``target_style``, ``(34,)`` template units.
-
-    The mean over the contents c' that both styles perform in the training
-    data, other than the cell's content, of mean_pose(target, c') −
-    mean_pose(source, c'), each mean pose the mean frame over that
-    (style, content)'s clips (each clip weighing the same).  Zeros when they
-    share no such content.
-    """
-    def mean_pose(s, c):
-        idx = np.flatnonzero((cell.clip_style == s) & (cell.clip_content == c))
-        return np.mean([cell.X[cell.clip_rows[i]].mean(axis=0) for i in idx], axis=0)
-
-    have = lambda s: set(cell.clip_content[cell.clip_style == s]) - {cell.content}  # noqa: E731
-    shared = sorted(have(source_style) & have(target_style))
-    if not shared or source_style == target_style:
-        return np.zeros(cell.X.shape[1])
-    return np.mean([mean_pose(target_style, c) - mean_pose(source_style, c) for c in shared], axis=0)
-
-
-def _offset_baseline(cell: CellData):
-    """``offset``: the source clip plus the mean pose offset from its style to the target's
-    (:func:`style_offset`); from the ``normal`` style this is "normal clip + the style's mean
-    pose offset"."""
-    cache = {}
-
-    def run(Xs, source_style):
-        if source_style not in cache:
-            cache[source_style] = style_offset(cell, source_style, cell.style)
-        return np.asarray(Xs, dtype=float) + cache[source_style]
-    return run
-
-
-def _identity_baseline(cell: CellData):
-    """``identity``: the source clip unchanged."""
-    return lambda Xs, source_style: np.asarray(Xs, dtype=float)
-
-
-#: Per-source baselines of :func:`evaluate_cell`: name -> factory.  A factory
-#: gets the cell's :class:`CellData` once and returns ``f(X_source (n, 34),
-#: source_style) -> X_hat (m, 34)``; register a new baseline by adding it here
-#: (and to :data:`METHODS` / :data:`STAGE_METHODS` for the table order).
-BASELINES: dict = {"offset": _offset_baseline, "identity": _identity_baseline}
-
-
-def jerk(X) -> float:
-    """Mean |second difference| of the key points of a clip ``(n, 34)``, units per frame²."""
-    X = np.asarray(X, dtype=float)
-    if len(X) < 3:
-        return 0.0
-    D = np.diff(X, n=2, axis=0).reshape(len(X) - 2, -1, 2)
-    return float(np.linalg.norm(D, axis=-1).mean())
 
 
 # --------------------------------------------------------------------------- #
 # Ground truth of the synthetic set
 # --------------------------------------------------------------------------- #
-@dataclass(frozen=True)
-class SyntheticTruth:
-    """Exact "source clip's content in the target style" for the synthetic set.
-
-    Calling it with a source clip id ``"{character}-{motion}-{variation:02d}"``,
-    the target style and a frame count gives
-    ``clip_points(target, motion, n_frames, variation, seed)`` -- pixels,
-    ``(n_frames, 17, 2)``, without jitter.  A frozen dataclass, so it pickles
-    for a task runner.
-    """
-
-    seed: int = 0
-    canvas: tuple[int, int] = (256, 256)
-
-    def __call__(self, source_clip: str, target_style: str, n_frames: int) -> np.ndarray:
-        parts = str(source_clip).split("-")
-        if len(parts) < 3 or not parts[-1].isdigit():
-            raise ValueError(f"SyntheticTruth: clip id {source_clip!r} is not "
-                             "'{character}-{motion}-{variation:02d}'")
-        motion, variation = "-".join(parts[1:-1]), int(parts[-1])
-        return clip_points(target_style, motion, n_frames, variation=variation, seed=self.seed,
-                           canvas=tuple(self.canvas))
 
 
 # --------------------------------------------------------------------------- #
 # Classifiers of clips
 # --------------------------------------------------------------------------- #
-def clip_features(X) -> np.ndarray:
-    """One vector per clip, ``(119,)``: how its key points sit, spread, move and circle.
-
-    ``X`` is ``(n, 34)`` unified features (template units).  The vector holds
-    the mean (34) and standard deviation (34) of every coordinate, the mean
-    absolute frame-to-frame velocity (34, template units per frame), and per
-    key point the mean signed rate at which its centred trajectory sweeps area,
-    mean((x − x̄) v_y − (y − ȳ) v_x) (17): its sign tells which way a foot or
-    hand circles, which separates e.g. walking forwards from walking
-    backwards, that look alike frame by frame.  A one-frame clip has zero
-    spread and motion.
-    """
-    X = np.asarray(X, dtype=float)
-    if X.ndim != 2 or X.shape[1] != 34:
-        raise ValueError(f"clip_features: expected (n, 34) features, got shape {X.shape}")
-    mean = X.mean(axis=0)
-    if len(X) < 2:
-        z = np.zeros(34)
-        return np.concatenate([mean, z, z, z[:17]])
-    V = np.diff(X, axis=0)
-    Z = X[1:] - mean
-    sweep = (Z[:, 0::2] * V[:, 1::2] - Z[:, 1::2] * V[:, 0::2]).mean(axis=0)
-    return np.concatenate([mean, X.std(axis=0), np.abs(V).mean(axis=0), sweep])
-
-
-def _lda():
-    return make_pipeline(StandardScaler(), LinearDiscriminantAnalysis(solver="lsqr", shrinkage="auto"))
-
-
-@dataclass
-class ClipClassifiers:
-    """Style and content classifiers of clips, trained on real clips.
-
-    ``fit(F, style, content)`` with ``F`` the :func:`clip_features` of every
-    training clip (one row each).  Each classifier is conditioned on the other
-    label, which the held-out task fixes (we ask "is this clip of content c
-    in style s?"): ``predict_style(F, content)`` first subtracts the mean
-    training vector of that content, ``predict_content(F, style)`` the mean
-    training vector of that style, so each judges how a clip departs from
-    the average of the known label.  On the real Bandai-Namco clips
-    (leave-one-cell-out, real hidden clips) conditioning raised the content
-    accuracy from 76 % to 80 % and left the style accuracy unchanged; LDA with
-    shrinkage beat logistic regression and 1-NN on these features, and the
-    four feature groups beat any subset.  ``condition_content=False`` gives
-    the unconditioned content classifier.
-    """
-
-    condition_content: bool = True
-    content_model: object = None
-    style_model: object = None
-    content_means: dict = field(default_factory=dict)
-    style_means: dict = field(default_factory=dict)
-
-    def fit(self, F, style, content):
-        F = np.asarray(F, dtype=float)
-        style, content = np.asarray(style).astype(str), np.asarray(content).astype(str)
-        with warnings.catch_warnings():
-            # Classes with one clip only (contents of one style) make the
-            # covariance estimator warn; their clips still count.
-            warnings.simplefilter("ignore", UserWarning)
-            self.content_means = {c: F[content == c].mean(axis=0) for c in np.unique(content)}
-            self.style_means = {s: F[style == s].mean(axis=0) for s in np.unique(style)}
-            R = F - np.stack([self.content_means[c] for c in content])
-            self.style_model = _lda().fit(R, style)
-            Q = F - np.stack([self.style_means[s] for s in style]) if self.condition_content else F
-            self.content_model = _lda().fit(Q, content)
-        return self
-
-    @staticmethod
-    def _minus(F, means, labels, what):
-        F = np.atleast_2d(np.asarray(F, dtype=float))
-        labels = np.broadcast_to(np.asarray(labels).astype(str), (len(F),))
-        unknown = sorted(set(labels) - set(means))
-        if unknown:
-            raise ValueError(f"unknown {what} {unknown}; the classifier knows {sorted(means)}")
-        return F - np.stack([means[x] for x in labels])
-
-    def predict_content(self, F, style=None):
-        """Content of every clip vector ``F`` (m, 119); ``style`` (one or (m,)) is required
-        when the classifier is conditioned."""
-        if self.condition_content:
-            if style is None:
-                raise ValueError("predict_content: this classifier is conditioned on the style; pass it")
-            return self.content_model.predict(self._minus(F, self.style_means, style, "style"))
-        return self.content_model.predict(np.atleast_2d(F))
-
-    def predict_style(self, F, content):
-        """Style of every clip vector ``F`` (m, 119) given its content (one or (m,))."""
-        return self.style_model.predict(self._minus(F, self.content_means, content, "content"))
 
 
 # --------------------------------------------------------------------------- #
@@ -339,17 +157,6 @@ def grid_cells(table: pd.DataFrame, min_styles: int = 2) -> list[tuple[str, str]
     ok = [(s, c) for s, c in pairs.itertuples(index=False)
           if n_styles[c] >= min_styles and n_contents[s] >= 2]
     return sorted(ok)
-
-
-def _unify(unifier: Unifier, points, character) -> np.ndarray:
-    """Unified features ``(n, 34)`` without the non-negativity check.
-
-    Held-out and ground-truth clips are only compared, never factorised, so
-    a coordinate a little below zero (outside the training range) is fine.
-    """
-    sc = unifier.scales[character]
-    P = np.einsum("ij,njc->nic", sc.matrix(), np.asarray(points, dtype=float))
-    return to_features(P - sc.root_scale * sc.root_ref + unifier.offset)
 
 
 def _clip_index(table):
@@ -379,32 +186,6 @@ def _check_cell(table, style, content):
         raise InputError("table", "cell", f"a clip of style {style!r} with a content other than "
                          f"{content!r} to learn the style from", "none")
     return hidden
-
-
-def _bone_error(A, B, path) -> float:
-    """Mean |bone length| difference over aligned pairs, template units."""
-    la = bone_lengths(to_points(A))[path[:, 0]]
-    lb = bone_lengths(to_points(B))[path[:, 1]]
-    return float(np.abs(la - lb).mean())
-
-
-def _compare(X_hats: dict, X_ref) -> dict:
-    """DTW error, path and bone error of every synthesised clip against one reference clip.
-
-    Clips of equal length share one batched DTW.
-    """
-    out = {}
-    by_len: dict[int, list[str]] = {}
-    for m, Xh in X_hats.items():
-        by_len.setdefault(len(Xh), []).append(m)
-    for _, names in by_len.items():
-        stack = np.stack([X_hats[m] for m in names])
-        C = joint_distance_matrix(stack, X_ref)
-        D = dtw_accumulate(C)
-        for m, Dm in zip(names, D):
-            p = dtw_path(Dm)
-            out[m] = (float(Dm[-1, -1] / len(p)), _bone_error(X_hats[m], X_ref, p))
-    return out
 
 
 def evaluate_cell(table: pd.DataFrame, style: str, content: str, *,
@@ -739,7 +520,7 @@ def per_style(results: pd.DataFrame) -> pd.DataFrame:
 
 
 # --------------------------------------------------------------------------- #
-# Stages: held-out evaluation and the translation of one clip
+# The held-out stage's methods, fan-out jobs and targets
 # --------------------------------------------------------------------------- #
 #: Methods of the held-out stage, in table order (``real`` is the ceiling row).
 STAGE_METHODS: tuple[str, ...] = ("nnsf", "nnsf_smooth", "nnsf_nosmooth", "nnsf_styleamp", "nnsf_swapped",
@@ -751,23 +532,6 @@ SUMMARY_METRICS: dict[str, str] = {
     "content_acc": "content_acc", **{k: k for k in JUDGE_COLUMNS}, "jerk_ratio": "jerk_ratio",
     "bone_err": "bone_error", "truth_error": "truth_error",
 }
-
-
-@dataclass(frozen=True)
-class UnifiedTruth:
-    """The synthetic ground truth in the units of a unified table.
-
-    ``truth`` gives pixels; they are unified with the table's own unifier
-    (``unifier``, a :meth:`~nnsf.skeleton.Unifier.to_dict` dict) and returned
-    as points ``(n, 17, 2)`` in template units, like the table's rows.
-    """
-
-    truth: SyntheticTruth
-    unifier: dict
-
-    def __call__(self, source_clip, target_style, n_frames):
-        u = Unifier.from_dict(self.unifier)
-        return to_points(_unify(u, self.truth(source_clip, target_style, n_frames), target_style))
 
 
 @dataclass(frozen=True)

@@ -20,7 +20,7 @@ from sklearn.base import BaseEstimator, ClassifierMixin, TransformerMixin
 from sklearn.decomposition import NMF
 from sklearn.utils.validation import check_array, check_is_fitted, check_non_negative
 
-from nnsf.factor.nnsf import class_map_from_grams
+from nnsf.factor.updates import class_map_from_grams
 from nnsf.factor.nnsf import NNSF
 
 __all__ = ["class_map", "one_hot", "NMFClassifier", "make_nnsc", "BilinearModel"]

@@ -7,9 +7,9 @@ means the same thing in both, so (D5, docs/method.md §8.1):
 * fit NNSF once on all characters pooled, giving U₀ and V;
 * give every character (style) ``s`` its own basis U_s by basis steps only,
   with that character's weights V_s fixed, starting from U₀
-  (:func:`refit_basis`) -- atom ``i`` of every U_s starts as atom ``i`` of U₀;
+  (:func:`nnsf.factor.align.refit_basis`) -- atom ``i`` of every U_s starts as atom ``i`` of U₀;
 * when bases come from separate fits instead, match their atoms to U₀ by
-  cosine similarity with the Hungarian algorithm (:func:`match_atoms`).
+  cosine similarity with the Hungarian algorithm (:func:`nnsf.factor.align.match_atoms`).
 
 Translation of a clip of content ``c`` performed in style ``a`` into style
 ``b`` (row form, X is ``(n, 34)``):
@@ -31,7 +31,7 @@ How the per-style bases are learned (``basis``):
 * ``"refit"`` -- D5 as written (docs/method.md §8.1): the pooled fit's weights fixed, basis
   steps per style from U₀.
 * ``"separate"`` -- an independent NNSF per style, atoms matched to U₀ by
-  :func:`match_atoms` (the fallback of D5).
+  :func:`nnsf.factor.align.match_atoms` (the fallback of D5).
 * ``"aligned"`` (default) -- our departure, measured in
   :mod:`nnsf.evaluate.translation`: the clips of one content are aligned in
   time by DTW to a reference clip of that content (the one of median
@@ -58,6 +58,14 @@ optionally with the amplitude the least-squares compromise loses restored
 Units: features are unified template coordinates (template units, torso =
 1.0); :func:`to_character_points` maps translated features back to a
 character's pixels with :meth:`nnsf.skeleton.Unifier.inverse_transform`.
+
+Atom correspondence is :mod:`nnsf.factor.align`, time warping and tempo
+:mod:`nnsf.factor.timewarp`.  What is left here is one concept, the
+:class:`StyleTranslator` estimator (about 700 of this module's lines): its
+fit, encoding and synthesis methods share the fitted per-style bases,
+offsets, shared content weights and tempi, and scikit-learn's estimator
+contract keeps them on one class; splitting the class would only scatter
+that state.
 """
 from __future__ import annotations
 
@@ -66,330 +74,34 @@ from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.optimize import linear_sum_assignment
 from sklearn.base import BaseEstimator
 from sklearn.utils.validation import check_array, check_is_fitted, check_non_negative
 
-from nnsf.factor.nnsf import EPSILON, NNSF, _basis_step, weights_for_basis
-from nnsf.skeleton.layout import BONES, N_FEATURES, N_JOINTS, to_points
+from nnsf.factor.nnsf import NNSF
+from nnsf.factor.updates import EPSILON, _basis_step, weights_for_basis
 from nnsf.factor.model_file import load_model, save_model
+from nnsf.params import AMPLITUDES, BASES, SYNTHESES
+from nnsf.factor.align import _free_basis_step, atom_cosines, match_atoms, refit_basis
+from nnsf.factor.timewarp import _style_tempo, align_to_reference, resample_clip, second_difference_split
 
-__all__ = [
-    "READINGS", "BASES", "SYNTHESES", "AMPLITUDES", "StyleTranslator", "resample_clip", "refit_basis", "match_atoms", "atom_cosines",
-    "joint_distance_matrix", "dtw_accumulate", "dtw_path", "dtw_align", "align_to_reference",
-    "to_character_points",
-]
+__all__ = ["READINGS", "BASES", "SYNTHESES", "AMPLITUDES", "StyleTranslator", "to_character_points"]
 
 #: Which factor carries the style: the basis (docs/method.md §8) or the weights (the paper's example).
 READINGS: tuple[str, ...] = ("style_basis", "content_basis")
-#: How per-style bases with corresponding atoms are obtained.
-BASES: tuple[str, ...] = ("aligned", "refit", "separate")
-#: Where the content of a synthesised cell comes from: one source clip, or the
-#: content's shared weights (all styles that perform it).
-SYNTHESES: tuple[str, ...] = ("consensus", "source")
-#: Amplitude calibration of a consensus synthesis.
-AMPLITUDES: tuple[str, ...] = ("restore", "style", "none")
+# BASES (how per-style bases with corresponding atoms are obtained), SYNTHESES
+# (where the content of a synthesised cell comes from: one source clip, or the
+# content's shared weights) and AMPLITUDES (amplitude calibration of a
+# consensus synthesis) are the params.yaml choices, defined in nnsf.params.
 
 
 # --------------------------------------------------------------------------- #
 # Atom correspondence
 # --------------------------------------------------------------------------- #
-def refit_basis(X, V, U0, *, max_iter: int = 100, tol: float = 1e-6, ridge: float = 0.0) -> np.ndarray:
-    """Basis steps only: U ≥ 0, unit rows, minimising ½‖X − VU‖² (+ ridge), V fixed.
-
-    Starts from ``U0`` and takes the projected-gradient steps of NNSF's basis
-    update (:func:`nnsf.factor.nnsf._basis_step`, with its backtracking), so
-    atom ``i`` of the result is atom ``i`` of ``U0`` moved towards the data.
-
-    Parameters
-    ----------
-    X : array (n, d), non-negative features (template units).
-    V : array (n, k), non-negative weights, fixed.
-    U0 : array (k, d), the starting basis (rows of unit norm).
-    max_iter : int, number of basis steps at most.
-    tol : float, stop when the relative decrease of the objective is below.
-    ridge : float >= 0
-        Adds ``λ‖U − U0‖²_F`` with ``λ = ridge · trace(VᵀV) / k`` (relative,
-        so it does not depend on the scale of V).  Atoms the data use little
-        then stay near ``U0`` instead of drifting; 0 is D5 as written (docs/method.md §8.1).
-
-    Returns
-    -------
-    U : ndarray (k, d), unit-norm rows.
-    """
-    X = np.asarray(X, dtype=float)
-    V = np.asarray(V, dtype=float)
-    U = np.array(U0, dtype=float, copy=True)
-    if X.shape[0] != V.shape[0] or V.shape[1] != U.shape[0] or X.shape[1] != U.shape[1]:
-        raise ValueError(f"refit_basis: shapes X {X.shape}, V {V.shape}, U0 {U.shape} do not agree "
-                         "(need X (n, d), V (n, k), U0 (k, d))")
-    VtV = V.T @ V
-    VtX = V.T @ X
-    return _refit_from_grams(VtV, VtX, U, max_iter=max_iter, tol=tol, ridge=ridge)
-
-
-def _refit_from_grams(VtV, VtX, U0, *, max_iter, tol, ridge):
-    k = VtV.shape[0]
-    U = np.array(U0, dtype=float, copy=True)
-    if ridge > 0:
-        # ½‖X − VU‖² + (λ/2)‖U − U0‖² has the Grams VᵀV + λI and VᵀX + λU0.
-        lam = ridge * max(float(np.trace(VtV)) / k, np.finfo(float).tiny)
-        VtV = VtV + lam * np.eye(k)
-        VtX = VtX + lam * U0
-    top = float(np.linalg.eigvalsh(VtV)[-1])
-    if top <= 0:           # no weight at all: nothing moves the basis
-        return U
-    step = 1.0 / top
-
-    def fit(B):
-        return float(np.vdot(B @ B.T, VtV) - 2.0 * np.vdot(VtX, B))
-
-    prev = fit(U)
-    for _ in range(int(max_iter)):
-        U, step = _basis_step(U, VtV, VtX, step)
-        cur = fit(U)
-        if prev - cur <= tol * max(abs(prev), 1e-300):
-            break
-        prev = cur
-    return U
-
-
-def _free_basis_step(U, VtV, VtX, step):
-    """Projected gradient step on U ≥ 0 with backtracking, row lengths free.
-
-    Like :func:`nnsf.factor.nnsf._basis_step` without the normalisation:
-    the candidate is accepted when ⟨UUᵀ, VᵀV⟩ − 2⟨VᵀX, U⟩ does not rise.
-    """
-    def fit(B):
-        return np.vdot(B @ B.T, VtV) - 2.0 * np.vdot(VtX, B)
-
-    grad = VtV @ U - VtX
-    current = fit(U)
-    for _ in range(30):
-        cand = np.maximum(U - step * grad, 0.0)
-        if fit(cand) <= current:
-            return cand, step * 1.2
-        step *= 0.5
-    return U, step
-
-
-def atom_cosines(U_ref, U) -> np.ndarray:
-    """Cosine similarity of every atom pair, ``(k_ref, k)``; rows of zero norm give 0."""
-    A = np.asarray(U_ref, dtype=float)
-    B = np.asarray(U, dtype=float)
-    na = np.linalg.norm(A, axis=1, keepdims=True)
-    nb = np.linalg.norm(B, axis=1, keepdims=True)
-    return (A / np.where(na > 0, na, 1.0)) @ (B / np.where(nb > 0, nb, 1.0)).T
-
-
-def match_atoms(U_ref, U) -> tuple[np.ndarray, np.ndarray]:
-    """Order the atoms of ``U`` like those of ``U_ref`` (Hungarian, cosine similarity).
-
-    Parameters
-    ----------
-    U_ref, U : arrays (k, d), the same number of atoms.
-
-    Returns
-    -------
-    perm : int array (k,)
-        ``U[perm]`` has its atom ``i`` matched to atom ``i`` of ``U_ref``;
-        the matching maximises the summed cosine similarity
-        (:func:`scipy.optimize.linear_sum_assignment`).
-    cosine : array (k,)
-        Cosine similarity of each matched pair.
-    """
-    C = atom_cosines(U_ref, U)
-    if C.shape[0] != C.shape[1]:
-        raise ValueError(f"match_atoms: both bases need the same number of atoms, got {C.shape}")
-    rows, cols = linear_sum_assignment(-C)
-    perm = np.empty(C.shape[0], dtype=int)
-    perm[rows] = cols
-    return perm, C[np.arange(C.shape[0]), perm]
 
 
 # --------------------------------------------------------------------------- #
 # Dynamic time warping
 # --------------------------------------------------------------------------- #
-def joint_distance_matrix(A, B) -> np.ndarray:
-    """Mean per-joint Euclidean distance between every frame pair.
-
-    Parameters
-    ----------
-    A : array (..., n, 34); B : array (..., m, 34)
-        Feature rows ``x1, y1, … x17, y17`` in any one unit (leading batch
-        dimensions broadcast).
-
-    Returns
-    -------
-    array (..., n, m), in the features' unit.
-    """
-    A = np.asarray(A, dtype=float)
-    B = np.asarray(B, dtype=float)
-    if A.shape[-1] != N_FEATURES or B.shape[-1] != N_FEATURES:
-        raise ValueError(f"expected {N_FEATURES} feature columns, got {A.shape} and {B.shape}")
-    out = None
-    # One joint at a time keeps the work array at n × m instead of n × m × 34.
-    for j in range(N_JOINTS):
-        dx = A[..., :, None, 2 * j] - B[..., None, :, 2 * j]
-        dy = A[..., :, None, 2 * j + 1] - B[..., None, :, 2 * j + 1]
-        dist = np.sqrt(dx * dx + dy * dy)
-        out = dist if out is None else out + dist
-    return out / N_JOINTS
-
-
-def dtw_accumulate(cost) -> np.ndarray:
-    """Accumulated DTW cost ``D`` of a cost matrix (symmetric steps, unit weights).
-
-    ``D[i, j] = C[i, j] + min(D[i−1, j−1], D[i−1, j], D[i, j−1])``.  Each row
-    is computed at once: the in-row recursion D[i, j] = min(t[j], D[i, j−1] +
-    C[i, j]) is a min-plus scan, D[i, j] = S[j] + min_{l ≤ j}(t[l] − S[l]) with S
-    the running sum of the row's costs, i.e. ``np.minimum.accumulate``.
-
-    Parameters
-    ----------
-    cost : array (..., n, m), non-negative; leading dimensions are a batch.
-
-    Returns
-    -------
-    D : array (..., n, m); ``D[..., -1, -1]`` is the DTW distance (sum of the
-    costs along the best path).
-    """
-    C = np.asarray(cost, dtype=float)
-    if C.ndim < 2 or C.shape[-1] == 0 or C.shape[-2] == 0:
-        raise ValueError(f"dtw: need a cost matrix (..., n, m) with n, m >= 1, got {C.shape}")
-    D = np.empty_like(C)
-    D[..., 0, :] = np.cumsum(C[..., 0, :], axis=-1)
-    best = np.empty(C.shape[:-2] + C.shape[-1:])
-    for i in range(1, C.shape[-2]):
-        prev = D[..., i - 1, :]
-        best[..., 0] = prev[..., 0]
-        np.minimum(prev[..., 1:], prev[..., :-1], out=best[..., 1:])
-        row = C[..., i, :]
-        S = np.cumsum(row, axis=-1)
-        t = best + row - S
-        D[..., i, :] = np.minimum.accumulate(t, axis=-1) + S
-    return D
-
-
-def dtw_path(D) -> np.ndarray:
-    """Backtrack the best path through an accumulated cost ``D`` (n, m).
-
-    Returns
-    -------
-    path : int array (L, 2) of (i, j) pairs from (0, 0) to (n−1, m−1),
-    monotone in both, each step (1, 1), (1, 0) or (0, 1).  Ties prefer the
-    diagonal step.
-    """
-    D = np.asarray(D)
-    i, j = D.shape[0] - 1, D.shape[1] - 1
-    out = [(i, j)]
-    while i > 0 or j > 0:
-        if i == 0:
-            j -= 1
-        elif j == 0:
-            i -= 1
-        else:
-            a, b, c = D[i - 1, j - 1], D[i - 1, j], D[i, j - 1]
-            if a <= b and a <= c:
-                i, j = i - 1, j - 1
-            elif b <= c:
-                i -= 1
-            else:
-                j -= 1
-        out.append((i, j))
-    return np.array(out[::-1], dtype=int)
-
-
-def dtw_align(A, B):
-    """DTW of two clips of features by mean per-joint distance.
-
-    Parameters
-    ----------
-    A : array (n, 34); B : array (m, 34) (or a batch ``(b, n, 34)`` of clips of
-        equal length against one ``B``).
-
-    Returns
-    -------
-    error : float (or array (b,))
-        Mean per-joint Euclidean distance over the pairs of the best path
-        (the accumulated cost divided by the path length), in the features'
-        unit -- zero iff ``A`` is a time warp of ``B``.
-    path : int array (L, 2), or a list of them for a batch.
-    """
-    A = np.asarray(A, dtype=float)
-    C = joint_distance_matrix(A, np.asarray(B, dtype=float))
-    D = dtw_accumulate(C)
-    if C.ndim == 2:
-        p = dtw_path(D)
-        return float(D[-1, -1] / len(p)), p
-    paths = [dtw_path(d) for d in D]
-    return np.array([d[-1, -1] / len(p) for d, p in zip(D, paths)]), paths
-
-
-def align_to_reference(X, X_ref) -> np.ndarray:
-    """Reference frame of every frame of ``X`` (n, 34) under DTW to ``X_ref`` (m, 34).
-
-    Where DTW maps a frame to several reference frames, their rounded mean is
-    used.  Returns an int array (n,) of indices into ``X_ref``.
-    """
-    _, path = dtw_align(X, X_ref)
-    n = np.asarray(X).shape[0]
-    sums = np.bincount(path[:, 0], weights=path[:, 1], minlength=n)
-    counts = np.bincount(path[:, 0], minlength=n)
-    return np.rint(sums / counts).astype(int)
-
-
-def resample_clip(X, m: int) -> np.ndarray:
-    """Clip ``X`` (n, d) resampled to ``m`` frames by linear interpolation (ends kept)."""
-    X = np.asarray(X, dtype=float)
-    n = len(X)
-    if m == n or n == 1:
-        return X.copy() if n != 1 else np.repeat(X, m, axis=0)
-    t = np.linspace(0.0, n - 1.0, int(m))
-    i0 = np.minimum(np.floor(t).astype(int), n - 2)
-    w = (t - i0)[:, None]
-    return X[i0] * (1.0 - w) + X[i0 + 1] * w
-
-
-def _style_tempo(clips: dict) -> dict:
-    """Per style, the median of (clip length / mean length of that content's clips).
-
-    Only contents performed by at least two styles count (a content of one
-    style says nothing about tempo); styles without such a clip get 1.0.
-    ``clips`` maps (style, content) -> list of arrays.
-    """
-    by_content: dict[str, list[int]] = {}
-    n_styles: dict[str, set] = {}
-    for (s, c), lst in clips.items():
-        by_content.setdefault(c, []).extend(len(x) for x in lst)
-        n_styles.setdefault(c, set()).add(s)
-    ratios: dict[str, list[float]] = {}
-    for (s, c), lst in clips.items():
-        if len(n_styles[c]) >= 2:
-            ratios.setdefault(s, []).extend(len(x) / np.mean(by_content[c]) for x in lst)
-    # Sorted, not a set's order: a set of strings iterates in a per-process hash order, which
-    # would make the saved model's bytes differ from run to run.
-    return {s: float(np.median(ratios[s])) if s in ratios else 1.0 for s in sorted({s for s, _ in clips})}
-
-
-def second_difference_split(chains, R: int):
-    """``(L⁺, L⁻)``, sparse ``(R, R)``: L = D₂ᵀD₂ = L⁺ − L⁻ split by sign, both non-negative.
-
-    D₂ has one row e_r − 2e_{r+1} + e_{r+2} for every three consecutive rows
-    inside one chain (``chains``: ``(start, stop)`` row ranges), so
-    ½‖D₂W‖² is the summed squared second difference (acceleration) of the
-    rows of W along each chain.  The gradient L W splits into L⁺W − L⁻W with
-    non-negative parts, the form a multiplicative update needs (as the
-    first-difference graph Laplacian splits into degree and adjacency).
-    """
-    r0 = np.concatenate([np.arange(a, b - 2) for a, b in chains if b - a >= 3] or [np.zeros(0, int)])
-    m = len(r0)
-    D2 = sp.csr_matrix((np.tile([1.0, -2.0, 1.0], m),
-                        (np.repeat(np.arange(m), 3), (r0[:, None] + np.arange(3)).ravel())), shape=(m, R))
-    L = (D2.T @ D2).tocsr()
-    Lpos = L.multiply(L > 0).tocsr()
-    Lneg = (-L).multiply(L < 0).tocsr()
-    return Lpos, Lneg
 
 
 # --------------------------------------------------------------------------- #

@@ -31,13 +31,6 @@ SIDE_NAMES: tuple[str, ...] = tuple(f"{g}.{s}" for g in GROUPS for s in "ab")
 SIDE_INDEX: dict[str, int] = {n: i for i, n in enumerate(SIDE_NAMES)}
 
 
-def split_name(name: str) -> tuple[str, str]:
-    """``"l_forearm.a"`` -> ``("l_forearm", "a")``; ``ValueError`` if not a side-curve name."""
-    if name not in SIDE_INDEX:
-        raise ValueError(f"unknown curve name {name!r}")
-    group, side = name.rsplit(".", 1)
-    return group, side
-
 
 def catmull_rom_basis(n_ctrl: int, t: np.ndarray) -> np.ndarray:
     """Weights of the ``n_ctrl`` control points at spline parameters ``t``.
@@ -81,14 +74,6 @@ def sample_curve(control: np.ndarray, n_samples: int) -> np.ndarray:
     control = np.asarray(control, dtype=np.float64)
     return catmull_rom_matrix(control.shape[-2], n_samples) @ control
 
-
-def point_to_polyline(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
-    """Distance of every point to a polyline.
-
-    points ``(..., N, 2)``, polyline ``(..., M, 2)`` (same batch shape);
-    returns ``(..., N)`` in the points' units.
-    """
-    return _project(points, polyline)[0]
 
 
 def _project(points: np.ndarray, polyline: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -22,7 +22,6 @@ from nnsf.io import atomic_dir, write_csv, write_json
 from nnsf.params import require, source_of
 from nnsf.pipeline import FRAMES_DIR, StageResult, failures, map_items
 from nnsf.datasets.synthetic import CHARACTERS, MOTIONS
-from nnsf.frames.annotation import check_relative
 from nnsf.frames.render import render_clip
 from nnsf.frames.clips import INDEX_COLUMNS
 

@@ -39,7 +39,8 @@ from nnsf.reshape.mesh import Mesh, label_parts, triangulate_mask
 from nnsf.reshape.parts import PARTS, SEGMENTS
 from nnsf.reshape.depth import default_order, depth_metric, depth_orders, part_depths, part_overlaps
 from nnsf.reshape.drive import read_motion, retarget
-from nnsf.reshape.render import MeshRenderer, write_gif, write_mp4, write_png_frames
+from nnsf.reshape.render import MeshRenderer
+from nnsf.reshape.video import write_gif, write_mp4, write_png_frames
 from nnsf.reshape.rig import HANDLE_SETS, Rig
 from nnsf.reshape.subkeys import SubkeyTracker, Subkeys, closest_on_bezier, init_subkeys, propagate
 

@@ -145,12 +145,7 @@ def read_motion(path, clip: str | None = None) -> tuple[str, np.ndarray, np.ndar
     frame (before the contract's own checks, which name only the row).
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "file", "an existing feature-matrix CSV")
-    try:
-        table = pd.read_csv(path, dtype={"clip": str, "character": str, "motion": str})
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
-        raise InputError(path, "file", "a CSV table", reason=str(exc)) from None
+    table = contract.read_csv(path)
     missing = [c for c in contract.COLUMNS if c not in table.columns]
     if missing:
         raise InputError(path, missing[0], "a column of the feature-matrix contract (clip, frame, "

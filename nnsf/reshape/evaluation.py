@@ -75,7 +75,8 @@ from nnsf.reshape.formats import read_character
 from nnsf.reshape.kenney import CHARACTERS as KC, check_character, kenney_character
 from nnsf.reshape.limbs import LIMB_PAIRS
 from nnsf.reshape.layers import build_mesh
-from nnsf.reshape.render import MeshRenderer, contact_sheet, write_gif
+from nnsf.reshape.render import MeshRenderer
+from nnsf.reshape.video import contact_sheet, write_gif
 from nnsf.reshape.stage import animate, build_rig, canvas, report
 
 #: The AnimatedDrawings examples evaluated: the bipeds, and char5, whose three arms a side are

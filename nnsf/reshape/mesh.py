@@ -26,21 +26,28 @@ distance from the centroid to the bone segments of the 17-point skeleton).
 By default the mesh stays **connected** across part seams (vertices are
 shared): smooth, but a limb turned far toward the body folds the mesh at the
 inside of the joint (an arm raised ~75° or more).  ``split=True`` cuts it into
-:data:`PIECES` (body, each arm, each leg) by duplicating the seam vertices;
-each piece is then pinned by its own key points (:data:`PIECE_KEYPOINTS`,
+:data:`~nnsf.reshape.parts.PIECES` (body, each arm, each leg) by duplicating the seam vertices;
+each piece is then pinned by its own key points (:data:`~nnsf.reshape.parts.PIECE_KEYPOINTS`,
 the shoulder or hip on both sides of a seam) and a limb can move over the
 body, which a renderer must then draw in depth order; its seams follow the
 triangles, so they are jagged, and a bent elbow or knee still folds.
 
-``split="layered"`` (:func:`layer_pieces`, the default of the ``reshape``
+``split="layered"`` (:func:`nnsf.reshape.layers.layer_pieces`, the default of the ``reshape``
 stage) fixes both: limb triangles are labelled by capsules of the limb's own
 width (a drawn arm over the chest does not take the chest with it), each of
 the ten segments (body, eight limb segments, head) is its own piece, cut
-along a straight segment across each joint (:func:`joint_cuts`; the cut and a
+along a straight segment across each joint (:func:`nnsf.reshape.layers.joint_cuts`; the cut and a
 half-elliptic collar arc are inserted into the triangulation so the seams are
 smooth), each child carries a joint cap (a copy of the parent's triangles
 inside the arc) that covers the wedge a bending joint opens, and the body
 gets an inpainted underlay where a limb lay over it.
+
+This module triangulates and labels parts (:func:`triangulate_mask`,
+:func:`label_parts`, :func:`split_pieces`); the part tables are
+:mod:`nnsf.reshape.parts`, the drawn regions :mod:`nnsf.reshape.regions`,
+the layered mesh and :func:`~nnsf.reshape.layers.build_mesh` (every mesh
+kind) :mod:`nnsf.reshape.layers`, the paper-puppet pieces
+:mod:`nnsf.reshape.pieces`.
 """
 from __future__ import annotations
 
@@ -149,10 +156,6 @@ class Mesh:
     def boundary_edges(self) -> np.ndarray:
         """Edges used by one triangle only, ``(b, 2)`` vertex indices."""
         return boundary_edges(self.triangles)
-
-    def boundary_vertices(self) -> np.ndarray:
-        """Indices of vertices on the outline, sorted."""
-        return np.unique(self.boundary_edges())
 
 
 def triangle_areas(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:

@@ -34,20 +34,22 @@ import numpy as np
 
 from nnsf.errors import InputError
 from nnsf.io import atomic_dir, write_json
+from nnsf.params import RESHAPE_FORMATS
 from nnsf.reshape import depth as depth_mod
 from nnsf.reshape import metrics
 from nnsf.datasets.synthetic import character as synthetic_character_spec
 from nnsf.frames.render import render_character
 from nnsf.reshape.character import Character, load_character, write_character
 from nnsf.reshape.drive import read_motion, retarget
-from nnsf.reshape.render import MeshRenderer, contact_sheet, write_gif, write_mp4, write_png_frames
+from nnsf.reshape.render import MeshRenderer
+from nnsf.reshape.video import contact_sheet, write_gif, write_mp4, write_png_frames
 from nnsf.reshape.rig import Rig
 from nnsf.pipeline import RESHAPE_DIR, TRANSLATION_DIR, StageResult
 from nnsf.params import checked, source_of
 
 METHODS = {"ours": "subkeys", "keypoints": "keypoints"}
 MESHES = {"layered": "layered", "limbs": "limbs", "split": True, "connected": False}
-FORMATS = ("png", "gif", "mp4")
+FORMATS = RESHAPE_FORMATS
 BACKGROUND = (255, 255, 255)
 
 

@@ -14,6 +14,12 @@ Derivatives are taken with respect to the sample index (not the spline
 parameter), so ``|B1 @ P|`` is roughly the spacing between samples in px and
 ``B2 @ P`` the discrete curvature vector in px: the shape terms then have
 pixel units at every control-point count.
+
+The same spline as :func:`nnsf.frames.curves.catmull_rom_matrix` (annotations
+and rendered ground truth); ``B0`` equals it to within one rounding (2e-16).
+The two are kept apart on purpose: merging them would move the tracker's and
+the renderer's results by that rounding and so every versioned output hash,
+for no change in the model.
 """
 from __future__ import annotations
 

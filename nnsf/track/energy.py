@@ -20,7 +20,7 @@ residual blocks (each multiplied by sqrt(weight)) are
              like the shape terms and linear in the offset (V-shaped), and
              closing + thinning put its zero on the centre line of a drawn
              outline stroke (Canny marks both sides of a dark line).
-* sketch     I_t(c_t(s_i) + aσ n_t(s_i)) - I_{t+1}(c_{t+1}(s_i) + aσ n_{t+1}(s_i)),
+* sketch (Eq. 1) I_t(c_t(s_i) + aσ n_t(s_i)) - I_{t+1}(c_{t+1}(s_i) + aσ n_{t+1}(s_i)),
              σ = ±1, a = 1..K (RGB in [0, 1]): the bidirectional ribbon
 * colour     I_t(c_t(s_i) + aσ n_t(s_i)) - κ_{t,i,σ}, κ the keyframes'
              mean ribbon colour at sample i on side σ, blended linearly in t
@@ -81,7 +81,7 @@ the bilinear interpolant, and of the unit normal (R90 (I - t̂t̂ᵀ)/|t|).
 
 Two solvers see the same residuals and Jacobian:
 
-* :func:`levenberg_marquardt` (default): every residual touches one frame
+* :func:`nnsf.track.lm.levenberg_marquardt` (default): every residual touches one frame
   or two adjacent ones, so JᵀJ is block-tridiagonal in t; it is assembled
   directly (the ribbon terms from per-sample 2x2 moments, without forming
   their Jacobian rows) and each damped Gauss-Newton step is one banded
@@ -101,7 +101,6 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 import scipy.sparse as sp
-from scipy.linalg import solveh_banded
 
 from nnsf.track import curves
 
@@ -593,89 +592,3 @@ class SpaceTimeProblem:
         return keep, order, cols[order].astype(np.int32), indptr, offset
 
 
-def solve_block_tridiagonal(Hd: np.ndarray, Ho: np.ndarray, g: np.ndarray) -> np.ndarray:
-    """Solve H x = g for symmetric positive definite block-tridiagonal H, batched over G.
-
-    Hd (G, T, k, k) diagonal blocks, Ho (G, T-1, k, k) the (t, t+1) blocks,
-    g (G, T, k).  The G systems are stacked into one banded matrix (upper
-    bandwidth 2k-1, no coupling between curves) and solved by LAPACK's
-    banded Cholesky (``scipy.linalg.solveh_banded``): one call instead of a
-    Python loop over frames.
-    """
-    G, T, k, _ = Hd.shape
-    N = G * T * k
-    u = 2 * k - 1
-    ab = np.zeros((u + 1, N))
-    base = (np.arange(G)[:, None] * T + np.arange(T)[None, :]) * k          # (G, T)
-    a, b = np.triu_indices(k)
-    i = base[..., None] + a
-    j = base[..., None] + b
-    ab[u + i - j, j] = Hd[..., a, b]
-    if T > 1:
-        a2, b2 = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
-        a2, b2 = a2.ravel(), b2.ravel()
-        i = base[:, :-1, None] + a2
-        j = base[:, :-1, None] + k + b2
-        ab[u + i - j, j] = Ho[..., a2, b2]
-    return solveh_banded(ab, g.reshape(N), lower=False, check_finite=False).reshape(G, T, k)
-
-
-def levenberg_marquardt(problem: SpaceTimeProblem, x0: np.ndarray, max_iter: int = 30,
-                        ftol: float = 1e-4, lam0: float = 1e-2,
-                        max_step: float = 4.0) -> tuple[np.ndarray, dict]:
-    """Minimise the problem's cost with Levenberg-Marquardt on exact normal equations.
-
-    JᵀJ is block-tridiagonal in t (each residual touches one frame or two
-    adjacent ones), so every step is one batched block-Cholesky sweep over
-    the G independent curves.  Marquardt damping λ·diag(JᵀJ), one λ per
-    curve; a step is accepted or rejected per curve (the curves are
-    independent, so one hard curve does not hold the others back), and is
-    shortened so that no control point moves more than ``max_step`` px,
-    which keeps it inside the range where the bilinear image model holds.
-    A curve is done when an accepted step lowers its cost by less than
-    ``ftol`` (relative).  Stops when all curves are done or after
-    ``max_iter`` iterations (each one solve and one cost evaluation, plus
-    one Jacobian evaluation if any step was accepted).
-    Returns ``(x, info)``; ``info`` has ``cost`` (total), ``iterations``,
-    ``jacobians``.
-    """
-    G, T, C = problem.G, problem.T, problem.C
-    C2 = 2 * C
-    free = problem.free.reshape(G, T, C2)
-    fmask = free.astype(np.float64)
-    P = problem.controls(np.asarray(x0, np.float64))
-    lam = np.full(G, lam0)
-    done = np.zeros(G, bool)
-    eye = np.eye(C2)
-    n_jac = 0
-    need_jac = True
-    it = 0
-    cost = None
-    while it < max_iter and not done.all():
-        if need_jac:
-            cost, g, Hd, Ho = problem.normal_equations(P[problem.free])
-            n_jac += 1
-            g = g * fmask
-            Hd = Hd * fmask[..., :, None] * fmask[..., None, :]
-            Ho = Ho * fmask[:, :-1, :, None] * fmask[:, 1:, None, :]
-            diag = np.einsum("gtkk->gtk", Hd)
-            scale = np.maximum(diag, 1e-6 * np.maximum(diag.max(axis=(1, 2), keepdims=True), 1e-9))
-        it += 1
-        Hl = Hd + (lam[:, None, None] * scale + (1 - fmask) + 1e-9)[..., None] * eye
-        step = (-solve_block_tridiagonal(Hl, Ho, g) * fmask).reshape(G, T, C, 2)
-        longest = np.linalg.norm(step, axis=-1).max(axis=(1, 2))
-        step *= np.minimum(1.0, max_step / np.maximum(longest, 1e-12))[:, None, None, None]
-        step[done] = 0.0
-        P_new = P + step
-        new_cost = problem.cost(P_new[problem.free])
-        ok = np.isfinite(new_cost) & (new_cost < cost) & ~done
-        rel = (cost - new_cost) / np.maximum(cost, 1e-300)
-        P[ok] = P_new[ok]
-        done |= ok & (rel < ftol)
-        done |= ~ok & (lam > 1e8)          # no descent even with tiny steps
-        lam = np.where(ok, np.maximum(lam / 3.0, 1e-7), lam * 4.0)
-        need_jac = bool(ok.any())
-        if not need_jac:
-            continue
-    total = float(problem.cost(P[problem.free]).sum())
-    return P[problem.free], {"cost": total, "iterations": it, "jacobians": n_jac}

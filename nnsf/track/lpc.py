@@ -23,10 +23,9 @@ import pandas as pd
 from nnsf.errors import InputError
 from nnsf.frames.annotation import read_annotation
 from nnsf.io import write_csv, write_json
+from nnsf.params import TRACKERS
 from nnsf.track.figures import tracking_overlay
-from nnsf.track.metrics import length_ratio
-from nnsf.track.real import REPORTED, coverage, score_silhouette, silhouette_summary
-from nnsf.track.solve import interpolate_clip, track_clip
+from nnsf.track.real import REPORTED, score_trackers, silhouette_summary
 
 #: px from the silhouette that count as on it.  Why not Kenney's 1.5: the annotated control
 #: points sit on the centres of outline pixels, 0.5 px inside the alpha boundary (0.7 on a
@@ -63,7 +62,7 @@ def read_tiles(sheet_path, names: list[str]) -> tuple[np.ndarray, np.ndarray]:
     return np.stack(rgb), np.stack(alpha)
 
 
-def track_lpc(data_root, annotations_dir, methods=("ours", "agarwala", "lk"), bodies=BODIES,
+def track_lpc(data_root, annotations_dir, methods=TRACKERS, bodies=BODIES,
               tol: float = 1.5, **options) -> tuple[pd.DataFrame, dict]:
     """Run the trackers on the annotated walk rows; the table and tracks as :func:`nnsf.track.real.track_kenney`."""
     rows, tracked = [], {}
@@ -73,18 +72,7 @@ def track_lpc(data_root, annotations_dir, methods=("ours", "agarwala", "lk"), bo
             continue
         ann = read_annotation(path)
         frames, alpha = read_tiles(Path(data_root) / f"{body}.png", ann.frames)
-        inb = np.ones(len(frames), bool)
-        inb[ann.keyframe_indices] = False
-        for m in methods:
-            control = interpolate_clip(ann, len(frames)) if m == "linear" else \
-                track_clip(frames, ann, m, **options)
-            tracked[(body, m)] = control
-            rows.append({"character": body, "tracker": m,
-                         "score": score_silhouette(control[inb], alpha[inb], tol),
-                         "keyframe_score": score_silhouette(control[~inb], alpha[~inb], tol),
-                         "coverage": coverage(control, alpha, ann.keyframe_indices, tol),
-                         "length_ratio": length_ratio(control, ann.keyframe_indices),
-                         "frames": int(inb.sum())})
+        score_trackers(body, ann, frames, alpha, methods, tol, options, rows, tracked)
     return pd.DataFrame(rows), tracked
 
 

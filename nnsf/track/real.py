@@ -31,6 +31,7 @@ from nnsf.track import curves
 from nnsf.errors import InputError
 from nnsf.frames.annotation import read_annotation
 from nnsf.io import write_csv, write_json
+from nnsf.params import TRACKERS
 from nnsf.track.figures import tracking_overlay
 from nnsf.track.metrics import _project, length_ratio
 from nnsf.track.solve import interpolate_clip, track_clip
@@ -152,7 +153,7 @@ def read_rgba(folder: Path, names: list[str]) -> tuple[np.ndarray, np.ndarray]:
     return np.stack(rgb), np.stack(alpha)
 
 
-def track_kenney(data_root, annotations_dir, methods=("ours", "agarwala", "lk"),
+def track_kenney(data_root, annotations_dir, methods=TRACKERS,
                  characters=CHARACTERS, tol: float = 1.5, **options) -> tuple[pd.DataFrame, dict]:
     """Run the trackers on the Kenney walk cycles and score them against the silhouettes.
 
@@ -172,19 +173,29 @@ def track_kenney(data_root, annotations_dir, methods=("ours", "agarwala", "lk"),
             continue
         ann = read_annotation(path)
         frames, alpha = read_rgba(Path(data_root) / ch, ann.frames)
-        inb = np.ones(len(frames), bool)
-        inb[ann.keyframe_indices] = False
-        for m in methods:
-            control = interpolate_clip(ann, len(frames)) if m == "linear" else \
-                track_clip(frames, ann, m, **options)
-            tracked[(ch, m)] = control
-            rows.append({"character": ch, "tracker": m,
-                         "score": score_silhouette(control[inb], alpha[inb], tol),
-                         "keyframe_score": score_silhouette(control[~inb], alpha[~inb], tol),
-                         "coverage": coverage(control, alpha, ann.keyframe_indices, tol),
-                         "length_ratio": length_ratio(control, ann.keyframe_indices),
-                         "frames": int(inb.sum())})
+        score_trackers(ch, ann, frames, alpha, methods, tol, options, rows, tracked)
     return pd.DataFrame(rows), tracked
+
+
+def score_trackers(name, ann, frames, alpha, methods, tol: float, options: dict, rows: list, tracked: dict) -> None:
+    """Track one annotated character with every method and score it against its silhouettes.
+
+    Appends one row per method to ``rows`` (see :func:`track_kenney`) and the
+    control points to ``tracked[(name, method)]``.  ``"linear"`` is the
+    keyframes interpolated linearly, the floor a tracker must beat.
+    """
+    inb = np.ones(len(frames), bool)
+    inb[ann.keyframe_indices] = False
+    for m in methods:
+        control = interpolate_clip(ann, len(frames)) if m == "linear" else \
+            track_clip(frames, ann, m, **options)
+        tracked[(name, m)] = control
+        rows.append({"character": name, "tracker": m,
+                     "score": score_silhouette(control[inb], alpha[inb], tol),
+                     "keyframe_score": score_silhouette(control[~inb], alpha[~inb], tol),
+                     "coverage": coverage(control, alpha, ann.keyframe_indices, tol),
+                     "length_ratio": length_ratio(control, ann.keyframe_indices),
+                     "frames": int(inb.sum())})
 
 
 def silhouette_summary(table, tol: float) -> dict:

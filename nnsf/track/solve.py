@@ -35,14 +35,13 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
-from nnsf.track.energy import (
-    LevelImages, SpaceTimeProblem, Weights, build_pyramid, levenberg_marquardt,
-)
+from nnsf.params import LK_ENDS, TRACK_INITS, TRACKERS
+from nnsf.track.energy import LevelImages, SpaceTimeProblem, Weights, build_pyramid
+from nnsf.track.lm import levenberg_marquardt
 from nnsf.track.limbs import limb_init, side_pairs
 
-METHODS = ("ours", "agarwala", "lk")
-INITS = ("linear", "lk", "flow", "limb")
-LK_ENDS = ("blend", "none")
+METHODS = TRACKERS
+INITS = TRACK_INITS
 SOLVERS = ("lm", "scipy")
 
 
@@ -72,12 +71,13 @@ class TrackOptions:
     :class:`nnsf.track.energy.SpaceTimeProblem`).
     """
 
-    velocity: float = 3.0
-    length: float = 1.0
-    curvature: float = 1.0
-    edge: float = 1.0
-    sketch: float = 100.0
-    colour: float = 100.0
+    # The energy weights and their defaults are :class:`Weights`' (one source).
+    velocity: float = Weights.velocity
+    length: float = Weights.length
+    curvature: float = Weights.curvature
+    edge: float = Weights.edge
+    sketch: float = Weights.sketch
+    colour: float = Weights.colour
     K: int = 3
     n_samples: int = 12
     levels: int = 2
@@ -119,8 +119,7 @@ class TrackOptions:
 
     @property
     def weights(self) -> Weights:
-        return Weights(self.velocity, self.length, self.curvature, self.edge, self.sketch,
-                       self.colour)
+        return Weights(**{f.name: getattr(self, f.name) for f in fields(Weights)})
 
     @classmethod
     def from_kwargs(cls, **kw) -> "TrackOptions":
