@@ -44,12 +44,12 @@ from nnsf.frames.annotation import read_annotation  # noqa: E402
 from nnsf.frames.clips import read_clip  # noqa: E402
 from nnsf.frames.render import render_clip  # noqa: E402
 from nnsf.io import read_npz  # noqa: E402
-from nnsf.track.keypoints import fit_keypoint_model, keypoints_from_curves  # noqa: E402
+from nnsf.roto.keypoints import fit_keypoint_model, keypoints_from_curves  # noqa: E402
 from nnsf.params import load  # noqa: E402
 from nnsf.skeleton import JOINT_INDEX  # noqa: E402
-from nnsf.track.metrics import curve_errors, error_summary, pck  # noqa: E402
-from nnsf.track.solve import keyframe_curves, track_clip  # noqa: E402
-from nnsf.track.options import track_options  # noqa: E402
+from nnsf.roto.metrics import curve_errors, error_summary, pck  # noqa: E402
+from nnsf.roto.solve import keyframe_curves, track_clip  # noqa: E402
+from nnsf.roto.options import track_options  # noqa: E402
 
 
 def main() -> None:

@@ -2,7 +2,7 @@
 
 Commands::
 
-    python -m flows frames|track|tracking|data|features|factorize|evaluate|isomap|sweep|
+    python -m flows frames|roto|roto_eval|data|features|factorize|evaluate|isomap|sweep|
                     heldout|translate|reshape|styles|animate [--params FILE]
         run one DVC stage as a Prefect flow and log it to MLflow (dvc.yaml's cmd)
     python -m flows repro [dvc repro arguments]

@@ -67,7 +67,7 @@ def workers() -> int:
 
 #: The runner of each fan-out (by stage) when ``NNSF_TASK_RUNNER`` is not set; the rule is in
 #: the module docstring.  Every other fan-out (evaluate's CV fits, the sweep's points, frames,
-#: track and tracking's clips) runs on :data:`DEFAULT`.
+#: roto and roto_eval's clips) runs on :data:`DEFAULT`.
 DEFAULTS = {"heldout": "processes"}
 DEFAULT = "threads"
 

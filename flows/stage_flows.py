@@ -102,16 +102,16 @@ def frames(params: dict):
     return run_stage("frames", lambda p: stages.frames(p, mapper=_mapper("render-clip")), params)
 
 
-@flow(name="nnsf-track", **_OPTIONS)
-def track(params: dict):
+@flow(name="nnsf-roto", **_OPTIONS)
+def roto(params: dict):
     """Track the clips' contours and derive key points (data/tracks, data/tracked); one task per clip."""
-    return run_stage("track", lambda p: stages.track(p, mapper=_mapper("track-clip")), params)
+    return run_stage("roto", lambda p: stages.roto(p, mapper=_mapper("track-clip")), params)
 
 
-@flow(name="nnsf-tracking", **_OPTIONS)
-def tracking(params: dict):
+@flow(name="nnsf-roto-eval", **_OPTIONS)
+def roto_eval(params: dict):
     """Score three trackers against the rendered ground truth; one task per (clip, tracker)."""
-    return run_stage("tracking", lambda p: stages.tracking(p, mapper=_mapper("score-tracker")), params)
+    return run_stage("roto_eval", lambda p: stages.roto_eval(p, mapper=_mapper("score-tracker")), params)
 
 
 @flow(name="nnsf-heldout", **_OPTIONS)
@@ -145,7 +145,7 @@ def animate(params: dict):
 
 
 #: The stage flows by DVC stage name (the sweep lives in :mod:`flows.sweep`).
-FLOWS = {f.fn.__name__: f for f in (data, features, factorize, evaluate, isomap, frames, track, tracking,
+FLOWS = {f.fn.__name__: f for f in (data, features, factorize, evaluate, isomap, frames, roto, roto_eval,
                                     heldout, translate, reshape, styles, animate)}
 #: Stages that fan out on the configured task runner (flows.runners).
-FAN_OUT = {"evaluate", "frames", "track", "tracking", "heldout"}
+FAN_OUT = {"evaluate", "frames", "roto", "roto_eval", "heldout"}

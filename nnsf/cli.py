@@ -1,7 +1,7 @@
 """The ``nnsf`` command: each pipeline stage as a plain command, without orchestration.
 
-    nnsf frames|track|tracking|data|features|factorize|evaluate|isomap|heldout [--params FILE]
-    nnsf track [--export-cvat DIR] [--corrections FILE.xml [--clip CLIP]]
+    nnsf frames|roto|roto_eval|data|features|factorize|evaluate|isomap|heldout [--params FILE]
+    nnsf roto [--export-cvat DIR] [--corrections FILE.xml [--clip CLIP]]
                                         tracks out to CVAT; corrected frames back in as keyframes
     nnsf sweep [--params FILE]          every sweep point in turn, a CSV on stdout
     nnsf check [--params FILE]          validate params.yaml and exit
@@ -17,7 +17,7 @@
     nnsf reshape-eval --data DIR [--out DIR] [--workers N]
                                         the reshaping evaluation on drawn characters (AnimatedDrawings,
                                         Bandai-Namco, Kenney folders under DIR)
-    nnsf tracking-real --data DIR [--out DIR] [--lpc DIR]
+    nnsf roto-real --data DIR [--out DIR] [--lpc DIR]
                                         the trackers on the Kenney toon walk cycles (or the LPC
                                         sprite sheets' walk rows) vs their silhouettes
 
@@ -53,7 +53,7 @@ def _parser() -> argparse.ArgumentParser:
     for name in STAGES + ("sweep", "check"):
         p = sub.add_parser(name, help=f"the {name} stage" if name in STAGES else None)
         p.add_argument("--params", default="params.yaml", help="parameters file (default: params.yaml)")
-        if name == "track":
+        if name == "roto":
             p.add_argument("--corrections", type=Path, default=None, metavar="FILE.xml",
                            help="a CVAT for video 1.1 file of corrected tracks: its corrected frames "
                                 "become keyframes and only the intervals they touch are re-tracked")
@@ -116,7 +116,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=1,
                    help="processes for the (character, motion) items (default 1; results are the same)")
 
-    p = sub.add_parser("tracking-real", help="the trackers on real cartoon frames (Kenney toon walk cycles)")
+    p = sub.add_parser("roto-real", help="the trackers on real cartoon frames (Kenney toon walk cycles)")
     p.add_argument("--params", default="params.yaml")
     p.add_argument("--data", type=Path, default=None,
                    help="the Kenney toon characters folder (female_adventurer/, robot/, ...); "
@@ -186,13 +186,13 @@ def main(argv: list[str] | None = None) -> int:
         # permission or a read-only disk fails here in one line, and nothing is written.
         if args.command in ("translate", "reshape"):
             pipeline.check_outputs(args.command, [args.out])
-        elif args.command in ("reshape-eval", "tracking-real"):
+        elif args.command in ("reshape-eval", "roto-real"):
             pipeline.check_outputs(args.command, [args.out, args.out / "figures"])
         elif args.command == "styles":
             pipeline.check_outputs(args.command, [Path(args.out).parent])
         elif args.command != "sweep":  # `nnsf sweep` writes its table to stdout only
             pipeline.check_outputs(args.command)
-            if args.command == "track" and args.export_cvat is not None:
+            if args.command == "roto" and args.export_cvat is not None:
                 pipeline.check_outputs(args.command, [args.export_cvat])
         if args.command == "sweep":
             import pandas as pd
@@ -246,15 +246,15 @@ def main(argv: list[str] | None = None) -> int:
                         return list(ex.map(fn, xs))
             result = reshape_eval(params, data_root=args.data, out_dir=args.out,
                                   kenney_annotations=args.kenney, mapper=mapper)
-        elif args.command == "tracking-real":
-            from nnsf.track.real import kenney_report
-            from nnsf.track.options import track_options
+        elif args.command == "roto-real":
+            from nnsf.roto.real import kenney_report
+            from nnsf.roto.options import track_options
 
             if args.lpc is None and args.data is None:
-                raise InputError("nnsf tracking-real", "--data",
+                raise InputError("nnsf roto-real", "--data",
                                  "the Kenney toon characters folder (or --lpc DIR for the LPC sheets)")
             if args.lpc is not None:
-                from nnsf.track.lpc import TOL, lpc_report
+                from nnsf.roto.lpc import TOL, lpc_report
 
                 args.tol = TOL if args.tol is None else args.tol
                 summary = lpc_report(args.lpc, args.lpc_annotations, args.out, tol=args.tol,
@@ -268,27 +268,27 @@ def main(argv: list[str] | None = None) -> int:
                 if tracker in summary.get("coverage", {}):
                     extra = (f"; coverage {summary['coverage'][tracker]:.3f}, length ratio "
                              f"{summary['length_ratio'][tracker]:.3f}")
-                print(f"tracking-real: {tracker} = {score:.3f} of outline samples within {args.tol:g} px "
+                print(f"roto-real: {tracker} = {score:.3f} of outline samples within {args.tol:g} px "
                       f"of the silhouette{extra}")
-            name = "tracking_lpc.json" if args.lpc is not None else "tracking_kenney.json"
-            print(f"tracking-real: keyframe ceiling = {summary['ceiling']:.3f}; "
+            name = "roto_lpc.json" if args.lpc is not None else "roto_kenney.json"
+            print(f"roto-real: keyframe ceiling = {summary['ceiling']:.3f}; "
                   f"wrote {args.out / name}")
             return 0
-        elif args.command == "track" and (args.corrections or args.export_cvat):
-            from nnsf.track.correct import apply_corrections, export_clips
+        elif args.command == "roto" and (args.corrections or args.export_cvat):
+            from nnsf.roto.correct import apply_corrections, export_clips
 
             if args.corrections is not None:
                 done = apply_corrections(params, args.corrections, pipeline.FRAMES_DIR,
                                          pipeline.TRACKS_DIR, clip=args.clip)
                 print(f"track: {done['clip']}: corrected frames {done['corrected_frames']}; "
                       f"re-tracked intervals {done['resolved_intervals']}; wrote {done['curves']}")
-                from nnsf.track.stage import keypoints_from_tracks
+                from nnsf.roto.stage import keypoints_from_tracks
 
                 result = keypoints_from_tracks(params, frames_dir=pipeline.FRAMES_DIR,
                                                tracks_dir=pipeline.TRACKS_DIR,
                                                out_dir=pipeline.TRACKED_DIR)
             else:
-                result = stages.track(params)
+                result = stages.roto(params)
             if args.export_cvat is not None:
                 out = export_clips(pipeline.FRAMES_DIR, pipeline.TRACKS_DIR, args.export_cvat)
                 print(f"track: wrote {len(out)} CVAT for video 1.1 files to {args.export_cvat}/")

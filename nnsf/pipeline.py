@@ -50,8 +50,8 @@ ANIMATE_DIR = REPORTS / "animate"
 #: unwritable output fails in a second with one line, not after the stage's work.
 OUTPUT_FOLDERS = {
     "frames": (FRAMES_DIR,),
-    "track": (TRACKS_DIR, TRACKED_DIR),
-    "tracking": (REPORTS, REPORTS / "figures"),
+    "roto": (TRACKS_DIR, TRACKED_DIR),
+    "roto_eval": (REPORTS, REPORTS / "figures"),
     "data": (RAW_DIR,),
     "features": (FEATURES_DIR,),
     "factorize": (MODEL_PATH.parent, REPORTS, REPORTS / "figures"),

@@ -21,8 +21,8 @@ from typing import Callable
 #: points (``sweep_grid`` lists them, ``sweep_point`` scores one; flows/sweep.py).
 REGISTRY: dict[str, str] = {
     "frames": "nnsf.frames.stage:render_frames",
-    "track": "nnsf.track.stage:track",
-    "tracking": "nnsf.track.evaluation:tracking",
+    "roto": "nnsf.roto.stage:roto",
+    "roto_eval": "nnsf.roto.evaluation:roto_eval",
     "data": "nnsf.datasets.stage:data",
     "features": "nnsf.datasets.stage:features",
     "factorize": "nnsf.factor.stage:factorize",

@@ -323,7 +323,7 @@ def test_bad_input_one_line_exit_2_nothing_written(model_file, tmp_path, capsys)
 
 
 def test_reshape_eval_and_tracking_real_need_data(capsys):
-    for command in ("reshape-eval", "tracking-real"):
+    for command in ("reshape-eval", "roto-real"):
         try:
             code = cli.main([command])
         except SystemExit as exc:  # argparse's own refusal of a missing required option

@@ -27,7 +27,7 @@ from conftest import PROJECT
 
 pytestmark = pytest.mark.slow
 
-STAGES = ("frames", "track", "tracking", "data", "features", "factorize", "evaluate", "isomap", "heldout",
+STAGES = ("frames", "roto", "roto_eval", "data", "features", "factorize", "evaluate", "isomap", "heldout",
           "translate", "reshape")
 
 #: Two machines' worth of BLAS and SIMD choices (see the module docstring).
@@ -72,6 +72,6 @@ def test_every_output_hashes_the_same_under_two_blas_and_cpu_setups(tmp_path):
     first, second = (_run_stages(tmp_path / name, extra) for name, extra in SETUPS.items())
     differ = sorted(path for path in first if first[path] != second.get(path))
     assert len(first) > 40 and {"models/nnsf.npz", "reports/metrics.json", "reports/heldout.csv",
-                                "reports/tracking.json", "data/features/features.csv"} <= set(first)
+                                "reports/roto_eval.json", "data/features/features.csv"} <= set(first)
     assert differ == []
     assert set(first) == set(second)

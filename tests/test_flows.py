@@ -258,8 +258,8 @@ def test_each_fan_out_gets_its_runner_and_the_environment_overrides_the_rule(mon
     monkeypatch.delenv("NNSF_TASK_RUNNER", raising=False)
     monkeypatch.setenv("NNSF_WORKERS", "2")
     chosen = {stage: runners.kind(stage) for stage in (*FAN_OUT, "sweep")}
-    assert chosen == {"evaluate": "threads", "frames": "threads", "track": "threads",
-                      "tracking": "threads", "heldout": "processes", "sweep": "threads"}
+    assert chosen == {"evaluate": "threads", "frames": "threads", "roto": "threads",
+                      "roto_eval": "threads", "heldout": "processes", "sweep": "threads"}
     heldout = runners.configured(FLOWS["heldout"], "heldout")
     assert isinstance(heldout.task_runner, ProcessPoolTaskRunner)
     assert isinstance(runners.configured(FLOWS["evaluate"], "evaluate").task_runner, ThreadPoolTaskRunner)

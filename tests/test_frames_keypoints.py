@@ -6,7 +6,7 @@ import pytest
 
 from nnsf.errors import InputError
 from nnsf.frames.annotation import from_dict
-from nnsf.track.keypoints import fit_keypoint_model, keypoints_from_curves
+from nnsf.roto.keypoints import fit_keypoint_model, keypoints_from_curves
 from nnsf.frames.render import render_clip
 from nnsf.io import read_npz
 from nnsf.frames.annotation import read_annotation

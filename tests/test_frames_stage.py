@@ -8,7 +8,7 @@ import pytest
 from nnsf.datasets import contract
 from nnsf.errors import InputError
 from nnsf.frames.stage import render_frames
-from nnsf.track.stage import keypoints_from_tracks
+from nnsf.roto.stage import keypoints_from_tracks
 from nnsf.io import read_json, read_npz, write_npz
 from nnsf.skeleton import to_points
 

@@ -168,7 +168,7 @@ def test_a_section_that_is_not_a_mapping_is_named():
 @pytest.mark.slow  # starts `nnsf` as a process
 @pytest.mark.parametrize("key, value", [
     ("nnsf.beta", float("inf")), ("nnsf.alpha", float("nan")), ("reshape.fps", float("inf")),
-    ("reshape.fps", 500), ("track.w_sketch", float("inf")), ("dataset.bvh.azimuth", float("-inf")),
+    ("reshape.fps", 500), ("roto.w_sketch", float("inf")), ("dataset.bvh.azimuth", float("-inf")),
 ])
 def test_infinite_and_out_of_range_numbers_fail_the_check(tmp_path, key, value):
     path = write_params(tmp_path / "p.yaml", with_value(key, value))
@@ -272,13 +272,13 @@ TRACK = {"method": "ours", "w_velocity": 3.0, "w_length": 1.0, "w_length_anchor"
          "max_edits": 3}
 FRAMES = {"seed": 3, "frames": {"characters": 1, "motions": ["walk", "wave", "jump"], "clips_per_cell": 1,
                                 "frames": 5, "size": 96, "keyframe_every": 4, "control_points": 4},
-          "track": TRACK}
+          "roto": TRACK}
 
 
 def test_an_unreadable_annotation_fails_its_clip_alone(tmp_path):
     from nnsf.frames.stage import render_frames
     from nnsf.io import read_json
-    from nnsf.track.stage import track_clips
+    from nnsf.roto.stage import track_clips
 
     frames = tmp_path / "frames"
     render_frames(FRAMES, frames)

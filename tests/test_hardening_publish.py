@@ -194,7 +194,7 @@ def test_flows_commands_settle_publications_first(tmp_path, monkeypatch, capsys)
     assert list((tmp_path / "reports").iterdir()) == []
 
 
-@pytest.mark.parametrize("stage", ["factorize", "evaluate", "isomap", "heldout", "tracking"])
+@pytest.mark.parametrize("stage", ["factorize", "evaluate", "isomap", "heldout", "roto_eval"])
 def test_every_multi_file_report_stage_publishes_its_declared_outputs(stage):
     """The manifest is declared in dvc.yaml next to the stage's outs, and the stage's code
     writes through nnsf.publish (its manifest lists every other out: test_pipeline checks

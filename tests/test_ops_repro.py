@@ -127,5 +127,5 @@ def test_two_cold_repros_in_clones_on_two_blas_setups_give_identical_hashes(
     result = run(FLOWS + ["repro"], root, env, timeout=1800)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     assert lock_hashes(root) == reference
-    assert set(reference) >= {"frames", "track", "tracking", "data", "features", "factorize",
+    assert set(reference) >= {"frames", "roto", "roto_eval", "data", "features", "factorize",
                               "evaluate", "isomap", "sweep", "heldout", "translate", "reshape"}

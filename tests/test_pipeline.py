@@ -29,7 +29,7 @@ pytestmark = pytest.mark.slow
 
 FLOWS = [sys.executable, "-m", "flows"]
 DVC = [sys.executable, "-m", "dvc"]
-ALL_STAGES = {"frames", "track", "tracking", "data", "features", "factorize", "evaluate", "isomap", "sweep",
+ALL_STAGES = {"frames", "roto", "roto_eval", "data", "features", "factorize", "evaluate", "isomap", "sweep",
               "heldout", "translate", "reshape", "styles", "animate"}
 EXPERIMENT = "nnsf-e2e"
 
@@ -60,7 +60,7 @@ frames:
   size: 128
   keyframe_every: 0
   control_points: 4
-track:
+roto:
   method: ours
   w_velocity: 3.0
   w_length: 1.0
@@ -206,7 +206,7 @@ def test_each_multi_file_report_stage_published_exactly_its_outputs(pipeline):
                      for p in verify(reports, name).values()}
         assert published == outputs - {manifest}, name
     assert {p.name for p in reports.glob("*.manifest.json")} == {
-        f"{s}.manifest.json" for s in ("factorize", "evaluate", "isomap", "heldout", "tracking")}
+        f"{s}.manifest.json" for s in ("factorize", "evaluate", "isomap", "heldout", "roto_eval")}
     assert not [p for p in reports.iterdir() if p.name.startswith(".")]   # nothing staged left
 
 
@@ -250,7 +250,7 @@ def test_mlflow_has_stage_runs_and_nested_sweep_runs(pipeline):
     runs = mlflow.search_runs(experiment_names=[EXPERIMENT])
     assert (runs["status"] == "FINISHED").all()
     by_stage = runs.groupby("tags.nnsf.stage").size().to_dict()
-    assert by_stage == {"frames": 1, "track": 1, "tracking": 1, "data": 1, "features": 1, "factorize": 1,
+    assert by_stage == {"frames": 1, "roto": 1, "roto_eval": 1, "data": 1, "features": 1, "factorize": 1,
                         "evaluate": 1, "isomap": 1, "sweep": 1, "sweep-point": 4, "heldout": 1,
                         "heldout-run": 5, "translate": 1, "reshape": 1, "styles": 1, "animate": 1}
     experiment = mlflow.get_experiment_by_name(EXPERIMENT)

@@ -33,7 +33,7 @@ def staged_sections():
 
 def test_small_params_have_every_key_of_params_yaml():
     sections = staged_sections()
-    assert {"track", "nnsf", "reshape", "animate"} <= sections
+    assert {"roto", "nnsf", "reshape", "animate"} <= sections
     real = {key for key in leaf_keys(yaml.safe_load((ROOT / "params.yaml").read_text()))
             if key.split(".")[0] in sections}
     small = leaf_keys(yaml.safe_load(SMALL_PARAMS))

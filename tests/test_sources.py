@@ -102,7 +102,7 @@ def test_frames_source_without_tracks_says_to_run_the_track_stage(tmp_path):
     (tmp_path / "tracks").mkdir()
     with pytest.raises(InputError) as err:
         stages.data(params_with(name="frames", path=str(tmp_path / "tracks")), out_dir=tmp_path / "raw")
-    assert "keypoints.csv" in str(err.value) and "track" in str(err.value)
+    assert "keypoints.csv" in str(err.value) and "roto" in str(err.value)
     assert not (tmp_path / "raw").exists()
 
 

@@ -1,5 +1,5 @@
-"""The correction loop (nnsf.track.correct): CVAT export/import, re-solving touched intervals only,
-the simulated user, and bad corrections files through ``nnsf track --corrections``."""
+"""The correction loop (nnsf.roto.correct): CVAT export/import, re-solving touched intervals only,
+the simulated user, and bad corrections files through ``nnsf roto --corrections``."""
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
@@ -14,16 +14,16 @@ from nnsf.errors import InputError
 from nnsf.frames.annotation import read_annotation
 from nnsf.frames.cvat import read_cvat_video
 from nnsf.frames.stage import render_frames
-from nnsf.track.tracks import read_tracks
+from nnsf.roto.tracks import read_tracks
 from nnsf.io import read_npz
-from nnsf.track.correct import (
+from nnsf.roto.correct import (
     KEYFRAME_ATTRIBUTE, export_clips, export_cvat, read_corrections, read_cvat_curves, retrack, simulate_user,
     solve_intervals, stored,
 )
-from nnsf.track.metrics import project_to_polyline
-from nnsf.track.solve import ClipTracker, TrackOptions, keyframe_curves
-from nnsf.track.stage import track_clips
-from nnsf.track.toy import draw_polygons, rect, segment_controls
+from nnsf.roto.metrics import project_to_polyline
+from nnsf.roto.solve import ClipTracker, TrackOptions, keyframe_curves
+from nnsf.roto.stage import track_clips
+from nnsf.roto.toy import draw_polygons, rect, segment_controls
 
 ROOT = Path(__file__).resolve().parents[1]
 TRACK = {"method": "ours", "w_velocity": 3.0, "w_length": 1.0, "w_length_anchor": 4.0,
@@ -133,7 +133,7 @@ def project(tmp_path_factory):
     root = tmp_path_factory.mktemp("correct-project")
     params = yaml.safe_load((ROOT / "params.yaml").read_text())
     params["frames"].update(FRAMES)
-    params["track"].update(TRACK)
+    params["roto"].update(TRACK)
     (root / "params.yaml").write_text(yaml.safe_dump(params))
     render_frames(params, root / "data" / "frames")
     track_clips(params, root / "data" / "frames", root / "data" / "tracks")
@@ -147,14 +147,14 @@ def test_track_exports_cvat_and_takes_corrections_back(project, tmp_path, monkey
     work = tmp_path / "p"
     shutil.copytree(project, work)
     monkeypatch.chdir(work)
-    assert main(["track", "--export-cvat", "cvat"]) == 0
+    assert main(["roto", "--export-cvat", "cvat"]) == 0
     clip = sorted(p.stem for p in (work / "cvat").glob("*.xml"))[0]
     xml = work / "cvat" / f"{clip}.xml"
     ann = read_annotation(work / "data" / "frames" / clip / "annotation.json")
     before, names, _ = read_tracks(work / "data" / "tracks" / clip / "curves.npz", ann)
     fixed = before[2, 0, :5] + [1.5, 0.0]
     _edit(xml, 2, names[0], fixed, xml)
-    assert main(["track", "--corrections", str(xml)]) == 0
+    assert main(["roto", "--corrections", str(xml)]) == 0
     out = capsys.readouterr().out
     assert "corrected frames [2]" in out and "[(0, 2), (2, 4)]" in out
     z = read_npz(work / "data" / "tracks" / clip / "curves.npz")
@@ -179,7 +179,7 @@ def test_bad_corrections_files_exit_2_with_one_line(project, tmp_path, monkeypat
     before = (work / "data" / "tracks" / xml.stem / "curves.npz").read_bytes()
     tree = ET.parse(xml)
     root = tree.getroot()
-    args = ["track", "--corrections", str(xml)]
+    args = ["roto", "--corrections", str(xml)]
     if case == "other_clip":
         root.find("meta/task/name").text = "some-other-clip"
         args += ["--clip", xml.stem]
@@ -194,7 +194,7 @@ def test_bad_corrections_files_exit_2_with_one_line(project, tmp_path, monkeypat
     assert (work / "data" / "tracks" / xml.stem / "curves.npz").read_bytes() == before
     # without --clip, a file naming a clip the project does not have is refused the same way
     if case == "other_clip":
-        assert main(["track", "--corrections", str(xml)]) == 2
+        assert main(["roto", "--corrections", str(xml)]) == 2
         err = capsys.readouterr().err.strip()
         assert "<meta><task><name>" in err and "some-other-clip" in err
 

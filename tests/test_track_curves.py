@@ -1,9 +1,9 @@
-"""The curve model: Catmull-Rom sampling matrices (nnsf.track.curves)."""
+"""The curve model: Catmull-Rom sampling matrices (nnsf.roto.curves)."""
 import numpy as np
 import pytest
 
 from nnsf.frames.curves import catmull_rom_matrix
-from nnsf.track import curves
+from nnsf.roto import curves
 
 
 @pytest.mark.parametrize("C,n", [(2, 5), (4, 17), (5, 12), (7, 40)])

@@ -1,11 +1,11 @@
-"""Space-time energy: analytic Jacobian, normal equations and the solvers (nnsf.track.energy)."""
+"""Space-time energy: analytic Jacobian, normal equations and the solvers (nnsf.roto.energy)."""
 import cv2
 import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from nnsf.track.energy import SpaceTimeProblem, Weights, build_pyramid
-from nnsf.track.lm import levenberg_marquardt, solve_block_tridiagonal
+from nnsf.roto.energy import SpaceTimeProblem, Weights, build_pyramid
+from nnsf.roto.lm import levenberg_marquardt, solve_block_tridiagonal
 
 
 def _problem(image_terms=True, seed=0, gated=False):
@@ -128,8 +128,8 @@ def test_length_residuals_are_px_of_curve_length_and_anchored_to_the_keyframes()
 
 
 def test_edge_gate_and_slide_anchor_residuals_against_their_definitions():
-    from nnsf.track import curves
-    from nnsf.track.energy import bilinear
+    from nnsf.roto import curves
+    from nnsf.roto.energy import bilinear
     base, x = _problem()
     rng = np.random.default_rng(5)
     T = base.T

@@ -1,11 +1,11 @@
-"""The dense-flow initialisation of the space-time solver (track.init: flow)."""
+"""The dense-flow initialisation of the space-time solver (roto.init: flow)."""
 from __future__ import annotations
 
 import numpy as np
 
-from nnsf.track.metrics import project_to_polyline
-from nnsf.track.solve import dense_flows, flow_init, linear_init, track_clip
-from nnsf.track.toy import draw_polygons, rect, segment_controls
+from nnsf.roto.metrics import project_to_polyline
+from nnsf.roto.solve import dense_flows, flow_init, linear_init, track_clip
+from nnsf.roto.toy import draw_polygons, rect, segment_controls
 
 
 def _clip(T=9):

@@ -1,14 +1,14 @@
-"""The limb start of the solver (nnsf.track.limbs) and the energy terms built on it."""
+"""The limb start of the solver (nnsf.roto.limbs) and the energy terms built on it."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from nnsf.track.energy import build_pyramid
-from nnsf.track.limbs import limb_init, rigid_fit, rotation, search_rigid, side_pairs
-from nnsf.track.metrics import project_to_polyline
-from nnsf.track.solve import dense_flows, flow_init, interpolate_clip, linear_init, track_clip
-from nnsf.track.toy import draw_polygons, segment_controls
+from nnsf.roto.energy import build_pyramid
+from nnsf.roto.limbs import limb_init, rigid_fit, rotation, search_rigid, side_pairs
+from nnsf.roto.metrics import project_to_polyline
+from nnsf.roto.solve import dense_flows, flow_init, interpolate_clip, linear_init, track_clip
+from nnsf.roto.toy import draw_polygons, segment_controls
 
 SIZE = (224, 224)
 FILL = (90, 60, 40)            # a dark limb, as the rendered characters' arms
@@ -86,7 +86,7 @@ def test_search_finds_the_shift_and_turn_of_a_drawn_limb():
     frames, truth = _clip()
     col = build_pyramid(frames, 1)[0].colour
     P, _ = _problem(frames, truth)
-    from nnsf.track.limbs import TEMPLATE, limb_weights, sample_image
+    from nnsf.roto.limbs import TEMPLATE, limb_weights, sample_image
     Wa, Wb = limb_weights(4, 14, TEMPLATE, extend=2)
     q = Wa @ P[0, 0] + Wb @ P[1, 0]
     ref = sample_image(col[0], q)
@@ -171,12 +171,12 @@ def test_init_limb_through_track_clip_and_the_do_nothing_floor():
 
 @pytest.mark.parametrize("bad", [{"edge_gate": -1.0}, {"slide": float("nan")}, {"init": "limbs"}])
 def test_bad_new_options_raise(bad):
-    from nnsf.track.solve import TrackOptions
+    from nnsf.roto.solve import TrackOptions
     with pytest.raises(ValueError, match="track option"):
         TrackOptions.from_kwargs(**bad)
 
 
 def test_edge_closing_is_off_on_small_drawings():
-    from nnsf.track.solve import edge_close
+    from nnsf.roto.solve import edge_close
     assert edge_close(2, (256, 256)) == 2 and edge_close(2, (128, 160)) == 2
     assert edge_close(2, (128, 96)) == 0 and edge_close(2, (64, 64)) == 0

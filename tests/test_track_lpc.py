@@ -1,4 +1,4 @@
-"""Tracking on the LPC sprite sheets' walk rows (nnsf.track.lpc) from the hand-made annotations."""
+"""Tracking on the LPC sprite sheets' walk rows (nnsf.roto.lpc) from the hand-made annotations."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -8,8 +8,8 @@ import pytest
 
 from nnsf.errors import InputError
 from nnsf.frames.annotation import read_annotation
-from nnsf.track.lpc import BODIES, read_tiles, track_lpc
-from nnsf.track.real import score_silhouette
+from nnsf.roto.lpc import BODIES, read_tiles, track_lpc
+from nnsf.roto.real import score_silhouette
 
 ANNOTATIONS = Path(__file__).resolve().parent / "data" / "lpc"
 LPC = Path(__file__).resolve().parents[2] / "shared" / "data" / "lpc-bodies"

@@ -1,13 +1,13 @@
-"""Tracking metrics (nnsf.track.metrics): point-to-curve error, PCK, simulated-user edit ratio."""
+"""Tracking metrics (nnsf.roto.metrics): point-to-curve error, PCK, simulated-user edit ratio."""
 import numpy as np
 import pytest
 
-from nnsf.track import curves
-from nnsf.track.metrics import (
+from nnsf.roto import curves
+from nnsf.roto.metrics import (
     curve_errors, edit_ratio, error_summary, length_ratio, pck, polygon_lengths,
     project_to_polyline, reverse_errors, symmetric_summary,
 )
-from nnsf.track.toy import draw_polygons, rect, segment_controls
+from nnsf.roto.toy import draw_polygons, rect, segment_controls
 
 
 def test_projection_matches_dense_brute_force():

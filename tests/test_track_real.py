@@ -4,7 +4,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from nnsf.track.real import score_silhouette, silhouette_boundary, track_kenney
+from nnsf.roto.real import score_silhouette, silhouette_boundary, track_kenney
 
 PROJECT = Path(__file__).resolve().parents[1]
 KENNEY = PROJECT.parent / "shared" / "data" / "kenney-toon"

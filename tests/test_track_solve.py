@@ -1,10 +1,10 @@
-"""Contour tracking of clips (nnsf.track.solve) on analytic polygon clips."""
+"""Contour tracking of clips (nnsf.roto.solve) on analytic polygon clips."""
 import numpy as np
 import pytest
 
-from nnsf.track.metrics import curve_errors, length_ratio, polygon_lengths
-from nnsf.track.solve import TrackOptions, lk_track, track_clip
-from nnsf.track.toy import draw_polygons, rect, segment_controls
+from nnsf.roto.metrics import curve_errors, length_ratio, polygon_lengths
+from nnsf.roto.solve import TrackOptions, lk_track, track_clip
+from nnsf.roto.toy import draw_polygons, rect, segment_controls
 
 SIZE = (192, 192)
 

@@ -10,10 +10,10 @@ import pytest
 from nnsf.errors import InputError
 from nnsf.frames.annotation import read_annotation
 from nnsf.frames.stage import render_frames
-from nnsf.track.tracks import read_tracks
+from nnsf.roto.tracks import read_tracks
 from nnsf.io import read_json
-from nnsf.track.evaluation import evaluate_tracking
-from nnsf.track.stage import track_clips
+from nnsf.roto.evaluation import evaluate_tracking
+from nnsf.roto.stage import track_clips
 
 TRACK = {"method": "ours", "w_velocity": 3.0, "w_length": 1.0, "w_length_anchor": 4.0, "w_curvature": 1.0, "w_edge": 1.0,
          "w_sketch": 100.0, "w_colour": 100.0, "window": 3, "samples": 12, "levels": 2,
@@ -21,7 +21,7 @@ TRACK = {"method": "ours", "w_velocity": 3.0, "w_length": 1.0, "w_length_anchor"
          "edit_tol_px": 2.0, "max_edits": 3}
 PARAMS = {"seed": 3, "frames": {"characters": 1, "motions": ["walk", "wave"], "clips_per_cell": 1,
                                 "frames": 9, "size": 128, "keyframe_every": 4, "control_points": 5},
-          "track": TRACK}
+          "roto": TRACK}
 
 
 @pytest.fixture(scope="module")
@@ -68,8 +68,8 @@ def test_a_bad_clip_is_reported_and_the_others_are_kept(frames_dir, tmp_path):
 
 def test_bad_track_params_name_the_field(frames_dir, tmp_path):
     for key, value in (("w_sketch", -1.0), ("window", 2.5), ("method", "snake"), ("init", "spline")):
-        params = {**PARAMS, "track": {**TRACK, key: value}}
-        with pytest.raises(InputError, match=f"track.{key}"):
+        params = {**PARAMS, "roto": {**TRACK, key: value}}
+        with pytest.raises(InputError, match=f"roto.{key}"):
             track_clips(params, frames_dir, tmp_path / "tracks")
     assert not (tmp_path / "tracks").exists()
 
@@ -77,16 +77,16 @@ def test_bad_track_params_name_the_field(frames_dir, tmp_path):
 def test_evaluate_tracking_writes_reports(frames_dir, tmp_path):
     reports = tmp_path / "reports"
     res = evaluate_tracking(PARAMS, frames_dir, reports)
-    summary = read_json(reports / "tracking.json")["trackers"]
+    summary = read_json(reports / "roto_eval.json")["trackers"]
     assert set(summary) == {"ours", "agarwala", "lk"}
     for s in summary.values():
         assert s["mean_px"] >= 0 and s["p95_px"] >= s["mean_px"]
         assert 0 <= s["pck"] <= 1 and 0 <= s["edit_ratio"] <= 1 and s["clips"] == 1
-    table = pd.read_csv(reports / "tracking.csv")
+    table = pd.read_csv(reports / "roto_eval.csv")
     assert sorted(table["tracker"]) == ["agarwala", "lk", "ours"]
-    assert (reports / "figures" / "tracking_overlay.png").stat().st_size > 10_000
+    assert (reports / "figures" / "roto_overlay.png").stat().st_size > 10_000
     assert res.metrics["ours_mean_px"] == pytest.approx(summary["ours"]["mean_px"], rel=5.1e-6)  # 6 digits
     # deterministic: a second run writes the same bytes
-    first = (reports / "tracking.json").read_bytes()
+    first = (reports / "roto_eval.json").read_bytes()
     evaluate_tracking(PARAMS, frames_dir, reports)
-    assert (reports / "tracking.json").read_bytes() == first
+    assert (reports / "roto_eval.json").read_bytes() == first

@@ -28,7 +28,7 @@ CASES += [(command, "blocked/out", ["--out", "blocked/out"])
           for command in ("translate", "reshape")]
 # The evaluations on external data also need --data (any existing folder: the output check comes first).
 CASES += [(command, "blocked/out", ["--data", ".", "--out", "blocked/out"])
-          for command in ("reshape-eval", "tracking-real")]
+          for command in ("reshape-eval", "roto-real")]
 
 
 def _files(root: Path) -> set[str]:
@@ -120,10 +120,10 @@ OPTION_CASES = [
      "blocked", "blocked"),  # the frames folder and its contact sheet beside it
     (["animate", "--character", "pip", "--motion", "synthetic:max/walk/6", "--out", "frames"],
      "frames", "frames"),
-    (["track", "--export-cvat", "blocked/cvat"], "blocked", "blocked/cvat"),
-    (["track", "--corrections", "fixed.xml"], "data/tracks", "data/tracks"),
-    (["track", "--corrections", "fixed.xml"], "data/tracked", "data/tracked"),
-    (["track", "--corrections", "fixed.xml", "--export-cvat", "cvat"], "cvat", "cvat"),
+    (["roto", "--export-cvat", "blocked/cvat"], "blocked", "blocked/cvat"),
+    (["roto", "--corrections", "fixed.xml"], "data/tracks", "data/tracks"),
+    (["roto", "--corrections", "fixed.xml"], "data/tracked", "data/tracked"),
+    (["roto", "--corrections", "fixed.xml", "--export-cvat", "cvat"], "cvat", "cvat"),
 ]
 
 

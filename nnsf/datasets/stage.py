@@ -31,7 +31,7 @@ def data(params: dict, out_dir=RAW_DIR) -> StageResult:
     - ``synthetic``: the embedded generator (``dataset.synthetic``);
     - ``bvh``: every labelled BVH clip of the folder ``dataset.path``,
       projected to 2D (``dataset.bvh``); style = character, content = motion;
-    - ``frames``: the key points the tracking stage derived from rendered
+    - ``frames``: the key points the roto stage derived from rendered
       or drawn frames, ``<dataset.path>/keypoints.csv``.
     """
     name = require(params, "dataset.name")
@@ -151,7 +151,7 @@ def _data_frames(params: dict, out_dir) -> StageResult:
     folder = _dataset_folder(params)
     src = folder / "keypoints.csv"
     if not src.is_file():
-        raise InputError(src, "file", "the tracking stage's key points (run the track stage first)")
+        raise InputError(src, "file", "the roto stage's key points (run the roto stage first)")
     table = contract.read_table(src)
     clips = table.groupby("clip", sort=True).agg(character=("character", "first"),
                                                   motion=("motion", "first"), frames=("frame", "size"))

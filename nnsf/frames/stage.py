@@ -2,7 +2,7 @@
 
 ``render_frames`` writes ``data/frames/<clip>/`` (frames, ``truth.npz``,
 ``annotation.json``) and ``data/frames/index.csv`` (:func:`read_index`).
-The tracker (:mod:`nnsf.track.stage`) reads them, writes
+The tracker (:mod:`nnsf.roto.stage`) reads them, writes
 ``data/tracks/<clip>/curves.npz`` and derives the key points (Eq. 2-3).
 
 The stage fans out over clips through ``mapper``; a clip that fails on bad input is

@@ -2,7 +2,7 @@
 
 Why a limb-level start.  The solver refines a guess; on the rendered clips
 the guess decides the key points almost alone (the dense-flow start of
-:func:`nnsf.track.solve.flow_init` scored PCK 0.837 before any solving and
+:func:`nnsf.roto.solve.flow_init` scored PCK 0.837 before any solving and
 0.843 after it), because the image terms barely see a curve sliding along
 its own edge, and the joints are read from the curve ends.  Three causes
 of the flow start's errors, each measured on the first four rendered clips
@@ -25,14 +25,14 @@ of the flow start's errors, each measured on the first four rendered clips
 
 :func:`limb_init` returns the guess and a confidence per curve and frame
 (from the two directions' arrival errors at the keyframes) that the energy
-uses to weigh its anchor to the guess (:mod:`nnsf.track.energy`).
+uses to weigh its anchor to the guess (:mod:`nnsf.roto.energy`).
 """
 from __future__ import annotations
 
 import cv2
 import numpy as np
 
-from nnsf.track.curves import basis
+from nnsf.roto.curves import basis
 
 #: across-limb fractions (0 = side a, 1 = side b) of the flow samples (inside the limb)
 INSIDE = (0.2, 0.35, 0.5, 0.65, 0.8)
@@ -163,7 +163,7 @@ def limb_init(fwd: np.ndarray, bwd: np.ndarray, colour: np.ndarray, P: np.ndarra
               ) -> tuple[np.ndarray, np.ndarray]:
     """Initial guess and its confidence: each limb carried as a rigid body from both keyframes.
 
-    fwd, bwd : the clip's dense flows (:func:`nnsf.track.solve.dense_flows`);
+    fwd, bwd : the clip's dense flows (:func:`nnsf.roto.solve.dense_flows`);
     colour : (T, H, W, 3) float32 RGB in [0, 1] (the solver's smoothed
     frames); P (G, T, C, 2) with the keyframes at t = 0 and T-1; frame0 (G,)
     each row's first clip frame; pairs (G,) each row's partner side

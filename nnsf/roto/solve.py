@@ -36,9 +36,9 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from nnsf.params import LK_ENDS, TRACK_INITS, TRACKERS
-from nnsf.track.energy import LevelImages, SpaceTimeProblem, Weights, build_pyramid
-from nnsf.track.lm import levenberg_marquardt
-from nnsf.track.limbs import limb_init, side_pairs
+from nnsf.roto.energy import LevelImages, SpaceTimeProblem, Weights, build_pyramid
+from nnsf.roto.lm import levenberg_marquardt
+from nnsf.roto.limbs import limb_init, side_pairs
 
 METHODS = TRACKERS
 INITS = TRACK_INITS
@@ -49,7 +49,7 @@ SOLVERS = ("lm", "scipy")
 class TrackOptions:
     """Every tunable of the trackers (the lead maps them to params.yaml ``track:``).
 
-    Weights multiply squared residuals (see :mod:`nnsf.track.energy`);
+    Weights multiply squared residuals (see :mod:`nnsf.roto.energy`);
     ``length_anchor`` weighs the anchor of the curve's length to the keyframes
     relative to ``length`` (not in params.yaml; 4 measured on the Kenney walk
     cycles: in-between lengths 0.97 of the keyframes', 0 restores the
@@ -60,7 +60,7 @@ class TrackOptions:
 
     ``init`` starts the solver from ``linear`` interpolation, the blended
     ``lk`` track, dense ``flow`` (:func:`flow_init`) or ``limb``
-    (:func:`nnsf.track.limbs.limb_init`: each limb as a rigid body, checked by
+    (:func:`nnsf.roto.limbs.limb_init`: each limb as a rigid body, checked by
     its colours; for "ours" only, as it uses the per-limb colour model
     Agarwala's tracker lacks: "agarwala" runs ``flow`` then).  Two terms of
     "ours" build on it: ``edge_gate`` (px; 0 = off) scales the edge and
@@ -68,7 +68,7 @@ class TrackOptions:
     image edge in both keyframes by 1 - the start's confidence, and
     ``slide`` weighs the anchor of each sample's position ALONG its curve to
     the limb start, times the start's confidence (see
-    :class:`nnsf.track.energy.SpaceTimeProblem`).
+    :class:`nnsf.roto.energy.SpaceTimeProblem`).
     """
 
     # The energy weights and their defaults are :class:`Weights`' (one source).
@@ -308,7 +308,7 @@ def solve_interval(pyramid: list[LevelImages], P: np.ndarray, fixed: np.ndarray,
               so curves of several intervals of equal length solve together.
     motion_prior : optional (G, T, C, 2) full-resolution track (the flow init)
               whose frame-to-frame motion the velocity term takes as its zero.
-    prior_confidence, edge_gate, slide : see :class:`nnsf.track.energy.SpaceTimeProblem`
+    prior_confidence, edge_gate, slide : see :class:`nnsf.roto.energy.SpaceTimeProblem`
               (``edge_gate`` in full-resolution px).
     Returns (G, T, C, 2) full-resolution control points.
     """

@@ -1,7 +1,7 @@
-"""The ``track:`` section of params.yaml as :class:`~nnsf.track.solve.TrackOptions` keyword arguments.
+"""The ``track:`` section of params.yaml as :class:`~nnsf.roto.solve.TrackOptions` keyword arguments.
 
-The tracker's defaults are :class:`~nnsf.track.solve.TrackOptions`' (its
-energy weights :class:`~nnsf.track.energy.Weights`'); this module only maps
+The tracker's defaults are :class:`~nnsf.roto.solve.TrackOptions`' (its
+energy weights :class:`~nnsf.roto.energy.Weights`'); this module only maps
 params.yaml keys onto them and checks each value against the params schema.
 """
 from __future__ import annotations
@@ -35,14 +35,14 @@ def track_options(params: dict) -> dict:
     Each value is checked by :func:`nnsf.params.require` against the params
     schema, the ranges ``nnsf check`` applies.
     """
-    out = {name: require(params, f"track.{key}") for key, (name, _, _) in OPTION_PARAMS.items()}
-    out["init"] = require(params, "track.init")
-    out["lk_end"] = require(params, "track.lk_end")
+    out = {name: require(params, f"roto.{key}") for key, (name, _, _) in OPTION_PARAMS.items()}
+    out["init"] = require(params, "roto.init")
+    out["lk_end"] = require(params, "roto.lk_end")
     for key, (name, _, _) in OPTIONAL_PARAMS.items():     # absent in older params files: off
-        out[name] = checked(params, f"track.{key}", 0.0)
+        out[name] = checked(params, f"roto.{key}", 0.0)
     return out
 
 
 def method(params: dict) -> str:
-    """``track.method``: one of :data:`nnsf.params.TRACKERS` (the params schema checks it)."""
-    return require(params, "track.method")
+    """``roto.method``: one of :data:`nnsf.params.TRACKERS` (the params schema checks it)."""
+    return require(params, "roto.method")

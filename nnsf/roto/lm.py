@@ -1,6 +1,6 @@
 """The Levenberg-Marquardt solver of the space-time tracking energy (Eq. 1, docs/method.md §2.3).
 
-The Gauss-Newton matrix of :class:`nnsf.track.energy.SpaceTimeProblem` is
+The Gauss-Newton matrix of :class:`nnsf.roto.energy.SpaceTimeProblem` is
 block-tridiagonal in time (a term couples a frame with the next at most), so
 each damped step solves it with the block Thomas algorithm
 (:func:`solve_block_tridiagonal`) in time linear in the number of frames.
@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.linalg import solveh_banded
 
-from nnsf.track.energy import SpaceTimeProblem
+from nnsf.roto.energy import SpaceTimeProblem
 
 def solve_block_tridiagonal(Hd: np.ndarray, Ho: np.ndarray, g: np.ndarray) -> np.ndarray:
     """Solve H x = g for symmetric positive definite block-tridiagonal H, batched over G.

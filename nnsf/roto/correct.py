@@ -37,12 +37,12 @@ from nnsf.frames.annotation import read_annotation
 from nnsf.frames.clips import read_clip
 from nnsf.frames.cvat import _meta, _parse_points
 from nnsf.frames.clips import read_index
-from nnsf.track.tracks import read_tracks
+from nnsf.roto.tracks import read_tracks
 from nnsf.io import atomic_path, read_npz, write_npz
-from nnsf.track.curves import project_to_polyline
-from nnsf.track.solve import ClipTracker, TrackOptions, plan
-from nnsf.track.options import method as _method
-from nnsf.track.options import track_options
+from nnsf.roto.curves import project_to_polyline
+from nnsf.roto.solve import ClipTracker, TrackOptions, plan
+from nnsf.roto.options import method as _method
+from nnsf.roto.options import track_options
 
 DECIMALS = 2
 KEYFRAME_ATTRIBUTE = "nnsf_keyframe"
@@ -226,7 +226,7 @@ def solve_intervals(tracker, names: list[str], kfs: dict, control: np.ndarray,
                     only: set[tuple[int, int]] | None = None) -> np.ndarray:
     """Track the (interval, curve) problems of keyframes ``kfs`` into a copy of ``control``.
 
-    tracker : a :class:`nnsf.track.solve.ClipTracker`; kfs : ``{frame: {curve: (C, 2)}}``;
+    tracker : a :class:`nnsf.roto.solve.ClipTracker`; kfs : ``{frame: {curve: (C, 2)}}``;
     control : (T, N, P, 2); only : the intervals (k0, k1) to solve (default all).
     Keyframe rows are set from ``kfs``; rows outside the solved intervals are
     left as they are in ``control``.
@@ -367,7 +367,7 @@ def export_clips(frames_dir, tracks_dir, out_dir) -> list[Path]:
 
 def apply_corrections(params: dict, xml_path, frames_dir, tracks_dir, clip: str | None = None
                       ) -> dict:
-    """``nnsf track --corrections FILE.xml``: corrected frames become keyframes, touched intervals re-tracked.
+    """``nnsf roto --corrections FILE.xml``: corrected frames become keyframes, touched intervals re-tracked.
 
     The clip is ``clip`` or the file's task name; it must be in
     ``<frames_dir>/index.csv`` and tracked in ``<tracks_dir>``.  Rewrites

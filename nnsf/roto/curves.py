@@ -8,7 +8,7 @@ uniform parameterisation keeps every sample a fixed LINEAR combination of
 the control points: ``samples = B0 @ P``, ``tangents = B1 @ P``,
 ``second derivatives = B2 @ P`` with constant matrices ``(n, C)`` per
 ``(C, n)``.  That makes the tracker's Jacobians cheap (see
-:mod:`nnsf.track.energy`).
+:mod:`nnsf.roto.energy`).
 
 Derivatives are taken with respect to the sample index (not the spline
 parameter), so ``|B1 @ P|`` is roughly the spacing between samples in px and

@@ -15,8 +15,8 @@ import numpy as np
 from matplotlib.lines import Line2D
 
 from nnsf.plotting import new_figure, save_figure
-from nnsf.track import curves
-from nnsf.track.curves import project_to_polyline
+from nnsf.roto import curves
+from nnsf.roto.curves import project_to_polyline
 
 TRACKER_STYLE: dict[str, dict] = {
     "ours": {"color": "#d62728", "label": "ours (sketch + colour)"},
@@ -37,7 +37,7 @@ def _samples(control: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
-def tracking_overlay(frames: np.ndarray, tracked: dict[str, np.ndarray], truth: np.ndarray,
+def roto_overlay(frames: np.ndarray, tracked: dict[str, np.ndarray], truth: np.ndarray,
                      show: list[int], path, fail_px: float = 3.0, n_samples: int = 32,
                      title: str | None = None, crop_margin: int = 16) -> Path:
     """Draw the overlay figure and save it (atomically) to ``path``.

@@ -3,10 +3,10 @@
 ``track_clips`` reads ``<frames_dir>/index.csv`` and each clip's frames and
 ``annotation.json`` (written by the render stage, or by hand for real
 frames) and writes ``<out_dir>/<clip>/curves.npz`` in the TRACKS format
-(:mod:`nnsf.track.tracks`).  ``keypoints_from_tracks`` turns those into the
+(:mod:`nnsf.roto.tracks`).  ``keypoints_from_tracks`` turns those into the
 feature-matrix contract table ``keypoints.csv`` plus ``characters.json``
-(the ``frames`` source of the ``data`` stage).  The ``tracking`` stage that
-scores the trackers is :mod:`nnsf.track.evaluation`.
+(the ``frames`` source of the ``data`` stage).  The ``roto_eval`` stage that
+scores the trackers is :mod:`nnsf.roto.evaluation`.
 
 Both fan out over clips through ``mapper``; a clip failing on bad input is
 reported by name, the others are kept, and the stage then raises one
@@ -28,11 +28,11 @@ from nnsf.frames.annotation import read_annotation
 from nnsf.frames.clips import read_clip
 from nnsf.frames.clips import read_index
 from nnsf.skeleton import FEATURE_COLUMNS, JOINTS
-from nnsf.track.keypoints import fit_keypoint_model, keypoints_from_curves
-from nnsf.track.options import method as _method
-from nnsf.track.options import track_options
-from nnsf.track.solve import keyframe_curves, track_clip
-from nnsf.track.tracks import read_tracks
+from nnsf.roto.keypoints import fit_keypoint_model, keypoints_from_curves
+from nnsf.roto.options import method as _method
+from nnsf.roto.options import track_options
+from nnsf.roto.solve import keyframe_curves, track_clip
+from nnsf.roto.tracks import read_tracks
 
 def _load(item: dict):
     """(annotation, frames) of one indexed clip; InputError on bad input."""
@@ -75,7 +75,7 @@ def _track_item(item: dict) -> dict:
 def track_clips(params: dict, frames_dir=FRAMES_DIR, out_dir=TRACKS_DIR, mapper=None):
     """Track the side curves of every clip listed in ``<frames_dir>/index.csv``.
 
-    Reads ``track.method`` and the ``track`` options (:func:`track_options`).
+    Reads ``roto.method`` and the ``track`` options (:func:`track_options`).
     Writes ``<out_dir>/<clip>/curves.npz`` (TRACKS format) for every clip that
     succeeds (the folder is swapped in complete); failed clips are listed in
     ``<out_dir>/failed.json`` and named in the InputError raised at the end.
@@ -186,7 +186,7 @@ def keypoints_from_tracks(params: dict, frames_dir=FRAMES_DIR, tracks_dir=TRACKS
 
 
 # --------------------------------------------------------------------------- the stages
-def track(params: dict, frames_dir=FRAMES_DIR, tracks_dir=TRACKS_DIR, tracked_dir=TRACKED_DIR,
+def roto(params: dict, frames_dir=FRAMES_DIR, tracks_dir=TRACKS_DIR, tracked_dir=TRACKED_DIR,
           mapper=None) -> StageResult:
     """Track every clip's side contours, then derive its key points (the ``frames`` source).
 

@@ -5,7 +5,7 @@ keyframe annotations are hand-made files ``<body>.annotation.json`` (format
 v1) in ``tests/data/lpc/``, whose frame names ``r<row>c<col>.png`` name the
 sheet tiles (row 10 = walk facing down, columns 0-8).  Tiles are composited
 over white and tracked, and scored as the Kenney frames are
-(:mod:`nnsf.track.real`: outline samples within ``tol`` px of the
+(:mod:`nnsf.roto.real`: outline samples within ``tol`` px of the
 silhouette, coverage, length ratio).  The annotations only hold limb sides
 that lie on the silhouette (the outer sides of the arms, both sides of the
 legs below the crotch): on 64×64 pixel art the inner arm sides lie over the
@@ -24,8 +24,8 @@ from nnsf.errors import InputError
 from nnsf.frames.annotation import read_annotation
 from nnsf.io import write_csv, write_json
 from nnsf.params import TRACKERS
-from nnsf.track.figures import tracking_overlay
-from nnsf.track.real import REPORTED, score_trackers, silhouette_summary
+from nnsf.roto.figures import roto_overlay
+from nnsf.roto.real import REPORTED, score_trackers, silhouette_summary
 
 #: px from the silhouette that count as on it.  Why not Kenney's 1.5: the annotated control
 #: points sit on the centres of outline pixels, 0.5 px inside the alpha boundary (0.7 on a
@@ -64,7 +64,7 @@ def read_tiles(sheet_path, names: list[str]) -> tuple[np.ndarray, np.ndarray]:
 
 def track_lpc(data_root, annotations_dir, methods=TRACKERS, bodies=BODIES,
               tol: float = 1.5, **options) -> tuple[pd.DataFrame, dict]:
-    """Run the trackers on the annotated walk rows; the table and tracks as :func:`nnsf.track.real.track_kenney`."""
+    """Run the trackers on the annotated walk rows; the table and tracks as :func:`nnsf.roto.real.track_kenney`."""
     rows, tracked = [], {}
     for body in bodies:
         path = Path(annotations_dir) / f"{body}.annotation.json"
@@ -79,9 +79,9 @@ def track_lpc(data_root, annotations_dir, methods=TRACKERS, bodies=BODIES,
 def lpc_report(data_root, annotations_dir, out_dir, tol: float = TOL, **options) -> dict:
     """Track the LPC walk rows with the three trackers and write the report files.
 
-    Writes ``<out_dir>/tracking_lpc.csv``, ``<out_dir>/tracking_lpc.json``
-    (the layout of ``tracking_kenney.json``) and
-    ``<out_dir>/figures/tracking_lpc.png`` (the first body, four in-between
+    Writes ``<out_dir>/roto_lpc.csv``, ``<out_dir>/roto_lpc.json``
+    (the layout of ``roto_kenney.json``) and
+    ``<out_dir>/figures/roto_lpc.png`` (the first body, four in-between
     frames, enlarged ×6).  Returns the JSON summary.
     """
     data_root, out_dir = Path(data_root), Path(out_dir)
@@ -92,8 +92,8 @@ def lpc_report(data_root, annotations_dir, out_dir, tol: float = TOL, **options)
         raise InputError(annotations_dir, "annotations",
                          "at least one <body>.annotation.json for a sheet in " + str(data_root))
     summary = silhouette_summary(table, tol)
-    write_csv(out_dir / "tracking_lpc.csv", table)
-    write_json(out_dir / "tracking_lpc.json", summary)
+    write_csv(out_dir / "roto_lpc.csv", table)
+    write_json(out_dir / "roto_lpc.json", summary)
     first = summary["characters"][0]
     ann = read_annotation(Path(annotations_dir) / f"{first}.annotation.json")
     frames, _ = read_tiles(data_root / f"{first}.png", ann.frames)
@@ -103,9 +103,9 @@ def lpc_report(data_root, annotations_dir, out_dir, tol: float = TOL, **options)
     inb = [t for t in range(len(frames)) if t not in set(ann.keyframe_indices)]
     show = [inb[i] for i in np.unique(np.linspace(0, len(inb) - 1, 4).round().astype(int))]
     # pixel centres at integers: x_big = (x + 0.5)·up - 0.5
-    tracking_overlay(big, {m: (c + 0.5) * up - 0.5 for (b, m), c in tracked.items()
+    roto_overlay(big, {m: (c + 0.5) * up - 0.5 for (b, m), c in tracked.items()
                            if b == first and m != "linear"},
-                     None, show, out_dir / "figures" / "tracking_lpc.png", crop_margin=200,
+                     None, show, out_dir / "figures" / "roto_lpc.png", crop_margin=200,
                      title=f"{first} (LPC, walk row): tracked outlines between keyframes "
                            f"{ann.keyframe_indices}")
     return summary

@@ -28,7 +28,7 @@ residual blocks (each multiplied by sqrt(weight)) are
              but what lies on the far side of a limb may differ between
              the two keyframes).
 * slide      (c_t(s_i) - c̃_t(s_i))·t̃_t(s_i), c̃ the starting guess of
-             :func:`nnsf.track.limbs.limb_init` and t̃ its unit tangent, in
+             :func:`nnsf.roto.limbs.limb_init` and t̃ its unit tangent, in
              the in-between frames, weight ``slide`` times the start's
              confidence in that frame (px; optional).
 
@@ -81,7 +81,7 @@ the bilinear interpolant, and of the unit normal (R90 (I - t̂t̂ᵀ)/|t|).
 
 Two solvers see the same residuals and Jacobian:
 
-* :func:`nnsf.track.lm.levenberg_marquardt` (default): every residual touches one frame
+* :func:`nnsf.roto.lm.levenberg_marquardt` (default): every residual touches one frame
   or two adjacent ones, so JᵀJ is block-tridiagonal in t; it is assembled
   directly (the ribbon terms from per-sample 2x2 moments, without forming
   their Jacobian rows) and each damped Gauss-Newton step is one banded
@@ -102,7 +102,7 @@ import cv2
 import numpy as np
 import scipy.sparse as sp
 
-from nnsf.track import curves
+from nnsf.roto import curves
 
 R90 = np.array([[0.0, -1.0], [1.0, 0.0]])
 
@@ -254,7 +254,7 @@ class SpaceTimeProblem:
         or limb start) whose frame-to-frame motion the velocity term takes
         as its zero.
     prior_confidence : optional (G, T) confidence in [0, 1] of that start
-        (:func:`nnsf.track.limbs.limb_init`); default 1.
+        (:func:`nnsf.roto.limbs.limb_init`); default 1.
     edge_gate : px of this level; > 0 scales the edge and ribbon residuals of
         samples NOT within that distance of an edge in both keyframes by
         1 - the start's mean confidence (0 with no start: dropped).

@@ -14,7 +14,7 @@
 * key-point PCK at 0.05 × torso length (key points derived from the tracked
   curves by :mod:`nnsf.frames.keypoints`);
 * the simulated user's edit ratio (the paper's Fig. 4a): the correction
-  loop of :mod:`nnsf.track.correct` — the user corrects the worst frame of
+  loop of :mod:`nnsf.roto.correct` — the user corrects the worst frame of
   each interval (the control points off by more than ``tol`` px), it
   becomes a keyframe, the touched intervals are re-tracked — until every
   control point of the in-between frames is within ``tol`` px of the truth.
@@ -24,10 +24,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from nnsf.track import curves
-from nnsf.track.curves import _project, nearest_vertex, project_to_polyline  # noqa: F401  (re-exported for callers)
-from nnsf.track.solve import ClipTracker, TrackOptions, plan
-from nnsf.track.correct import simulate_user
+from nnsf.roto import curves
+from nnsf.roto.curves import _project, nearest_vertex, project_to_polyline  # noqa: F401  (re-exported for callers)
+from nnsf.roto.solve import ClipTracker, TrackOptions, plan
+from nnsf.roto.correct import simulate_user
 
 
 def curve_errors(control: np.ndarray, truth: np.ndarray, n_samples: int = 32,
@@ -150,7 +150,7 @@ def edit_ratio(frames: np.ndarray, annotation, truth: np.ndarray, names_truth: l
 
     frames : (T, H, W, 3) uint8; truth : (T, N_truth, S, 2) dense true side
     curves named ``names_truth``; method : "ours" | "agarwala" | "lk".
-    The user runs the correction loop of :func:`nnsf.track.correct.simulate_user`:
+    The user runs the correction loop of :func:`nnsf.roto.correct.simulate_user`:
     each round corrects the worst frame of every keyframe interval that
     still has a control point more than ``tol`` px off (moving only those
     points onto the true curve), the corrected frames become keyframes and
@@ -162,7 +162,7 @@ def edit_ratio(frames: np.ndarray, annotation, truth: np.ndarray, names_truth: l
     "corrected_frames", "rounds", "names", "tracked", "control"}``:
     ``tracked`` is the tracker's result before any correction and
     ``control`` the corrected one, both (T, N, P, 2) in ``names`` order (as
-    :func:`nnsf.track.solve.track_clip` returns); ``capped_curves`` counts
+    :func:`nnsf.roto.solve.track_clip` returns); ``capped_curves`` counts
     the curves with control points still off when the cap stopped the loop.
     """
     opts = TrackOptions.from_kwargs(**options)

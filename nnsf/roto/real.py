@@ -16,7 +16,7 @@ figures guard against that: the **coverage**, the silhouette length within
 length for the annotated curves in the keyframes (≈ 1 when the tracks cover
 as much outline as the annotation; lower when they shrink), and the
 **length ratio**, the in-between frames' mean control-polygon length over
-the keyframes' (:func:`nnsf.track.metrics.length_ratio`).
+the keyframes' (:func:`nnsf.roto.metrics.length_ratio`).
 """
 from __future__ import annotations
 
@@ -27,14 +27,14 @@ import numpy as np
 import pandas as pd
 from scipy.spatial import cKDTree
 
-from nnsf.track import curves
+from nnsf.roto import curves
 from nnsf.errors import InputError
 from nnsf.frames.annotation import read_annotation
 from nnsf.io import write_csv, write_json
 from nnsf.params import TRACKERS
-from nnsf.track.figures import tracking_overlay
-from nnsf.track.metrics import _project, length_ratio
-from nnsf.track.solve import interpolate_clip, track_clip
+from nnsf.roto.figures import roto_overlay
+from nnsf.roto.metrics import _project, length_ratio
+from nnsf.roto.solve import interpolate_clip, track_clip
 
 #: the rows of the real-frame reports: the three trackers and the do-nothing floor
 REPORTED = ("ours", "agarwala", "lk", "linear")
@@ -164,7 +164,7 @@ def track_kenney(data_root, annotations_dir, methods=TRACKERS,
     length ratio, see the module notes) and
     ``{(character, tracker): (T, N, P, 2) control}`` for figures.  The
     method ``"linear"`` is no tracker: the keyframes interpolated linearly
-    (:func:`nnsf.track.solve.interpolate_clip`), the floor a tracker must beat.
+    (:func:`nnsf.roto.solve.interpolate_clip`), the floor a tracker must beat.
     """
     rows, tracked = [], {}
     for ch in characters:
@@ -220,12 +220,12 @@ def silhouette_summary(table, tol: float) -> dict:
 def kenney_report(data_root, annotations_dir, out_dir, tol: float = 1.5, **options) -> dict:
     """Track the Kenney walk cycles with the three trackers and write the report files.
 
-    Writes ``<out_dir>/tracking_kenney.csv`` (character × tracker scores, plus
+    Writes ``<out_dir>/roto_kenney.csv`` (character × tracker scores, plus
     the ``linear`` interpolation of the keyframes as the floor),
-    ``<out_dir>/tracking_kenney.json`` (per tracker: mean score over the
+    ``<out_dir>/roto_kenney.json`` (per tracker: mean score over the
     characters under ``trackers``, mean coverage and length ratio under
     ``coverage`` and ``length_ratio``, and the mean keyframe ceiling) and
-    ``<out_dir>/figures/tracking_kenney.png`` (the tracked outlines of the first
+    ``<out_dir>/figures/roto_kenney.png`` (the tracked outlines of the first
     character on four in-between frames).  Returns the JSON summary.
     """
     data_root, out_dir = Path(data_root), Path(out_dir)
@@ -236,16 +236,16 @@ def kenney_report(data_root, annotations_dir, out_dir, tol: float = 1.5, **optio
         raise InputError(annotations_dir, "annotations",
                          "at least one <character>.annotation.json for a character in " + str(data_root))
     summary = silhouette_summary(table, tol)
-    write_csv(out_dir / "tracking_kenney.csv", table)
-    write_json(out_dir / "tracking_kenney.json", summary)
+    write_csv(out_dir / "roto_kenney.csv", table)
+    write_json(out_dir / "roto_kenney.json", summary)
     first = summary["characters"][0]
     ann = read_annotation(Path(annotations_dir) / f"{first}.annotation.json")
     frames, _ = read_rgba(data_root / first, ann.frames)
     inb = [t for t in range(len(frames)) if t not in set(ann.keyframe_indices)]
     show = [inb[i] for i in np.unique(np.linspace(0, len(inb) - 1, 4).round().astype(int))]
-    tracking_overlay(frames, {m: c for (ch, m), c in tracked.items() if ch == first and m != "linear"},
+    roto_overlay(frames, {m: c for (ch, m), c in tracked.items() if ch == first and m != "linear"},
                      None, show,
-                     out_dir / "figures" / "tracking_kenney.png", crop_margin=200,
+                     out_dir / "figures" / "roto_kenney.png", crop_margin=200,
                      title=f"{first} (Kenney toon): tracked outlines between keyframes "
                            f"{ann.keyframe_indices}")
     return summary

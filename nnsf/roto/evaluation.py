@@ -1,11 +1,11 @@
-"""The ``tracking`` stage: ours, Agarwala's and Lucas-Kanade tracking scored against the rendered ground truth (docs/method.md §15.6).
+"""The ``roto_eval`` stage: ours, Agarwala's and Lucas-Kanade tracking scored against the rendered ground truth (docs/method.md §15.6).
 
 :func:`evaluate_tracking` runs the three trackers on the clips that have
-ground truth (``truth.npz``) and writes ``reports/tracking.json``,
-``reports/tracking.csv`` and ``reports/figures/tracking_overlay.png``
+ground truth (``truth.npz``) and writes ``reports/roto_eval.json``,
+``reports/roto_eval.csv`` and ``reports/figures/roto_overlay.png``
 (the paper's Fig. 5): point-to-curve error, PCK of the key points derived
 from the tracked curves (Eq. 2-3), the simulated user's edit ratio (Fig. 4a).
-It fans out over (clip, tracker) pairs through ``mapper``; ``tracking``
+It fans out over (clip, tracker) pairs through ``mapper``; ``roto_eval``
 publishes the files as one set.
 """
 from __future__ import annotations
@@ -23,11 +23,11 @@ from nnsf.params import TRACKERS, require
 from nnsf.pipeline import FRAMES_DIR, REPORTS, StageResult, failures, map_items
 from nnsf.publish import publish_stage
 from nnsf.skeleton import JOINT_INDEX
-from nnsf.track.figures import tracking_overlay
-from nnsf.track.keypoints import fit_keypoint_model, keypoints_from_curves
-from nnsf.track.metrics import curve_errors, edit_ratio, error_summary, length_ratio, pck, reverse_errors, symmetric_summary
-from nnsf.track.options import track_options
-from nnsf.track.stage import _load
+from nnsf.roto.figures import roto_overlay
+from nnsf.roto.keypoints import fit_keypoint_model, keypoints_from_curves
+from nnsf.roto.metrics import curve_errors, edit_ratio, error_summary, length_ratio, pck, reverse_errors, symmetric_summary
+from nnsf.roto.options import track_options
+from nnsf.roto.stage import _load
 
 def _evaluate_item(item: dict) -> dict:
     """All metrics of one (clip, tracker) pair (module-level, picklable)."""
@@ -64,21 +64,21 @@ def _evaluate_item(item: dict) -> dict:
 def evaluate_tracking(params: dict, frames_dir=FRAMES_DIR, reports=REPORTS, mapper=None):
     """Compare the three trackers on the rendered clips with ground truth (docs/method.md §15.6).
 
-    Reads ``track`` options, ``track.eval_clips`` (how many clips, in index
-    order, that have a ``truth.npz``), ``track.edit_tol_px`` and
-    ``track.max_edits``.  Writes ``<reports>/tracking.json`` (per tracker:
+    Reads ``track`` options, ``roto.eval_clips`` (how many clips, in index
+    order, that have a ``truth.npz``), ``roto.edit_tol_px`` and
+    ``roto.max_edits``.  Writes ``<reports>/roto_eval.json`` (per tracker:
     mean_px, p95_px (tracked -> truth), mean_px_rev, p95_px_rev (truth ->
     tracked), mean_px_sym, p95_px_sym (both; see
-    :func:`nnsf.track.metrics.symmetric_summary`), mean_px_visible,
+    :func:`nnsf.roto.metrics.symmetric_summary`), mean_px_visible,
     p95_px_visible, length_ratio (in-between over keyframe curve length,
     mean over clips), pck, edit_ratio, clips),
-    ``<reports>/tracking.csv`` (per clip × tracker) and
-    ``<reports>/figures/tracking_overlay.png`` (first evaluated clip).
+    ``<reports>/roto_eval.csv`` (per clip × tracker) and
+    ``<reports>/figures/roto_overlay.png`` (first evaluated clip).
     """
     options = track_options(params)
-    n_clips = require(params, "track.eval_clips")      # each checked by the params schema
-    tol = require(params, "track.edit_tol_px")
-    max_edits = require(params, "track.max_edits")
+    n_clips = require(params, "roto.eval_clips")      # each checked by the params schema
+    tol = require(params, "roto.edit_tol_px")
+    max_edits = require(params, "roto.max_edits")
     frames_dir, reports = Path(frames_dir), Path(reports)
     index = read_index(frames_dir)
     rows = [r for r in index.itertuples() if (frames_dir / r.folder / "truth.npz").is_file()]
@@ -119,7 +119,7 @@ def evaluate_tracking(params: dict, frames_dir=FRAMES_DIR, reports=REPORTS, mapp
                       "edits": edits, "corrected_frames": sum(r["corrected_frames"] for r in mine),
                       "rounds": max(r["rounds"] for r in mine),
                       "clips": len(mine)}
-    figure = reports / "figures" / "tracking_overlay.png"
+    figure = reports / "figures" / "roto_overlay.png"
     keep = [r for r in ok if r["control"] is not None]
     artifacts = []
     if keep:
@@ -133,22 +133,22 @@ def evaluate_tracking(params: dict, frames_dir=FRAMES_DIR, reports=REPORTS, mapp
         names = keep[0]["names"]
         true_sides = truth["sides"][:, [side_names.index(n) for n in names]]
         show = _frames_to_show(len(frames), ann.keyframe_indices)
-        tracking_overlay(frames, {r["method"]: r["control"] for r in keep}, true_sides, show,
+        roto_overlay(frames, {r["method"]: r["control"] for r in keep}, true_sides, show,
                          figure, title=f"{first.clip}: tracked side contours between keyframes "
                          f"{ann.keyframe_indices}")
         artifacts.append(figure)
-    write_json(reports / "tracking.json", {"trackers": summary, "failed": failed,
+    write_json(reports / "roto_eval.json", {"trackers": summary, "failed": failed,
                                            "clips": [r.clip for r in rows],
                                            "edit_tol_px": float(tol), "max_edits": max_edits})
-    write_csv(reports / "tracking.csv", pd.DataFrame(table))
+    write_csv(reports / "roto_eval.csv", pd.DataFrame(table))
     if failed:
         raise InputError(frames_dir, "clips", f"every clip evaluated; {len(failed)} failed: "
                          + failures(failed))
     metrics = {f"{m}_{k}": v for m, s in summary.items() for k, v in s.items() if k != "clips"}
     return StageResult(params={"track_eval_clips": n_clips, "track_edit_tol_px": tol,
                                "track_max_edits": max_edits},
-                       metrics=metrics, artifacts=[reports / "tracking.json",
-                                                   reports / "tracking.csv", *artifacts])
+                       metrics=metrics, artifacts=[reports / "roto_eval.json",
+                                                   reports / "roto_eval.csv", *artifacts])
 
 
 def _frames_to_show(T: int, keyframes: list[int], n: int = 4) -> list[int]:
@@ -161,11 +161,11 @@ def _frames_to_show(T: int, keyframes: list[int], n: int = 4) -> list[int]:
     return [mids[i] for i in dict.fromkeys(pick)]
 
 
-def tracking(params: dict, frames_dir=FRAMES_DIR, reports=REPORTS, mapper=None) -> StageResult:
+def roto_eval(params: dict, frames_dir=FRAMES_DIR, reports=REPORTS, mapper=None) -> StageResult:
     """Score ours, Agarwala's and Lucas-Kanade tracking against the rendered ground truth (docs/method.md §15.6).
 
-    See :func:`evaluate_tracking`: ``reports/tracking.json``,
-    ``reports/tracking.csv``, ``reports/figures/tracking_overlay.png``.
+    See :func:`evaluate_tracking`: ``reports/roto_eval.json``,
+    ``reports/roto_eval.csv``, ``reports/figures/roto_overlay.png``.
     """
-    return publish_stage("tracking", reports, "tracking.json",
+    return publish_stage("roto_eval", reports, "roto_eval.json",
                          lambda out: evaluate_tracking(params, frames_dir=frames_dir, reports=out, mapper=mapper))
