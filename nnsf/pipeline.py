@@ -8,8 +8,7 @@ what those stage modules have in common, and imports none of them:
 * the default paths, mirrored exactly by ``dvc.yaml``, and the output folders
   each stage writes (:data:`OUTPUT_FOLDERS`, checked before any work by
   :func:`check_outputs`);
-* the shared preambles: reading the feature table, the ``nnsf`` section's
-  keyword arguments, rank checks, the label column, "at least two distinct
+* the shared preambles: the ``nnsf`` section's keyword arguments, rank checks, the label column, "at least two distinct
   values" checks, the features stage's unifier;
 * the fan-out helpers :func:`map_items` and :func:`failures` (a stage over
   clips or cells runs every item, then names the failed ones in one line).
@@ -25,7 +24,6 @@ from pathlib import Path
 
 import pandas as pd
 
-from nnsf.datasets import contract
 from nnsf.errors import InputError
 from nnsf.io import check_writable, read_json
 from nnsf.params import require, source_of
@@ -111,11 +109,6 @@ def check_rank(params: dict, rank: int, field_name: str) -> None:
                          f"a rank of at most the number of features ({N_FEATURES})", rank)
 
 
-def read_features(path) -> pd.DataFrame:
-    """The features stage's table (the contract, every feature >= 0)."""
-    return contract.read_table(path, non_negative=True)
-
-
 def label_column(params: dict) -> str:
     """The class label NNSF is fitted with (``nnsf.label``)."""
     return require(params, "nnsf.label")
@@ -133,19 +126,6 @@ def need_several(table: pd.DataFrame, column: str, source, purpose: str, at_leas
     if len(values) < at_least:
         raise InputError(source, column, f"at least {at_least} distinct {column} values {purpose}",
                          reason=f"found {len(values)}: {', '.join(map(str, values[:3]))}")
-
-
-def cv_table(features_csv, label: str):
-    """``(table, X, y)`` of the features stage's table for a cross-validation grouped by clip.
-
-    Refused (naming the file and column) unless it holds at least two clips
-    and two classes of ``label``.
-    """
-    table = read_features(features_csv)
-    need_several(table, "clip", features_csv, "to hold out in cross-validation grouped by clip")
-    need_several(table, label, features_csv, f"(nnsf.label: {label}): precision over one class is "
-                 "1.0 for any model")
-    return table, contract.features(table), table[label].to_numpy()
 
 
 def read_unifier(features_dir=FEATURES_DIR) -> Unifier:

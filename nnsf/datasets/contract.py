@@ -75,6 +75,11 @@ def read_table(path, non_negative: bool = False) -> pd.DataFrame:
     return validate(read_csv(path), Path(path), non_negative=non_negative)
 
 
+def read_features(path) -> pd.DataFrame:
+    """The features stage's table: the contract in template units, every feature >= 0."""
+    return read_table(path, non_negative=True)
+
+
 def write_table(path, table: pd.DataFrame) -> None:
     """Write a contract table atomically (columns in contract order)."""
     write_csv(path, table.loc[:, list(COLUMNS)])

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from nnsf.datasets import contract
 from nnsf.errors import InputError
 from nnsf.evaluate.crossval import precision_vs_rank, summarise, wide
 from nnsf.evaluate.figures import isomap_figure, precision_vs_rank_figure, reconstruction_figure
@@ -27,9 +28,22 @@ from nnsf.factor.figures import fold_figure
 from nnsf.io import read_npz, write_csv, write_json
 from nnsf.params import require, source_of
 from nnsf.pipeline import (
-    FEATURES_CSV, MODEL_PATH, REPORTS, StageResult, check_rank, cv_table, label_column, nnsf_params,
+    FEATURES_CSV, MODEL_PATH, REPORTS, StageResult, check_rank, label_column, need_several, nnsf_params,
 )
 from nnsf.publish import publish_stage, publishing, recover
+
+
+def cv_table(features_csv, label: str):
+    """``(table, X, y)`` of the features stage's table for a cross-validation grouped by clip.
+
+    Refused (naming the file and column) unless it holds at least two clips
+    and two classes of ``label``.
+    """
+    table = contract.read_features(features_csv)
+    need_several(table, "clip", features_csv, "to hold out in cross-validation grouped by clip")
+    need_several(table, label, features_csv, f"(nnsf.label: {label}): precision over one class is "
+                 "1.0 for any model")
+    return table, contract.features(table), table[label].to_numpy()
 
 
 def evaluate(params: dict, features_csv=FEATURES_CSV, reports=REPORTS, mapper=None) -> StageResult:

@@ -33,7 +33,7 @@ from nnsf.io import atomic_dir, read_json, write_json, write_npz
 from nnsf.params import require
 from nnsf.pipeline import (
     FEATURES_CSV, MODEL_PATH, REPORTS, STYLES_MODEL, TRANSLATION_DIR, StageResult, check_rank, label_column,
-    nnsf_params, read_features, read_unifier,
+    nnsf_params, read_unifier,
 )
 from nnsf.publish import publish_stage
 from nnsf.skeleton import Unifier
@@ -107,7 +107,7 @@ def factorize(params: dict, features_csv=FEATURES_CSV, model=MODEL_PATH, reports
     max_iter = int(require(params, "nnsf.max_iter"))
     seed = int(require(params, "seed"))
     label = label_column(params)
-    table = read_features(features_csv)
+    table = contract.read_features(features_csv)
     X = contract.features(table)
     y = table[label].to_numpy()
 
