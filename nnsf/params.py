@@ -35,7 +35,7 @@ STAGE_NAMES = ("frames", "roto", "roto_eval", "data", "features", "factorize", "
                "heldout", "translate", "reshape", "styles", "animate")
 #: Camera views of projected motion capture (nnsf.datasets.views).
 VIEW_CHOICES = ("front", "side", "three-quarter", "auto")
-TRANSLATION_METHODS = ("nnsf", "nnsf_smooth", "nnsf_nosmooth", "nnsf_styleamp", "nnsf_swapped", "nnsf_beta0",
+TRANSLATION_METHODS = ("nnsf", "nnsf_smooth", "nnsf_nosmooth", "nnsf_restore", "nnsf_swapped", "nnsf_beta0",
                        "nnsf_refit", "api", "api_source", "bilinear", "mgpm", "cbgpm", "offset", "identity", "real")
 
 

@@ -90,7 +90,7 @@ __all__ = [
 #: clip itself: zero error by definition, its accuracies are the classifiers'
 #: ceiling.
 METHODS: tuple[str, ...] = (
-    "nnsf", "nnsf_smooth", "nnsf_nosmooth", "nnsf_styleamp", "nnsf_swapped", "nnsf_beta0", "nnsf_refit", "api",
+    "nnsf", "nnsf_smooth", "nnsf_nosmooth", "nnsf_restore", "nnsf_swapped", "nnsf_beta0", "nnsf_refit", "api",
     "api_source", "bilinear", "bilinear_template", "mgpm", "cbgpm", "offset", "identity", "real",
 )
 
@@ -102,7 +102,7 @@ DEFAULT_VARIANTS: dict[str, dict] = {
     "nnsf_refit": {"basis": "refit", "synthesis": "source"},
     "nnsf_smooth": {"smooth": 5.0, "smooth_order": 1},
     "nnsf_nosmooth": {"smooth": 0.0},
-    "nnsf_styleamp": {"amplitude": "style"},
+    "nnsf_restore": {"amplitude": "restore"},
 }
 
 #: The public path's methods: nnsf.translate() without and with the source clip's style.
@@ -523,7 +523,7 @@ def per_style(results: pd.DataFrame) -> pd.DataFrame:
 # The held-out stage's methods, fan-out jobs and targets
 # --------------------------------------------------------------------------- #
 #: Methods of the held-out stage, in table order (``real`` is the ceiling row).
-STAGE_METHODS: tuple[str, ...] = ("nnsf", "nnsf_smooth", "nnsf_nosmooth", "nnsf_styleamp", "nnsf_swapped",
+STAGE_METHODS: tuple[str, ...] = ("nnsf", "nnsf_smooth", "nnsf_nosmooth", "nnsf_restore", "nnsf_swapped",
                                   "nnsf_beta0", "nnsf_refit", "api", "api_source", "bilinear", "mgpm", "cbgpm", "offset", "identity", "real")
 
 #: Summary metrics of ``reports/heldout.json`` per method: name there -> column.

@@ -50,8 +50,9 @@ Synthesising a whole held-out cell (``synthesis``): ``"source"`` translates
 one clip of another style as above; ``"consensus"`` (default, aligned basis
 only) uses the content's *shared* weights, fitted on every style that
 performs it: X̂ = V_content U_target + b_target (:meth:`StyleTranslator.synthesize`),
-optionally with the amplitude the least-squares compromise loses restored
-(``amplitude="restore"``) and resampled to the target style's tempo
+with the amplitude the least-squares compromise loses restored and scaled
+to the target style's own swing (``amplitude="style"``, the default; ``"restore"``
+without the style's factor) and resampled to the target style's tempo
 (``tempo=True``).  Which of these wins is measured by the held-out grid
 (:mod:`nnsf.evaluate.translation`); the numbers are in the project's docs.
 
@@ -247,7 +248,7 @@ class StyleTranslator(BaseEstimator):
                  reading="style_basis", basis="aligned", ridge=0.5, refit_iter=100, align_iter=150,
                  basis_steps=3, realign=0, style_offset=True, smooth=20.0, smooth_order=2, free_norms=False,
                  keep_residual=True,
-                 synthesis="consensus", amplitude="restore", tempo=True,
+                 synthesis="consensus", amplitude="style", tempo=True,
                  max_iter=150, tol=1e-5, init="nndsvda", random_state=0):
         self.n_components = n_components
         self.alpha = alpha
