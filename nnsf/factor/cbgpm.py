@@ -46,7 +46,7 @@ from sklearn.decomposition import PCA
 from sklearn.utils.validation import check_array, check_is_fitted
 from threadpoolctl import threadpool_limits
 
-from nnsf.factor.gp_data import check_phase, interpolate_bins, phase_bins, phase_from_groups
+from nnsf.factor.gp_data import check_int, check_labels, check_phase, interpolate_bins, phase_bins, phase_from_groups
 
 __all__ = ["CBGPM", "additive_fit", "neg_log_marginal"]
 
@@ -136,18 +136,6 @@ def neg_log_marginal(theta, inputs, targets, jitter):
     return value, g
 
 
-def _check_int(name, value, lo=1):
-    if not (isinstance(value, numbers.Integral) and not isinstance(value, bool) and value >= lo):
-        raise ValueError(f"{name} must be an integer >= {lo}, got {value!r}")
-
-
-def _labels(values, n, what):
-    values = np.asarray(values)
-    if values.shape != (n,):
-        raise ValueError(f"{what} must give one label per row of X ({n}), got shape {values.shape}")
-    return values
-
-
 class CBGPM(BaseEstimator):
     """Style as a constrained GP edit of style-free content templates (after Ma et al. 2009).
 
@@ -196,21 +184,21 @@ class CBGPM(BaseEstimator):
     def _fit(self, X, y, style, phase, groups):
         X = check_array(X, dtype=np.float64, ensure_all_finite=True)
         n, d = X.shape
-        _check_int("n_components", self.n_components)
-        _check_int("phase_bins", self.phase_bins)
-        _check_int("max_iter", self.max_iter)
+        check_int("n_components", self.n_components)
+        check_int("phase_bins", self.phase_bins)
+        check_int("max_iter", self.max_iter)
         if not (isinstance(self.jitter, numbers.Real) and not isinstance(self.jitter, bool)
                 and self.jitter > 0):
             raise ValueError(f"jitter must be a number > 0, got {self.jitter!r}")
         if self.n_components > min(d, n):
             raise ValueError(f"n_components={self.n_components} exceeds the CBGPM's limit on these "
                              f"data, min(features, frames) = {min(d, n)}")
-        y = _labels(y, n, "y")
-        style = _labels(style, n, "style")
+        y = check_labels(y, n, "y")
+        style = check_labels(style, n, "style")
         if phase is None:
             if groups is None:
                 raise ValueError("CBGPM.fit needs phase (n,) or groups (the clip of each row)")
-            phase = phase_from_groups(_labels(groups, n, "groups"))
+            phase = phase_from_groups(check_labels(groups, n, "groups"))
         phase = check_phase(phase, n)
         styles, contents, means, observed, _ = phase_bins(X, style, y, phase, self.phase_bins)
 
@@ -312,7 +300,7 @@ class CBGPM(BaseEstimator):
         if style is None:
             groups = [(i, np.ones(n, bool)) for i in range(len(self.styles_))]
         else:
-            pos = self._index(_labels(style, n, "style"), self.styles_, "style")
+            pos = self._index(check_labels(style, n, "style"), self.styles_, "style")
             groups = [(i, pos == i) for i in np.unique(pos)]
         for i, rows in groups:
             T = self._templates(i).reshape(C * B, k)

@@ -131,3 +131,17 @@ def interpolate_bins(values, phase) -> np.ndarray:
     if values.shape[0] == 1:
         return np.repeat(values, len(phase), axis=0)
     return np.stack([np.interp(phase, centres, values[:, j]) for j in range(values.shape[1])], axis=1)
+
+
+def check_int(name, value, lo=1):
+    """Raise ``ValueError`` unless ``value`` is an integer (not a bool) of at least ``lo``."""
+    if not (isinstance(value, numbers.Integral) and not isinstance(value, bool) and value >= lo):
+        raise ValueError(f"{name} must be an integer >= {lo}, got {value!r}")
+
+
+def check_labels(values, n, what):
+    """``values`` as an array of shape ``(n,)``: one label per row of X, else ``ValueError``."""
+    values = np.asarray(values)
+    if values.shape != (n,):
+        raise ValueError(f"{what} must give one label per row of X ({n}), got shape {values.shape}")
+    return values

@@ -52,7 +52,7 @@ from sklearn.base import BaseEstimator
 from sklearn.utils.validation import check_array, check_is_fitted
 from threadpoolctl import threadpool_limits
 
-from nnsf.factor.gp_data import bin_centres, check_phase, phase_bins, phase_from_groups
+from nnsf.factor.gp_data import bin_centres, check_int, check_labels, check_phase, phase_bins, phase_from_groups
 
 __all__ = ["MGPM", "neg_log_posterior", "max_rank"]
 
@@ -144,18 +144,6 @@ def neg_log_posterior(theta, Y, s_idx, c_idx, phi, S, C, q_s, q_c, return_parts=
     return value, grad
 
 
-def _check_int(name, value, lo=1):
-    if not (isinstance(value, numbers.Integral) and not isinstance(value, bool) and value >= lo):
-        raise ValueError(f"{name} must be an integer >= {lo}, got {value!r}")
-
-
-def _labels(values, n, what):
-    values = np.asarray(values)
-    if values.shape != (n,):
-        raise ValueError(f"{what} must give one label per row of X ({n}), got shape {values.shape}")
-    return values
-
-
 class MGPM(BaseEstimator):
     """Multifactor GP over (style, content, phase) -> pose (Wang, Fleet & Hertzmann 2007).
 
@@ -222,17 +210,17 @@ class MGPM(BaseEstimator):
     def _fit(self, X, y, style, phase, groups):
         X = check_array(X, dtype=np.float64, ensure_all_finite=True)
         n, d = X.shape
-        _check_int("n_components", self.n_components)
-        _check_int("phase_bins", self.phase_bins)
-        _check_int("max_iter", self.max_iter)
+        check_int("n_components", self.n_components)
+        check_int("phase_bins", self.phase_bins)
+        check_int("max_iter", self.max_iter)
         if not (isinstance(self.tol, numbers.Real) and not isinstance(self.tol, bool) and self.tol > 0):
             raise ValueError(f"tol must be a number > 0, got {self.tol!r}")
-        y = _labels(y, n, "y")
-        style = _labels(style, n, "style")
+        y = check_labels(y, n, "y")
+        style = check_labels(style, n, "style")
         if phase is None:
             if groups is None:
                 raise ValueError("MGPM.fit needs phase (n,) or groups (the clip of each row)")
-            phase = phase_from_groups(_labels(groups, n, "groups"))
+            phase = phase_from_groups(check_labels(groups, n, "groups"))
         phase = check_phase(phase, n)
 
         styles, contents, means, observed, mean_phase = phase_bins(X, style, y, phase, self.phase_bins)
@@ -358,7 +346,7 @@ class MGPM(BaseEstimator):
         if style is None:
             groups = [(i, np.ones(n, bool)) for i in range(len(self.styles_))]
         else:
-            style = _labels(style, n, "style")
+            style = check_labels(style, n, "style")
             pos = self._index(style, self.styles_, "style")
             groups = [(i, pos == i) for i in np.unique(pos)]
         for i, rows in groups:

@@ -343,6 +343,18 @@ def follower_regions(mask: np.ndarray, keypoints: np.ndarray, label: np.ndarray,
     return out
 
 
+
+def _triangulate_region(region, spacing, args):
+    """``(vertices, triangles)`` of a piece's mask at ``spacing`` px, or None when it is too
+    small (under 6 px) or the triangulation finds nothing to mesh."""
+    if region.sum() < 6:
+        return None
+    try:
+        v, t, _ = meshmod._triangulate_at(region, spacing, **args)
+    except (ValueError, IndexError):
+        return None
+    return (v, t) if len(t) else None
+
 def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int = 800,
                       whole_limbs: bool = False, tab_margin: float | None = None, texture=None,
                       extra_limbs=(), **kwargs):
@@ -467,14 +479,10 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
             regions[cut.child] = tab_region(label, cut, 0.0, under=under)
     for k, cut in enumerate(cuts):
         region = regions[cut.child]
-        if region.sum() < 6:
+        vt = _triangulate_region(region, max(h, 2.0), args)
+        if vt is None:
             continue
-        try:
-            v, t, _ = meshmod._triangulate_at(region, max(h, 2.0), **args)
-        except (ValueError, IndexError):
-            continue
-        if len(t) == 0:
-            continue
+        v, t = vt
         idx = np.arange(count, count + len(v))
         V.append(v)
         T.append(t + count)
@@ -499,14 +507,10 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
         # driven arms, so arms that turn together do not pile up in front.
         own = f["region"] | (cv2.dilate(f["region"].astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & m)
         for region, is_tab in ((tab, True), (own | grown, False)):
-            if region.sum() < 6:
+            vt = _triangulate_region(region, h if not is_tab else max(h, 2.0), args)
+            if vt is None:
                 continue
-            try:
-                v, t, _ = meshmod._triangulate_at(region, h if not is_tab else max(h, 2.0), **args)
-            except (ValueError, IndexError):
-                continue
-            if len(t) == 0:
-                continue
+            v, t = vt
             idx = np.arange(count, count + len(v))
             V.append(v)
             T.append(t + count)
