@@ -41,7 +41,7 @@ def main(argv=None) -> int:
     from nnsf.io import atomic_path
     from nnsf.params import load, require
     from nnsf.skeleton import JOINT_INDEX, Unifier, to_points
-    from nnsf.datasets.stage import complete_grid as _complete_grid
+    from nnsf.datasets.stage import complete_grid
 
     params = load("params.yaml")
     table, _ = bvh_source.read_folder(a.data, fps=float(require(params, "dataset.bvh.fps")),
@@ -49,7 +49,7 @@ def main(argv=None) -> int:
                                       elevation=float(require(params, "dataset.bvh.elevation")),
                                       facing=require(params, "dataset.bvh.facing"),
                                       center=bool(require(params, "dataset.bvh.center")))
-    table, _ = _complete_grid(table)
+    table, _ = complete_grid(table)
     tp = translator_params(params)
     joints = (("r_wrist", "right wrist"), ("l_ankle", "left ankle"))
     fig, axes = plt.subplots(len(joints), len(CELLS), figsize=(5 * len(CELLS), 6.4), squeeze=False)
