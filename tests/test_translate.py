@@ -412,3 +412,59 @@ def test_style_amplitude_carries_a_wider_swinging_style_to_an_unseen_content(uni
     t.set_params(amplitude="style")
     styled = t.synthesize("jump", "wide").std(axis=0)
     assert np.abs(styled - truth).mean() < 0.7 * np.abs(plain - truth).mean()
+
+
+@pytest.fixture(scope="module")
+def base_and_wide(unified):
+    """One character's clips as style "base", and as style "wide": every coordinate's deviation
+    from its clip mean doubled (same contents, same frames)."""
+    X, mo, ch, cl = unified
+    keep = ch == "bruno"
+    Xa, moa, cla = X[keep], mo[keep], cl[keep]
+    wide = np.empty_like(Xa)
+    for q in np.unique(cla):
+        r = cla == q
+        m = Xa[r].mean(axis=0)
+        wide[r] = m + 2.0 * (Xa[r] - m)
+    lift = 1.0 + max(0.0, -wide.min())                 # keeps both styles non-negative
+    wide += lift
+    Xt = np.concatenate([Xa + lift, wide])
+    mot = np.concatenate([moa, moa])
+    cht = np.repeat(["base", "wide"], len(Xa))
+    clt = np.concatenate([np.char.add("b-", cla.astype(str)), np.char.add("w-", cla.astype(str))])
+    t = StyleTranslator(n_components=8, max_iter=80, align_iter=40, tempo=False).fit(Xt, mot, cht, clt)
+    return t, Xa + lift, cla
+
+
+def test_swing_ratio_is_the_analytic_ratio_of_the_styles_swings(base_and_wide):
+    """"wide" swings exactly twice as far as "base" in every clip: k = 2 one way, 1/2 the other,
+    1 for a style onto itself, and 2 / 1.5 from the average style (the mean of 1× and 2×)."""
+    t, _, _ = base_and_wide
+    moving = np.ones(t.n_features_in_, bool)
+    for lst in t.clips_.values():
+        moving &= np.mean([Xq.std(axis=0) for Xq in lst], axis=0) > 1e-9
+    assert moving.sum() > 20
+    np.testing.assert_allclose(t.swing_ratio("wide", "base")[moving], 2.0, rtol=1e-9)
+    np.testing.assert_allclose(t.swing_ratio("base", "wide")[moving], 0.5, rtol=1e-9)
+    np.testing.assert_array_equal(t.swing_ratio("wide", "wide"), 1.0)
+    np.testing.assert_allclose(t.swing_ratio("wide")[moving], 2.0 / 1.5, rtol=1e-9)
+    with pytest.raises(ValueError, match="unknown source style"):
+        t.swing_ratio("wide", "nobody")
+
+
+def test_public_path_carries_the_target_styles_swing(base_and_wide):
+    """translate_clip with amplitude="style" from "base" to "wide": each coordinate's spread is
+    the recombination's (amplitude="none") times k = 2, about the same clip mean."""
+    t, Xb, cla = base_and_wide
+    Xq = Xb[cla == cla[0]]
+    t.set_params(amplitude="none")
+    plain = t.translate_clip(Xq, "wide", "base")
+    t.set_params(amplitude="style")
+    try:
+        styled = t.translate_clip(Xq, "wide", "base")
+    finally:
+        t.set_params(amplitude="style")
+    unclipped = (styled > 0).all(axis=0) & (plain.std(axis=0) > 1e-9)
+    assert unclipped.sum() > 20
+    np.testing.assert_allclose(styled.mean(axis=0)[unclipped], plain.mean(axis=0)[unclipped], atol=1e-9)
+    np.testing.assert_allclose(styled.std(axis=0)[unclipped] / plain.std(axis=0)[unclipped], 2.0, rtol=1e-6)

@@ -201,10 +201,12 @@ class StyleTranslator(BaseEstimator):
     synthesis : {"consensus", "source"}, default="consensus"
         How :meth:`synthesize_cell` makes a cell: from the content's shared
         weights (``"aligned"`` basis only) or by translating a source clip.
-    amplitude : {"restore", "style", "none"}, default="restore"
-        Consensus only: undo the amplitude the shared weights lose (see
+    amplitude : {"restore", "style", "none"}, default="style"
+        Consensus: undo the amplitude the shared weights lose (see
         :meth:`synthesize`); ``"style"`` also applies the target style's own
-        amplitude relative to the other styles.
+        amplitude relative to the other styles.  One clip
+        (:meth:`translate_clip`, the public path): ``"style"`` scales the
+        clip's swing by :meth:`swing_ratio`; the others leave it.
     tempo : bool, default=True
         Resample a synthesised cell to the target style's tempo
         (:attr:`style_tempo_`).
@@ -792,9 +794,16 @@ class StyleTranslator(BaseEstimator):
           the source's (:attr:`style_tempo_`; a clip of unknown style is
           taken at the average tempo, 1.0).
 
+        * with ``amplitude="style"``, each coordinate's swing about the
+          clip mean is scaled by :meth:`swing_ratio` (how much wider the
+          target style moves than the source style, or than the average
+          style when the source is unknown), before the tempo.
+
         The amplitude restore of a consensus synthesis has no counterpart:
         one clip's own weights reproduce it at its full amplitude (no
-        compromise over performances to undo).  Returns ``(m, d)``.
+        compromise over performances to undo), so ``"restore"`` and
+        ``"none"`` leave the swing as the recombination gives it.
+        Returns ``(m, d)``.
         """
         check_is_fitted(self, "style_bases_")
         X_clip = self._check_X(X_clip, "StyleTranslator.translate_clip")
@@ -809,10 +818,47 @@ class StyleTranslator(BaseEstimator):
         X_hat = V @ self.style_bases_[target_style] + self.style_offsets_[target_style]
         if self.keep_residual:
             X_hat += X_clip - (V @ U_src + b_src)
+        if self.amplitude == "style":
+            mean = X_hat.mean(axis=0)
+            X_hat = np.maximum(mean + (X_hat - mean) * self.swing_ratio(target_style, source_style), 0.0)
         if self.tempo:
             ratio = self.style_tempo_.get(target_style, 1.0) / max(tempo_src, 1e-12)
             X_hat = resample_clip(X_hat, max(2, int(round(len(X_hat) * ratio))))
         return X_hat
+
+    def swing_ratio(self, target_style, source_style=None) -> np.ndarray:
+        """k (d,): the target style's swing over the source's, per coordinate, from the fitted clips.
+
+        With S(s, c) the mean over the fitted clips of style s and content c
+        of each coordinate's standard deviation over the clip's frames,
+        k = Σ_c S(t, c) / Σ_c S(src, c) over the contents c both styles
+        perform (a ratio of sums, so one content does not dominate).  An
+        unknown source (None) is the average style: S(src, c) is the mean of
+        S(s, c) over every style s that performs c, and c runs over the
+        target's contents.  1 where the denominator is zero or the styles
+        share no content; all ones when source and target are the same style.
+        """
+        check_is_fitted(self, "clips_")
+        target_style = self._check_style(target_style, "target")
+        if source_style is not None:
+            source_style = self._check_style(source_style, "source")
+        ones = np.ones(self.n_features_in_)
+        if source_style == target_style:
+            return ones
+        S = {key: np.mean([Xq.std(axis=0) for Xq in lst], axis=0) for key, lst in self.clips_.items()}
+        num, den = np.zeros_like(ones), np.zeros_like(ones)
+        for (s, c), sd in S.items():
+            if s != target_style:
+                continue
+            if source_style is None:
+                ref = np.mean([v for (s2, c2), v in S.items() if c2 == c], axis=0)
+            elif (source_style, c) in S:
+                ref = S[(source_style, c)]
+            else:
+                continue
+            num += sd
+            den += ref
+        return np.where(den > 1e-12, num / np.maximum(den, 1e-12), 1.0)
 
     def save(self, path, *, unifier=None, features_sha256=None, source="") -> Path:
         """Write the fitted translator to one ``.npz`` (:mod:`nnsf.factor.model_file`); returns the path."""
