@@ -28,10 +28,14 @@ with normal matrix G₂ = A₂ᵀA₂ + CᵀW²C, again fixed.
 
 Both normal matrices are factorised once (``scipy.sparse.linalg.splu`` with
 a symmetric fill-reducing ordering; scipy has no sparse Cholesky) when the
-deformer is built, in float64.  A frame then costs a few sparse mat-vecs
-(right-hand sides, and step 2's rotation fit, which is linear up to a
-per-triangle normalisation) and back-solves: one of size 2n, one of size n
-with two columns.  :meth:`TwoStepARAP.deform` takes a whole clip in one call.
+deformer is built, in float64.  Step 1's residual is complex-linear in the
+vertices (x + iy), so G₁ is the real form of a Hermitian n × n matrix H and
+is factorised as that (a quarter of the real factor's entries).  Step 1's
+solution is linear in the m targets, z₁ = H⁻¹CᵀW² g = M₁ g, and M₁ ``(n, m)``
+is computed once (m back-solves).  A frame then costs a few sparse mat-vecs
+(step 1, right-hand sides, and step 2's rotation fit, which is linear up to a
+per-triangle normalisation) and one back-solve of size n with two columns
+(x and y).  :meth:`TwoStepARAP.deform` takes a whole clip in one call.
 """
 from __future__ import annotations
 
@@ -222,9 +226,10 @@ class TwoStepARAP:
     residual v'_c − v'_a − (x + iy)(v'_b − v'_a) is complex-linear in the
     vertices, so its real 2n × 2n normal matrix G₁ = [[P, −Q], [Q, P]] (P
     symmetric, Q antisymmetric) is the real form of the Hermitian n × n
-    matrix H = P + iQ, and step 1 is one complex back-solve of size n: its
-    LU has a quarter of the real factor's entries and solves in about half
-    the time.  Step 2 solves x and y as the two columns of one real solve.
+    matrix H = P + iQ: its LU has a quarter of the real factor's entries.
+    With n · m ≤ :data:`DENSE_STEP1_MAX`, step 1 is the product of the
+    precomputed M₁ = H⁻¹CᵀW² with the targets; otherwise a back-solve with
+    H.  Step 2 solves x and y as the two columns of one real solve.
     """
 
     def __init__(self, vertices: np.ndarray, triangles: np.ndarray, handles: Handles):
