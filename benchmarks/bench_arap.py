@@ -19,7 +19,11 @@ a layered frame includes moving its joint tabs with their bones.  The vertex
 count printed is the mesh's; ``solved`` is what the ARAP solves for (a layered
 mesh adds its joint tabs' vertices, which follow their bones).
 
-    .venv/bin/python benchmarks/bench_arap.py [--frames 200] [--repeat 3] [--naive-frames 2]
+``--parts`` adds where a streamed frame's time goes: the handle targets
+(driving the key points, the subkeys' Eq. 12-14), ARAP step 1, step 2 and
+the joint tabs, each timed on its own.
+
+    .venv/bin/python benchmarks/bench_arap.py [--frames 200] [--repeat 3] [--naive-frames 2] [--parts]
 """
 from __future__ import annotations
 
@@ -79,6 +83,32 @@ def per_frame_stream(rig: Rig, kp: np.ndarray, repeat: int) -> float:
     return float(np.median(best))
 
 
+def per_frame_parts(rig: Rig, kp: np.ndarray, repeat: int) -> dict[str, float]:
+    """Where a streamed frame's time goes: the handle targets (driving the key points and the
+    subkeys' Eq. 12-14), ARAP step 1, step 2, and moving the joint tabs; ms, median over frames of
+    the fastest of ``repeat`` runs (each part timed on its own, so they add up to about a step)."""
+    d = rig.deformer
+    names = ("targets", "step 1", "step 2", "tabs")
+    best = np.full((len(names), len(kp)), np.inf)
+    for _ in range(repeat):
+        rig.reset()
+        for t in range(len(kp)):
+            t0 = time.perf_counter()
+            k = rig.drive(kp[t])
+            g = k[rig.handle_keypoints]
+            if rig.tracker is not None:
+                g = np.concatenate([g, rig.tracker.step(k)])
+            t1 = time.perf_counter()
+            v1 = d.similarity_step(g)
+            t2 = time.perf_counter()
+            v2 = d.scale_step(v1, g)
+            t3 = time.perf_counter()
+            rig._with_tabs(v2[None], k[None])
+            t4 = time.perf_counter()
+            best[:, t] = np.minimum(best[:, t], [t1 - t0, t2 - t1, t3 - t2, t4 - t3])
+    return dict(zip(names, np.median(best, axis=1) * 1e3))
+
+
 def per_frame_clip(rig: Rig, kp: np.ndarray, repeat: int) -> float:
     best = np.inf
     for _ in range(repeat):
@@ -95,6 +125,8 @@ def main(argv=None):
     ap.add_argument("--naive-frames", type=int, default=2,
                     help="frames timed for the dense baseline (0: skip it)")
     ap.add_argument("--sizes", type=int, nargs="+", default=[800, 3000])
+    ap.add_argument("--parts", action="store_true",
+                    help="also print where a streamed frame's time goes (targets, step 1, step 2, tabs)")
     ap.add_argument("--meshes", nargs="+", default=["connected", "layered"], choices=["connected", "layered", "limbs"],
                     help="mesh kinds (layered: the stage's default, rigid segments plus joint tabs)")
     args = ap.parse_args(argv)
@@ -109,6 +141,7 @@ def main(argv=None):
           f"on {os.cpu_count()} cores; float64")
     print(f"{'mesh':>9} {'vertices':>8} {'solved':>6} {'triangles':>9} {'handles':>7} {'build ms':>9} {'step ms':>8} "
           f"{'clip ms':>8} {'naive ms':>9} {'naive/step':>10} {'max |diff| px':>13}")
+    parts = []
     for kind in args.meshes:
         for n in args.sizes:
             t0 = time.perf_counter()
@@ -130,7 +163,15 @@ def main(argv=None):
                 diff = float(np.abs(slow - fast[-1]).max())
                 naive_col, ratio_col, diff_col = f"{naive * 1e3:>9.1f}", f"{naive / step:>10.0f}", f"{diff:>13.2e}"
             print(f"{kind:>9} {rig.mesh.n_vertices:>8} {rig.mesh.core:>6} {len(rig.mesh.triangles):>9} {len(rig.handles):>7} "
-                  f"{build * 1e3:>9.1f} {step * 1e3:>8.3f} {whole * 1e3:>8.3f} {naive_col} {ratio_col} {diff_col}")
+                  f"{build * 1e3:>9.1f} {step * 1e3:>8.3f} {whole * 1e3:>8.3f} {naive_col} {ratio_col} {diff_col}", flush=True)
+            if args.parts:
+                parts.append((kind, rig.mesh.core, per_frame_parts(rig, kp, args.repeat)))
+    if parts:
+        names = list(parts[0][2])
+        print("\nwhere a streamed frame's time goes (ms, each part timed alone):")
+        print(f"{'mesh':>9} {'solved':>6} " + " ".join(f"{k:>8}" for k in names))
+        for kind, solved, p in parts:
+            print(f"{kind:>9} {solved:>6} " + " ".join(f"{p[k]:>8.3f}" for k in names))
 
 
 if __name__ == "__main__":

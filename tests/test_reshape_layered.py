@@ -77,6 +77,40 @@ def test_cuts_cross_each_joint_inside_the_mask(figure):
         assert abs(np.dot(d, c["normal"])) < 1e-6 * np.linalg.norm(d)
 
 
+def test_drive_carries_moved_pivots_with_the_torso(figure, layered):
+    """Rig.drive on a pose whose torso is the rest torso turned by 25° and moved, with one arm
+    and one leg turned: each moved pivot is the rest pivot under that rigid motion, the point
+    after it keeps the motion's direction and the rest length from the pivot, points further down
+    move with it, and the torso's key points are untouched."""
+    rig = layered
+    assert rig.moved and len(rig._pivots) >= 2
+    rest0, rest1 = figure.keypoints, rig.rest_keypoints
+    a = np.radians(25.0)
+    R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    t = np.array([14.0, -9.0])
+    kp = rest0 @ R.T + t
+    kp[[J["l_elbow"], J["l_wrist"]]] = _rot(kp[[J["l_elbow"], J["l_wrist"]]], kp[J["l_shoulder"]], 35.0)
+    kp[[J["r_knee"], J["r_ankle"]]] = _rot(kp[[J["r_knee"], J["r_ankle"]]], kp[J["r_hip"]], -20.0)
+    out = rig.drive(kp)
+    np.testing.assert_array_equal(rig.drive(kp[None])[0], out)
+    down = {J["l_shoulder"]: (J["l_elbow"], J["l_wrist"]), J["r_shoulder"]: (J["r_elbow"], J["r_wrist"]),
+            J["l_hip"]: (J["l_knee"], J["l_ankle"]), J["r_hip"]: (J["r_knee"], J["r_ankle"]),
+            J["neck"]: (J["head_top"],)}
+    moved = [j for j in down if not np.allclose(rest0[j], rest1[j])]
+    assert sorted(moved) == sorted(rig._pivots.tolist())
+    for j in moved:
+        nxt = down[j][0]
+        np.testing.assert_allclose(out[j], rest1[j] @ R.T + t, atol=1e-9)
+        d_in, d_out = kp[nxt] - kp[j], out[nxt] - out[j]
+        assert abs(d_in[0] * d_out[1] - d_in[1] * d_out[0]) < 1e-9 * np.linalg.norm(d_in) * np.linalg.norm(d_out)
+        assert d_in @ d_out > 0
+        assert np.linalg.norm(d_out) == pytest.approx(np.linalg.norm(rest1[nxt] - rest1[j]), rel=1e-12)
+        for q in down[j][1:]:
+            np.testing.assert_allclose(out[q] - kp[q], out[nxt] - kp[nxt], atol=1e-9)
+    still = [k for k in range(len(kp)) if k not in moved and all(k not in v for j, v in down.items() if j in moved)]
+    np.testing.assert_array_equal(out[still], kp[still])
+
+
 def test_rigid_motion_is_reproduced_exactly(figure, layered):
     kp = _rot(figure.keypoints, np.array([100.0, 80.0]), 27.0) + [13.0, -4.0]
     V = layered.animate(kp[None])[0]

@@ -28,10 +28,14 @@ with normal matrix G₂ = A₂ᵀA₂ + CᵀW²C, again fixed.
 
 Both normal matrices are factorised once (``scipy.sparse.linalg.splu`` with
 a symmetric fill-reducing ordering; scipy has no sparse Cholesky) when the
-deformer is built, in float64.  A frame then costs a few sparse mat-vecs
-(right-hand sides, and step 2's rotation fit, which is linear up to a
-per-triangle normalisation) and back-solves: one of size 2n, one of size n
-with two columns.  :meth:`TwoStepARAP.deform` takes a whole clip in one call.
+deformer is built, in float64.  Step 1's residual is complex-linear in the
+vertices (x + iy), so G₁ is the real form of a Hermitian n × n matrix H and
+is factorised as that (a quarter of the real factor's entries).  Step 1's
+solution is linear in the m targets, z₁ = H⁻¹CᵀW² g = M₁ g, and M₁ ``(n, m)``
+is computed once (m back-solves).  A frame then costs a few sparse mat-vecs
+(step 1, right-hand sides, and step 2's rotation fit, which is linear up to a
+per-triangle normalisation) and one back-solve of size n with two columns
+(x and y).  :meth:`TwoStepARAP.deform` takes a whole clip in one call.
 """
 from __future__ import annotations
 
@@ -159,11 +163,11 @@ def _edge_rows(n: int, triangles: np.ndarray) -> sp.csr_matrix:
 
 
 def _factorise(G: sp.spmatrix, what: str):
-    """Sparse LU of a symmetric positive (semi)definite normal matrix; refuse a singular one."""
-    # G is symmetric positive definite once the handles pin a similarity; a
-    # symmetric ordering and diagonal pivots keep the LU as sparse as a
-    # Cholesky factor would be.  Diagonal pivoting does not stop at a
-    # numerically zero pivot, so singularity is tested on U's diagonal.
+    """Sparse LU of a symmetric (Hermitian) positive (semi)definite normal matrix; refuse a singular one."""
+    # G is positive definite once the handles pin a similarity; a symmetric
+    # ordering and diagonal pivots keep the LU as sparse as a Cholesky factor
+    # would be.  Diagonal pivoting does not stop at a numerically zero pivot,
+    # so singularity is tested on U's diagonal.
     msg = (f"ARAP {what} system is singular: the handles must pin at least two distinct points "
            "of every connected piece of the mesh")
     try:
@@ -177,20 +181,32 @@ def _factorise(G: sp.spmatrix, what: str):
     return lu
 
 
-#: Right-hand-side columns per SuperLU back-solve.  SuperLU's multi-column
-#: solve is several times slower per column beyond ~8-16 columns (its work
-#: arrays fall out of cache), so clips are solved in blocks of this many.
+#: Real right-hand-side columns per SuperLU back-solve (a complex column counts
+#: as two).  SuperLU's multi-column solve is several times slower per column
+#: beyond ~8-16 real columns (its work arrays fall out of cache), so clips are
+#: solved in blocks.
 SOLVE_BLOCK = 8
 
 
 def _block_solve(lu, B: np.ndarray) -> np.ndarray:
-    """``lu.solve`` on the columns of ``B`` ``(N, K)`` in blocks of :data:`SOLVE_BLOCK`."""
-    if B.shape[1] <= SOLVE_BLOCK:
+    """``lu.solve`` on the columns of ``B`` ``(N, K)`` in blocks of :data:`SOLVE_BLOCK` real columns."""
+    block = SOLVE_BLOCK // 2 if np.iscomplexobj(B) else SOLVE_BLOCK
+    if B.shape[1] <= block:
         return lu.solve(np.asfortranarray(B))
-    out = np.empty(B.shape, order="F")
-    for k in range(0, B.shape[1], SOLVE_BLOCK):
-        out[:, k:k + SOLVE_BLOCK] = lu.solve(np.asfortranarray(B[:, k:k + SOLVE_BLOCK]))
+    out = np.empty(B.shape, dtype=B.dtype, order="F")
+    for k in range(0, B.shape[1], block):
+        out[:, k:k + block] = lu.solve(np.asfortranarray(B[:, k:k + block]))
     return out
+
+
+#: Largest n × m (vertices × handles) for which step 1 keeps the dense operator M₁ = H⁻¹ CᵀW²
+#: (16 bytes an entry: 4·10⁶ is 64 MB); a larger system back-solves every frame.
+DENSE_STEP1_MAX = 4_000_000
+
+
+def _points(z: np.ndarray) -> np.ndarray:
+    """Complex vertex columns ``(n, F)`` -> points ``(F, n, 2)`` (x = real part, y = imaginary part)."""
+    return np.ascontiguousarray(z.T).view(np.float64).reshape(z.shape[1], z.shape[0], 2)
 
 
 class TwoStepARAP:
@@ -205,6 +221,15 @@ class TwoStepARAP:
     Building the deformer assembles and factorises both systems; then
     :meth:`deform` maps handle targets ``(m, 2)`` or ``(F, m, 2)`` to vertex
     positions ``(n, 2)`` or ``(F, n, 2)``.
+
+    Internally a point (x, y) is the complex number x + iy.  Step 1's
+    residual v'_c − v'_a − (x + iy)(v'_b − v'_a) is complex-linear in the
+    vertices, so its real 2n × 2n normal matrix G₁ = [[P, −Q], [Q, P]] (P
+    symmetric, Q antisymmetric) is the real form of the Hermitian n × n
+    matrix H = P + iQ: its LU has a quarter of the real factor's entries.
+    With n · m ≤ :data:`DENSE_STEP1_MAX`, step 1 is the product of the
+    precomputed M₁ = H⁻¹CᵀW² with the targets; otherwise a back-solve with
+    H.  Step 2 solves x and y as the two columns of one real solve.
     """
 
     def __init__(self, vertices: np.ndarray, triangles: np.ndarray, handles: Handles):
@@ -221,9 +246,18 @@ class TwoStepARAP:
         self._A2 = _edge_rows(n, self.triangles)
         self._A2T = self._A2.T.tocsr()
         self._G1 = (self._A1.T @ self._A1 + sp.block_diag([K, K])).tocsc()
+        self._H1 = (self._G1[:n, :n] + 1j * self._G1[n:, :n]).tocsc()  # H = P + iQ (class docstring)
         self._G2 = (self._A2.T @ self._A2 + K).tocsc()
-        self._lu1 = _factorise(self._G1, "similarity (step 1)")
+        self._lu1 = _factorise(self._H1, "similarity (step 1)")
         self._lu2 = _factorise(self._G2, "scale (step 2)")
+        # Step 1 is linear in the m handle targets: z₁ = H⁻¹ CᵀW² g = M₁ g.  With few handles,
+        # M₁ (n, m) (m back-solves, once) makes a frame's step 1 one matrix-vector product.  It is
+        # kept as a sparse matrix: on a pieced mesh a handle moves only its own piece (the other
+        # entries are exact zeros), and scipy's sparse product never starts BLAS threads, which
+        # on a busy machine made a threaded dense product (OpenBLAS zgemv) up to 100 times slower.
+        m = len(handles)
+        self._M1 = (sp.csr_matrix(_block_solve(self._lu1, self._B.toarray().astype(np.complex128)))
+                    if n * m <= DENSE_STEP1_MAX else None)
         p = self.vertices[self.triangles]  # (t, 3, 2)
         self._rest_centred = p - p.mean(axis=1, keepdims=True)
         self._rest_edges = p[:, [1, 2, 0]] - p  # edge k = v_{k+1} − v_k
@@ -232,29 +266,23 @@ class TwoStepARAP:
     def _fit_ops(self) -> None:
         """Sparse operators that turn step 2's per-triangle work into two mat-vecs.
 
-        The rotation of triangle τ has (unnormalised) cosine and sine
-        c_τ = Σ_k P_k · q_k and s_τ = Σ_k P_k × q_k, with P the centred rest
-        corners and q the step-1 corners: both linear in the step-1 vertices,
-        so ``(c; s) = F z₁`` with F ``(2t, 2n)``.  The right-hand side of the
-        edge terms, A₂ᵀ (rotated rest edges), is linear in the normalised
-        (c; s): ``S (ĉ; ŝ)`` with S ``(2n, 2t)``.  Gathering corners and
-        rotating edges triangle by triangle in numpy costs several times more.
+        The rotation of triangle τ has the (unnormalised) complex direction
+        c_τ + i s_τ = Σ_k conj(P_k) q_k, with P the centred rest corners and q
+        the step-1 corners (c = Σ P·q, s = Σ P×q): linear in the step-1
+        vertices, ``F z₁`` with F ``(t, n)`` complex.  The right-hand side
+        of the edge terms, A₂ᵀ (rest edges rotated by the unit ĉ + iŝ), is
+        ``S (ĉ + iŝ)`` with S = A₂ᵀ E ``(n, t)``, E the complex rest edges.
+        Gathering corners and rotating edges triangle by triangle in numpy
+        costs several times more.
         """
         n, t = self.n_vertices, len(self.triangles)
         P = self._rest_centred
         tri_rows = np.repeat(np.arange(t), 3)
-        cols = self.triangles.ravel()
-        px, py = P[..., 0].ravel(), P[..., 1].ravel()
-        # c = Σ px qx + py qy ; s = Σ px qy − py qx
-        self._F = sp.csr_matrix((np.concatenate([px, py, -py, px]),
-                                 (np.concatenate([tri_rows, tri_rows, t + tri_rows, t + tri_rows]),
-                                  np.concatenate([cols, n + cols, cols, n + cols]))), shape=(2 * t, 2 * n))
+        self._F = sp.csr_matrix(((P[..., 0] - 1j * P[..., 1]).ravel(), (tri_rows, self.triangles.ravel())),
+                                shape=(t, n))
         E = self._rest_edges
-        A2T = self._A2T  # (n, 3t), column (τ, k)
-        Sx = A2T @ sp.csr_matrix((E[..., 0].ravel(), (np.arange(3 * t), tri_rows)), shape=(3 * t, t))
-        Sy = A2T @ sp.csr_matrix((E[..., 1].ravel(), (np.arange(3 * t), tri_rows)), shape=(3 * t, t))
-        # rhs_x = Sx ĉ − Sy ŝ ; rhs_y = Sy ĉ + Sx ŝ
-        self._S = sp.bmat([[Sx, -Sy], [Sy, Sx]]).tocsr()
+        self._S = (self._A2T @ sp.csr_matrix(((E[..., 0] + 1j * E[..., 1]).ravel(), (np.arange(3 * t), tri_rows)),
+                                              shape=(3 * t, t))).tocsr()
 
     @property
     def n_vertices(self) -> int:
@@ -262,23 +290,20 @@ class TwoStepARAP:
 
     # ---- per-frame pieces (targets: (m, 2) or (F, m, 2))
 
-    def _handle_rhs(self, g: np.ndarray) -> np.ndarray:
-        """CᵀW² g for targets ``(F, m, 2)``: ``(n, 2F)``, columns interleaved per frame (x0, y0, x1, ...)."""
-        F, m, _ = g.shape
-        return self._B @ g.transpose(1, 0, 2).reshape(m, 2 * F)
-
-    def _solve1(self, rhs: np.ndarray) -> np.ndarray:
-        """Step-1 back-solve: handle rhs ``(n, 2F)`` -> stacked z₁ ``(2n, F)``."""
-        n = self.n_vertices
-        F = rhs.shape[1] // 2
-        r = rhs.reshape(n, F, 2)
-        return _block_solve(self._lu1, np.concatenate([r[..., 0], r[..., 1]]))
-
     @staticmethod
-    def _unstack(z: np.ndarray, n: int, F: int | None) -> np.ndarray:
-        """Stacked (x; y) ``(2n, F)`` -> ``(F, n, 2)``, or ``(n, 2)`` when ``F`` is None."""
-        out = np.stack([z[:n].T, z[n:].T], axis=-1)
-        return out[0] if F is None else out
+    def _complex(g: np.ndarray) -> np.ndarray:
+        """Targets ``(F, m, 2)`` -> complex columns ``(m, F)``."""
+        return (g[..., 0] + 1j * g[..., 1]).T
+
+    def _handle_rhs(self, g: np.ndarray) -> np.ndarray:
+        """CᵀW² g for targets ``(F, m, 2)``: complex ``(n, F)``."""
+        return self._B @ self._complex(g)
+
+    def _step1(self, g: np.ndarray) -> np.ndarray:
+        """Step 1 for targets ``(F, m, 2)``: complex vertices ``(n, F)``."""
+        if self._M1 is not None:
+            return self._M1 @ self._complex(g)
+        return _block_solve(self._lu1, self._handle_rhs(g))
 
     def _frames(self, targets) -> tuple[np.ndarray, int | None]:
         g = np.asarray(targets, dtype=np.float64)
@@ -288,26 +313,25 @@ class TwoStepARAP:
         return (g[None], None) if g.ndim == 2 else (g, g.shape[0])
 
     def _step2(self, z1: np.ndarray, hrhs: np.ndarray) -> np.ndarray:
-        """Step 2 from stacked z₁ ``(2n, F)`` and handle rhs ``(n, 2F)``: stacked z₂ ``(2n, F)``."""
-        n, t = self.n_vertices, len(self.triangles)
-        F = z1.shape[1]
-        cs = self._F @ z1  # (2t, F)
-        r = np.hypot(cs[:t], cs[t:])
-        ok = r > 0  # a triangle collapsed to a point keeps its rest orientation
-        inv = np.where(ok, 1.0 / np.where(ok, r, 1.0), 0.0)
-        cs[:t] = np.where(ok, cs[:t] * inv, 1.0)
-        cs[t:] *= inv
-        rhs = self._S @ cs  # (2n, F)
-        h = hrhs.reshape(n, F, 2)
-        # x and y share G₂: one solve with 2F columns.
-        z = _block_solve(self._lu2, np.concatenate([rhs[:n] + h[..., 0], rhs[n:] + h[..., 1]], axis=1))
-        return np.concatenate([z[:, :F], z[:, F:]])
+        """Step 2 from complex step-1 vertices ``(n, F)`` and handle rhs ``(n, F)``: points ``(F, n, 2)``."""
+        n, F = z1.shape
+        cs = self._F @ z1  # (t, F)
+        r = np.abs(cs)
+        if r.min() > 0:
+            cs /= r
+        else:  # a triangle collapsed to a point keeps its rest orientation
+            cs = np.divide(cs, r, out=np.ones_like(cs), where=r > 0)
+        rhs = self._S @ cs
+        rhs += hrhs
+        # x and y share G₂: the complex columns viewed as real ones, (n, 2F) = x0, y0, x1, y1, ...
+        z = _block_solve(self._lu2, rhs.view(np.float64))
+        return np.ascontiguousarray(np.ascontiguousarray(z).reshape(n, F, 2).transpose(1, 0, 2))
 
     def similarity_step(self, targets) -> np.ndarray:
         """Step 1: vertices ``(n, 2)`` (or ``(F, n, 2)``) for targets ``(m, 2)`` (or ``(F, m, 2)``)."""
         g, F = self._frames(targets)
-        z1 = self._solve1(self._handle_rhs(g))
-        return self._unstack(z1, self.n_vertices, F)
+        out = _points(self._step1(g))
+        return out[0] if F is None else out
 
     def fitted_edges(self, v1: np.ndarray) -> np.ndarray:
         """Rest edges rotated onto the step-1 triangles: ``(..., n, 2)`` -> ``(..., t, 3, 2)``.
@@ -330,8 +354,8 @@ class TwoStepARAP:
         """Step 2 from step-1 vertices ``(n, 2)`` / ``(F, n, 2)`` and the same targets."""
         g, F = self._frames(targets)
         v1 = np.asarray(v1, dtype=np.float64).reshape(g.shape[0], self.n_vertices, 2)
-        z1 = np.concatenate([v1[..., 0].T, v1[..., 1].T])
-        return self._unstack(self._step2(z1, self._handle_rhs(g)), self.n_vertices, F)
+        out = self._step2((v1[..., 0] + 1j * v1[..., 1]).T, self._handle_rhs(g))
+        return out[0] if F is None else out
 
     def deform(self, targets, steps: int = 2) -> np.ndarray:
         """Vertex positions for handle targets: ``(m, 2)`` -> ``(n, 2)``; ``(F, m, 2)`` -> ``(F, n, 2)``.
@@ -341,11 +365,9 @@ class TwoStepARAP:
         right-hand side.
         """
         g, F = self._frames(targets)
-        hrhs = self._handle_rhs(g)
-        z = self._solve1(hrhs)
-        if steps != 1:
-            z = self._step2(z, hrhs)
-        return self._unstack(z, self.n_vertices, F)
+        z1 = self._step1(g)
+        out = _points(z1) if steps == 1 else self._step2(z1, self._handle_rhs(g))
+        return out[0] if F is None else out
 
     # ---- the same systems, stacked, for checks against dense solvers
 

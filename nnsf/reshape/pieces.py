@@ -231,40 +231,61 @@ def attach_tabs(tabs: list[Tab], core: np.ndarray, rest_kp: np.ndarray, keypoint
     rest key points ``(17, 2)`` and each frame's ``(T, 17, 2)``, and the joint
     moves to its key point: v' = R (v − j₀) + j_t.  A follower (``Tab.pivot``)
     turns about its own pivot, which the torso's pose (:func:`torso_pose`)
-    carries.  Vectorised over tabs and frames (one gather, no loop over tabs).
+    carries.  Vectorised over tabs and frames (one gather, no loop over tabs);
+    :class:`TabMotion` prepares the rest-pose part once for many calls.
     """
-    core = np.asarray(core, dtype=np.float64)
-    kp = np.asarray(keypoints, dtype=np.float64)
-    rest_kp = np.asarray(rest_kp, dtype=np.float64)
-    T = core.shape[0]
-    n = len(rest_vertices)
-    out = np.empty((T, n, 2))
-    out[:, :core.shape[1]] = core
-    if not tabs:
+    return TabMotion(tabs, rest_kp, rest_vertices)(core, keypoints)
+
+
+class TabMotion:
+    """:func:`attach_tabs` for one mesh and rest pose, with what depends on them alone prepared once.
+
+    ``TabMotion(tabs, rest_kp, rest_vertices)(core, keypoints)`` equals
+    ``attach_tabs(tabs, core, rest_kp, keypoints, rest_vertices)``; a rig
+    streaming frame by frame calls it once per frame.
+    """
+
+    def __init__(self, tabs: list[Tab], rest_kp: np.ndarray, rest_vertices: np.ndarray):
+        self.rest_kp = np.asarray(rest_kp, dtype=np.float64)
+        self.n = len(rest_vertices)
+        self.tabs = bool(tabs)
+        if not tabs:
+            return
+        self.a = np.array([t.bone[0] for t in tabs])
+        self.b = np.array([t.bone[1] for t in tabs])
+        r = self.rest_kp[self.b] - self.rest_kp[self.a]  # (k, 2)
+        self.rest_angle = np.arctan2(r[:, 1], r[:, 0])
+        p0 = self.rest_kp[self.a].copy()
+        self.follow = [i for i, t in enumerate(tabs) if t.pivot is not None]
+        if self.follow:  # followers turn about their own pivot, carried by the torso
+            self.follow_pivots = np.array([tabs[i].pivot for i in self.follow])
+            p0[self.follow] = self.follow_pivots
+        self.idx = np.concatenate([t.vertices for t in tabs])
+        self.which = np.concatenate([np.full(len(t.vertices), i) for i, t in enumerate(tabs)])
+        self.v = np.asarray(rest_vertices, dtype=np.float64)[self.idx] - p0[self.which]  # (m, 2)
+
+    def __call__(self, core: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
+        core = np.asarray(core, dtype=np.float64)
+        kp = np.asarray(keypoints, dtype=np.float64)
+        T = core.shape[0]
+        out = np.empty((T, self.n, 2))
+        out[:, :core.shape[1]] = core
+        if not self.tabs:
+            return out
+        d = kp[:, self.b] - kp[:, self.a]  # (T, k, 2)
+        ang = np.arctan2(d[..., 1], d[..., 0]) - self.rest_angle
+        c, s = np.cos(ang), np.sin(ang)  # (T, k)
+        pt = kp[:, self.a].copy()  # (T, k, 2)
+        if self.follow:
+            c0, ct, tc, ts = torso_pose(self.rest_kp, kp)
+            q = self.follow_pivots - c0
+            pt[:, self.follow] = ct[:, None] + np.stack([tc[:, None] * q[:, 0] - ts[:, None] * q[:, 1],
+                                                          ts[:, None] * q[:, 0] + tc[:, None] * q[:, 1]], -1)
+        which, v = self.which, self.v
+        cc, ss = c[:, which], s[:, which]  # (T, m)
+        out[:, self.idx, 0] = cc * v[:, 0] - ss * v[:, 1] + pt[:, which, 0]
+        out[:, self.idx, 1] = ss * v[:, 0] + cc * v[:, 1] + pt[:, which, 1]
         return out
-    a = np.array([t.bone[0] for t in tabs])
-    b = np.array([t.bone[1] for t in tabs])
-    r = rest_kp[b] - rest_kp[a]  # (k, 2)
-    d = kp[:, b] - kp[:, a]  # (T, k, 2)
-    ang = np.arctan2(d[..., 1], d[..., 0]) - np.arctan2(r[:, 1], r[:, 0])
-    c, s = np.cos(ang), np.sin(ang)  # (T, k)
-    p0 = rest_kp[a].copy()
-    pt = kp[:, a].copy()  # (T, k, 2)
-    follow = [i for i, t in enumerate(tabs) if t.pivot is not None]
-    if follow:  # followers turn about their own pivot, carried by the torso
-        c0, ct, tc, ts = torso_pose(rest_kp, kp)
-        P = np.array([tabs[i].pivot for i in follow])
-        q = P - c0
-        p0[follow] = P
-        pt[:, follow] = ct[:, None] + np.stack([tc[:, None] * q[:, 0] - ts[:, None] * q[:, 1],
-                                                 ts[:, None] * q[:, 0] + tc[:, None] * q[:, 1]], -1)
-    idx = np.concatenate([t.vertices for t in tabs])
-    which = np.concatenate([np.full(len(t.vertices), i) for i, t in enumerate(tabs)])
-    v = rest_vertices[idx] - p0[which]  # (m, 2)
-    cc, ss = c[:, which], s[:, which]  # (T, m)
-    out[:, idx, 0] = cc * v[:, 0] - ss * v[:, 1] + pt[:, which, 0]
-    out[:, idx, 1] = ss * v[:, 0] + cc * v[:, 1] + pt[:, which, 1]
-    return out
 
 
 def torso_pose(rest_kp: np.ndarray, kp: np.ndarray):

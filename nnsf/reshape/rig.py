@@ -26,10 +26,15 @@ from nnsf.reshape.mesh import Mesh
 from nnsf.reshape.subkeys import SubkeyTracker, Subkeys, init_subkeys
 from nnsf.skeleton import N_JOINTS
 from nnsf.reshape.drive import TORSO
-from nnsf.reshape.pieces import attach_tabs
+from nnsf.reshape.pieces import TabMotion
 from nnsf.skeleton import JOINT_INDEX as J
 
 HANDLE_SETS = ("subkeys", "keypoints")
+
+#: The chains :meth:`Rig.drive` moves with a moved pivot: (pivot, points below it, the next first).
+DRIVE_CHAINS = ((J["l_shoulder"], (J["l_elbow"], J["l_wrist"])), (J["r_shoulder"], (J["r_elbow"], J["r_wrist"])),
+                (J["l_hip"], (J["l_knee"], J["l_ankle"])), (J["r_hip"], (J["r_knee"], J["r_ankle"])),
+                (J["neck"], (J["head_top"],)))
 
 
 @dataclass
@@ -62,11 +67,29 @@ class Rig:
     def __post_init__(self):
         if self.rest_keypoints is None:
             self.rest_keypoints = np.asarray(self.character.keypoints, dtype=np.float64).copy()
+        self._prepare()
+
+    def _prepare(self) -> None:
+        """What :meth:`drive` and the tabs need per frame, from the rest pose (once per rig)."""
+        rest0 = np.asarray(self.character.keypoints, dtype=np.float64)
+        rest1 = np.asarray(self.rest_keypoints, dtype=np.float64)
+        self._moved = not np.allclose(rest1, rest0)
+        torso = list(TORSO)
+        self._rest_torso = rest0[torso] - rest0[torso].mean(0)  # a₀ (5, 2)
+        # The chains whose pivot moved: pivot j, the next point and everything further down.
+        chains = [(j, down) for j, down in DRIVE_CHAINS if not np.allclose(rest0[j], rest1[j])]
+        self._pivots = np.array([j for j, _ in chains], dtype=np.int64)
+        self._next = np.array([down[0] for _, down in chains], dtype=np.int64)
+        self._pivot_offsets = np.array([rest1[j] - rest0[torso].mean(0) for j, _ in chains]).reshape(-1, 2)
+        self._next_lengths = np.array([float(np.linalg.norm(rest1[down[0]] - rest1[j])) for j, down in chains])
+        self._below = np.array([q for _, down in chains for q in down], dtype=np.int64)
+        self._below_chain = np.array([i for i, (_, down) in enumerate(chains) for _ in down], dtype=np.int64)
+        self._tab_motion = TabMotion(self.mesh.tabs, rest1, self.mesh.vertices) if self.mesh.tabs else None
 
     @property
     def moved(self) -> bool:
         """Whether the pivots differ from the character's key points."""
-        return not np.allclose(self.rest_keypoints, self.character.keypoints)
+        return self._moved
 
     def drive(self, keypoints) -> np.ndarray:
         """Key points ``(..., 17, 2)`` in the character's sense -> the ones that drive this rig.
@@ -78,40 +101,31 @@ class Rig:
         limb (or head) below it keeps its direction in the frame and the
         length it has from the pivot at rest, and every point further down
         moves with it.  A rigid motion of the whole figure stays exactly
-        rigid.
+        rigid.  All moved chains are handled at once (what depends on the
+        rest pose alone is prepared when the rig is made).
         """
         kp = self._check(keypoints)
-        if not self.moved:
+        if not self._moved:
             return kp
 
         one = kp.ndim == 2
         K = kp[None] if one else kp
-        rest0 = np.asarray(self.character.keypoints, dtype=np.float64)
-        rest1 = self.rest_keypoints
         torso = list(TORSO)
-        a0 = rest0[torso] - rest0[torso].mean(0)
+        a0 = self._rest_torso
         c_t = K[:, torso].mean(1)  # (T, 2)
         b = K[:, torso] - c_t[:, None]
         ang = np.arctan2((a0[None, :, 0] * b[..., 1] - a0[None, :, 1] * b[..., 0]).sum(1),
                          (a0[None] * b).sum((1, 2)))
-        c, s = np.cos(ang), np.sin(ang)
+        c, s = np.cos(ang)[:, None], np.sin(ang)[:, None]  # (T, 1)
         out = K.copy()
-        chains = {J["l_shoulder"]: (J["l_elbow"], J["l_wrist"]), J["r_shoulder"]: (J["r_elbow"], J["r_wrist"]),
-                  J["l_hip"]: (J["l_knee"], J["l_ankle"]), J["r_hip"]: (J["r_knee"], J["r_ankle"]),
-                  J["neck"]: (J["head_top"],)}
-        for j, down in chains.items():
-            if np.allclose(rest0[j], rest1[j]):
-                continue
-            v = rest1[j] - rest0[torso].mean(0)
-            piv = c_t + np.stack([c * v[0] - s * v[1], s * v[0] + c * v[1]], -1)
-            nxt = down[0]
-            d = K[:, nxt] - K[:, j]
-            d = d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
-            new_next = piv + d * float(np.linalg.norm(rest1[nxt] - rest1[j]))
-            out[:, j] = piv
-            shift = new_next - K[:, nxt]
-            for q in down:
-                out[:, q] = K[:, q] + shift
+        j, nxt, v = self._pivots, self._next, self._pivot_offsets
+        piv = c_t[:, None] + np.stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1]], -1)  # (T, c, 2)
+        d = K[:, nxt] - K[:, j]
+        d = d / np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-12)
+        new_next = piv + d * self._next_lengths[:, None]
+        out[:, j] = piv
+        shift = new_next - K[:, nxt]
+        out[:, self._below] = K[:, self._below] + shift[:, self._below_chain]
         return out[0] if one else out
 
     @classmethod
@@ -228,10 +242,9 @@ class Rig:
 
     def _with_tabs(self, V: np.ndarray, kp: np.ndarray) -> np.ndarray:
         """The solved vertices ``(T, n_core, 2)`` with the mesh's joint tabs attached (``(T, n, 2)``)."""
-        if not self.mesh.tabs:
+        if self._tab_motion is None:
             return V
-
-        return attach_tabs(self.mesh.tabs, V, self.rest_keypoints, kp, self.mesh.vertices)
+        return self._tab_motion(V, kp)
 
     def reset(self) -> None:
         """Restart streaming (:meth:`step`) from the rest pose."""
