@@ -344,16 +344,53 @@ def follower_regions(mask: np.ndarray, keypoints: np.ndarray, label: np.ndarray,
 
 
 
-def _triangulate_region(region, spacing, args):
-    """``(vertices, triangles)`` of a piece's mask at ``spacing`` px, or None when it is too
-    small (under 6 px) or the triangulation finds nothing to mesh."""
+#: A piece's triangles must cover this share of its region's pixels at rest; a coarser triangulation
+#: is retried finer (:func:`_triangulate_region`).
+COVER = 0.9
+
+
+def covered_share(region: np.ndarray, vertices: np.ndarray, triangles: np.ndarray) -> float:
+    """The share of ``region``'s pixels ``(H, W)`` bool that the triangles, filled at rest, cover."""
+    n = int(np.count_nonzero(region))
+    if n == 0:
+        return 1.0
+    img = np.zeros(region.shape, np.uint8)
+    if len(triangles):
+        cv2.fillPoly(img, list(np.rint(vertices[triangles]).astype(np.int32)), 1)
+    return float(np.count_nonzero(region & img.astype(bool))) / n
+
+
+def _triangulate_region(region, spacing, args, cover: float = COVER):
+    """``(vertices, triangles)`` of a piece's mask, or None when it is too small (under 6 px) or
+    nothing can be meshed.
+
+    Tried at ``spacing`` px first.  A thin piece (a stick figure's upper arm, a few pixels
+    wide and a few spacings long) can lose every triangle to the sliver test at that spacing, or
+    keep only one island of them: while the triangles cover less than ``cover`` of the region's
+    pixels, the spacing shrinks (× 0.75, down to 2 px) and the best-covering mesh is kept.  A piece
+    silently left without triangles is not drawn at all (AnimatedDrawings' char2: its left upper
+    arm, so the forearm floated beside the body).
+    """
     if region.sum() < 6:
         return None
-    try:
-        v, t, _ = meshmod._triangulate_at(region, spacing, **args)
-    except (ValueError, IndexError):
-        return None
-    return (v, t) if len(t) else None
+    best, best_share = None, -1.0
+    h = float(spacing)
+    while True:
+        try:
+            v, t, _ = meshmod._triangulate_at(region, h, **args)
+        except (ValueError, IndexError):  # every triangle dropped: nothing left to mesh
+            v, t = None, np.zeros((0, 3), np.int64)
+        if v is not None and len(t):
+            share = covered_share(region, v, t)
+            if share > best_share:
+                best, best_share = (v, t), share
+            if share >= cover:
+                break
+        if h <= 2.0:
+            break
+        h = max(0.75 * h, 2.0)
+    return best
+
 
 def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int = 800,
                       whole_limbs: bool = False, tab_margin: float | None = None, texture=None,
@@ -426,12 +463,9 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
     def triangulate_pieces(spacing):
         out = []
         for pc, region in regions_core:
-            try:
-                v, t, _ = meshmod._triangulate_at(region, spacing, **args)
-            except (ValueError, IndexError):  # too small to triangulate (a sliver between two cuts)
-                continue
-            if len(t):
-                out.append((pc, v, t))
+            vt = _triangulate_region(region, spacing, args)
+            if vt is not None:  # None: too small to triangulate (a sliver between two cuts)
+                out.append((pc, *vt))
         return out
 
     pieces_tri = triangulate_pieces(h)
