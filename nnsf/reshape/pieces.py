@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.spatial import QhullError
 
 from nnsf.skeleton import LIMBS
 from nnsf.reshape import mesh as meshmod
@@ -364,31 +365,36 @@ def _triangulate_region(region, spacing, args, cover: float = COVER):
     """``(vertices, triangles)`` of a piece's mask, or None when it is too small (under 6 px) or
     nothing can be meshed.
 
-    Tried at ``spacing`` px first.  A thin piece (a stick figure's upper arm, a few pixels
-    wide and a few spacings long) can lose every triangle to the sliver test at that spacing, or
-    keep only one island of them: while the triangles cover less than ``cover`` of the region's
-    pixels, the spacing shrinks (× 0.75, down to 2 px) and the best-covering mesh is kept.  A piece
-    silently left without triangles is not drawn at all (AnimatedDrawings' char2: its left upper
-    arm, so the forearm floated beside the body).
+    Tried at ``spacing`` px with ``args`` first.  A thin piece (a stick figure's upper arm, a few
+    pixels wide and drawn at a slant) can lose every triangle to the sliver test, or keep only one
+    island of them: the polygon simplification turns its pixel staircase into a few long edges
+    whose Delaunay triangles are all slivers.  While the triangles cover less than ``cover`` of the
+    region's pixels, the spacing shrinks (× 0.75, down to 2 px), then the outline is kept closer to
+    the pixels (simplification 0.5 px), then slivers down to 5° are allowed; the best-covering mesh
+    is kept.  A piece silently left without triangles is not drawn at all (AnimatedDrawings'
+    char2: its left upper arm, so the forearm floated beside the body).
     """
     if region.sum() < 6:
         return None
+    variants = [dict(args), dict(args, simplify=min(args.get("simplify", 0.75), 0.5)),
+                dict(args, simplify=min(args.get("simplify", 0.75), 0.5), min_angle=min(args.get("min_angle", 15.0), 5.0))]
     best, best_share = None, -1.0
-    h = float(spacing)
-    while True:
-        try:
-            v, t, _ = meshmod._triangulate_at(region, h, **args)
-        except (ValueError, IndexError):  # every triangle dropped: nothing left to mesh
-            v, t = None, np.zeros((0, 3), np.int64)
-        if v is not None and len(t):
-            share = covered_share(region, v, t)
-            if share > best_share:
-                best, best_share = (v, t), share
-            if share >= cover:
+    for kw in variants:
+        h = float(spacing)
+        while True:
+            try:
+                v, t, _ = meshmod._triangulate_at(region, h, **kw)
+            except (ValueError, IndexError, QhullError):  # every triangle dropped, or too few points
+                v, t = None, np.zeros((0, 3), np.int64)
+            if v is not None and len(t):
+                share = covered_share(region, v, t)
+                if share > best_share:
+                    best, best_share = (v, t), share
+                if share >= cover:
+                    return best
+            if h <= 2.0:
                 break
-        if h <= 2.0:
-            break
-        h = max(0.75 * h, 2.0)
+            h = max(0.75 * h, 2.0)
     return best
 
 
