@@ -137,8 +137,8 @@ def _adopt_orphans(owners: np.ndarray, comp: np.ndarray, cuts: list[Cut], merged
     away from it (AnimatedDrawings' char4: its right forearm bows 15 px off the
     elbow-to-wrist line) gets no vote, and without this its component would go to
     the nearest labelled pixel: the parent's, across the cut, so the parent would
-    carry the whole limb rigidly.  The component must touch the cut's line and lie
-    on the child's side of it.
+    carry the whole limb rigidly.  The component must touch the cut's line, lie
+    on the child's side of it and hold at least half a square of the cut's length.
     """
     H, W = comp.shape
     for c in cuts:
@@ -156,6 +156,10 @@ def _adopt_orphans(owners: np.ndarray, comp: np.ndarray, cuts: list[Cut], merged
                 continue
             yy, xx = np.nonzero(comp == ci)
             pts = np.column_stack([xx, yy]).astype(np.float64)
+            # A limb segment, not a sliver left between two cuts (char1's hidden upper arms):
+            # at least half a square of the cut's length.
+            if len(pts) < 0.5 * float(np.sum((c.q - c.p) ** 2)):
+                continue
             if float(np.median(c.side(pts))) > 0 and len(pts) > best_n:
                 best, best_n = int(ci), len(pts)
         if best > 0:

@@ -85,7 +85,11 @@ def tab_region(label: np.ndarray, cut: Cut, margin: float = 0.0, band: float | N
         # Inside the parent's outline by ``margin``, except in the band along the cut, where the
         # tab fills the wedge a turning joint opens.
         grow &= (inner[lo[1]:hi[1] + 1, lo[0]:hi[0] + 1] > margin) | (depth_ >= -band)
-    out[lo[1]:hi[1] + 1, lo[0]:hi[0] + 1] = inside & parent_side & grow
+    # The parent's own pixels beyond the cut's line as well (a body's rim that curves below a hip
+    # cut, AnimatedDrawings' char3): they stay when the child turns, and the child's turned
+    # tab must cover where they would have turned to, or a wedge of page opens at the joint.
+    own = label[lo[1]:hi[1] + 1, lo[0]:hi[0] + 1] == cut.parent
+    out[lo[1]:hi[1] + 1, lo[0]:hi[0] + 1] = inside & (parent_side | (own & OWN_RIM)) & grow
     return out
 
 
@@ -348,6 +352,7 @@ def follower_regions(mask: np.ndarray, keypoints: np.ndarray, label: np.ndarray,
 #: A piece's triangles must cover this share of its region's pixels at rest; a coarser triangulation
 #: is retried finer (:func:`_triangulate_region`).
 COVER = 0.9
+OWN_RIM = True
 
 
 def covered_share(region: np.ndarray, vertices: np.ndarray, triangles: np.ndarray) -> float:
@@ -361,7 +366,7 @@ def covered_share(region: np.ndarray, vertices: np.ndarray, triangles: np.ndarra
     return float(np.count_nonzero(region & img.astype(bool))) / n
 
 
-def _triangulate_region(region, spacing, args, cover: float = COVER):
+def _triangulate_region(region, spacing, args, cover: float = COVER, retry: bool = True):
     """``(vertices, triangles)`` of a piece's mask, or None when it is too small (under 6 px) or
     nothing can be meshed.
 
@@ -372,7 +377,8 @@ def _triangulate_region(region, spacing, args, cover: float = COVER):
     region's pixels, the spacing shrinks (× 0.75, down to 2 px), then the outline is kept closer to
     the pixels (simplification 0.5 px), then slivers down to 5° are allowed; the best-covering mesh
     is kept.  A piece silently left without triangles is not drawn at all (AnimatedDrawings'
-    char2: its left upper arm, so the forearm floated beside the body).
+    char2: its left upper arm, so the forearm floated beside the body).  ``retry=False``: the
+    first attempt only (None when it fails).
     """
     if region.sum() < 6:
         return None
@@ -392,9 +398,11 @@ def _triangulate_region(region, spacing, args, cover: float = COVER):
                     best, best_share = (v, t), share
                 if share >= cover:
                     return best
-            if h <= 2.0:
+            if h <= 2.0 or not retry:
                 break
             h = max(0.75 * h, 2.0)
+        if not retry:
+            break
     return best
 
 
@@ -466,21 +474,22 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
         if region.sum() >= 6:
             regions_core.append((int(pc), region))
 
-    def triangulate_pieces(spacing):
+    def triangulate_pieces(spacing, retry=True):
         out = []
         for pc, region in regions_core:
-            vt = _triangulate_region(region, spacing, args)
+            vt = _triangulate_region(region, spacing, args, retry=retry)
             if vt is not None:  # None: too small to triangulate (a sliver between two cuts)
                 out.append((pc, *vt))
         return out
 
-    pieces_tri = triangulate_pieces(h)
     # Each piece has its own outline, so the pieces hold more vertices than one mesh of the same
-    # spacing: one rescaled pass brings the solved vertices to about ``n_vertices``.
-    total = sum(len(v) for _, v, _ in pieces_tri)
+    # spacing: one rescaled pass brings the solved vertices to about ``n_vertices``.  The count
+    # comes from one attempt per piece; the pass kept re-meshes finer a piece that came out
+    # (nearly) empty (:func:`_triangulate_region`).
+    total = sum(len(v) for _, v, _ in triangulate_pieces(h, retry=False))
     if total and abs(total / n_vertices - 1) > 0.1:
         h = h * float(np.sqrt(total / n_vertices))
-        pieces_tri = triangulate_pieces(h)
+    pieces_tri = triangulate_pieces(h)
     for pc, v, t in pieces_tri:
         # Each triangle's part: the segment under its centroid (one of the piece's own).
         seg = _lookup(near_seg, v[t].mean(axis=1))
@@ -519,7 +528,9 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
             regions[cut.child] = tab_region(label, cut, 0.0, under=under)
     for k, cut in enumerate(cuts):
         region = regions[cut.child]
-        vt = _triangulate_region(region, max(h, 2.0), args)
+        # A tab is retried only when it gets no triangle at all: it hides under its parent, and a
+        # finer one changes what a turning joint shows.
+        vt = _triangulate_region(region, max(h, 2.0), args, cover=0.0)
         if vt is None:
             continue
         v, t = vt
@@ -547,7 +558,7 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
         # driven arms, so arms that turn together do not pile up in front.
         own = f["region"] | (cv2.dilate(f["region"].astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & m)
         for region, is_tab in ((tab, True), (own | grown, False)):
-            vt = _triangulate_region(region, h if not is_tab else max(h, 2.0), args)
+            vt = _triangulate_region(region, h if not is_tab else max(h, 2.0), args, cover=0.0 if is_tab else COVER)
             if vt is None:
                 continue
             v, t = vt
