@@ -88,7 +88,11 @@ def tab_region(label: np.ndarray, cut: Cut, margin: float = 0.0, band: float | N
     # The parent's own pixels beyond the cut's line as well (a body's rim that curves below a hip
     # cut, AnimatedDrawings' char3): they stay when the child turns, and the child's turned
     # tab must cover where they would have turned to, or a wedge of page opens at the joint.
+    # Only within the drawing's thickness at the pivot (its distance to the outline), where a
+    # drawn joint is solid; farther out the turned rim would widen the silhouette.
     own = label[lo[1]:hi[1] + 1, lo[0]:hi[0] + 1] == cut.parent
+    ij = np.clip(np.rint(piv).astype(int), 0, [W - 1, H - 1])
+    own &= np.linalg.norm(pts - piv, axis=-1) <= float(inner[ij[1], ij[0]])
     out[lo[1]:hi[1] + 1, lo[0]:hi[0] + 1] = inside & (parent_side | (own & OWN_RIM)) & grow
     return out
 
