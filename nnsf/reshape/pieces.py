@@ -93,7 +93,7 @@ def tab_region(label: np.ndarray, cut: Cut, margin: float = 0.0, band: float | N
     own = label[lo[1]:hi[1] + 1, lo[0]:hi[0] + 1] == cut.parent
     ij = np.clip(np.rint(piv).astype(int), 0, [W - 1, H - 1])
     own &= np.linalg.norm(pts - piv, axis=-1) <= float(inner[ij[1], ij[0]])
-    out[lo[1]:hi[1] + 1, lo[0]:hi[0] + 1] = inside & (parent_side | (own & OWN_RIM)) & grow
+    out[lo[1]:hi[1] + 1, lo[0]:hi[0] + 1] = inside & (parent_side | own) & grow
     return out
 
 
@@ -356,7 +356,6 @@ def follower_regions(mask: np.ndarray, keypoints: np.ndarray, label: np.ndarray,
 #: A piece's triangles must cover this share of its region's pixels at rest; a coarser triangulation
 #: is retried finer (:func:`_triangulate_region`).
 COVER = 0.9
-OWN_RIM = True
 
 
 def covered_share(region: np.ndarray, vertices: np.ndarray, triangles: np.ndarray) -> float:
@@ -390,7 +389,7 @@ def _triangulate_region(region, spacing, args, cover: float = COVER, retry: bool
                 dict(args, simplify=min(args.get("simplify", 0.75), 0.5), min_angle=min(args.get("min_angle", 15.0), 5.0))]
     best, best_share = None, -1.0
     for kw in variants:
-        h = float(spacing)
+        h = spacing  # as given (the first attempt must be the plain triangulation's, to the bit)
         while True:
             try:
                 v, t, _ = meshmod._triangulate_at(region, h, **kw)
