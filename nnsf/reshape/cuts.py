@@ -203,7 +203,11 @@ def find_cuts(mask: np.ndarray, keypoints: np.ndarray, whole_limbs: bool = False
             n = s / np.linalg.norm(s) if np.linalg.norm(s) > 1e-3 else u
             d = np.array([-n[1], n[0]])
             centre = kp[joint]
-            e = cross_sections(m, centre[None], d, 2.5 * w + 2, own=(kp[pa], kp[b]), others=others)[0]
+            # As far as the drawing is thick at the joint: a drawn stroke that curves away from the
+            # straight bone (AnimatedDrawings' char4: its right forearm) has a bone half-width of a
+            # pixel, and a cut that short would not part the two segments.
+            wj = max(w, float(_lookup(dist, centre[None])[0]))
+            e = cross_sections(m, centre[None], d, 2.5 * wj + 2, own=(kp[pa], kp[b]), others=others)[0]
         p, q = centre + e[0] * d, centre - e[1] * d
         cuts.append(Cut(joint, parent, child, p, q, kp[joint].copy(), n, w))
     return cuts

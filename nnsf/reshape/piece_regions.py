@@ -104,6 +104,7 @@ def label_pieces(mask: np.ndarray, keypoints: np.ndarray, cuts: list[Cut], whole
         near[:, 0] = np.where(up, np.inf, near[:, 0])
     pix_comp = comp[ys, xs]
     owners = votes > 0
+    _adopt_orphans(owners, comp, cuts, merged)
     for ci in range(1, n):
         sel = pix_comp == ci
         own = np.flatnonzero(owners[ci])
@@ -127,6 +128,42 @@ def label_pieces(mask: np.ndarray, keypoints: np.ndarray, cuts: list[Cut], whole
             label = np.where(region & (label == 0), seg, label)
     label = _open_big_pieces(label, m)
     return _one_component_each(label, m)
+
+
+def _adopt_orphans(owners: np.ndarray, comp: np.ndarray, cuts: list[Cut], merged: dict) -> None:
+    """A limb segment owning no component takes the unowned one beyond its cut (``owners`` updated).
+
+    A segment votes with samples of its straight bone; a drawn stroke that curves
+    away from it (AnimatedDrawings' char4: its right forearm bows 15 px off the
+    elbow-to-wrist line) gets no vote, and without this its component would go to
+    the nearest labelled pixel: the parent's, across the cut, so the parent would
+    carry the whole limb rigidly.  The component must touch the cut's line, lie
+    on the child's side of it and hold at least half a square of the cut's length.
+    """
+    H, W = comp.shape
+    for c in cuts:
+        child = merged.get(c.child, c.child)
+        if child == 0 or owners[:, child].any():
+            continue
+        line = np.zeros((H, W), np.uint8)
+        d = (c.q - c.p) / max(float(np.linalg.norm(c.q - c.p)), 1e-9)
+        a, b = c.p - 3.0 * d, c.q + 3.0 * d
+        cv2.line(line, tuple(int(v) for v in np.rint(a)), tuple(int(v) for v in np.rint(b)), 1, 3, cv2.LINE_8)
+        touching = np.unique(comp[line.astype(bool)])
+        best, best_n = -1, 0
+        for ci in touching[touching > 0]:
+            if owners[ci].any():
+                continue
+            yy, xx = np.nonzero(comp == ci)
+            pts = np.column_stack([xx, yy]).astype(np.float64)
+            # A limb segment, not a sliver left between two cuts (char1's hidden upper arms):
+            # at least half a square of the cut's length.
+            if len(pts) < 0.5 * float(np.sum((c.q - c.p) ** 2)):
+                continue
+            if float(np.median(c.side(pts))) > 0 and len(pts) > best_n:
+                best, best_n = int(ci), len(pts)
+        if best > 0:
+            owners[best, child] = True
 
 
 def limb_regions(texture: np.ndarray, mask: np.ndarray, keypoints: np.ndarray) -> dict[int, np.ndarray]:

@@ -1,0 +1,158 @@
+"""Every puppet piece is meshed and moves with its own segment (docs/method.md §13.1).
+
+A thin, slanted piece could lose every triangle to the triangulation's sliver test and then not
+be drawn at all (AnimatedDrawings' char2: its left upper arm, so in the punch the forearm floated
+beside the body); a segment whose drawn stroke bows away from its bone got no region and was
+carried rigidly by its parent (char4's right forearm).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from nnsf.reshape import mesh as meshmod
+from nnsf.reshape.cuts import Cut, SEGMENT_NAMES
+from nnsf.reshape.piece_regions import _adopt_orphans
+from nnsf.reshape.pieces import COVER, _triangulate_region, covered_share
+
+ARGS = dict(min_angle=15.0, simplify=0.75, jitter=0.0, smooth_sweeps=3, seed=0)
+
+
+def _stroke(width: int, angle: float, length: float = 50.0) -> np.ndarray:
+    img = np.zeros((120, 120), np.uint8)
+    a = np.array([30.0, 60.0])
+    b = a + length * np.array([np.cos(np.radians(angle)), np.sin(np.radians(angle))])
+    cv2.line(img, tuple(int(v) for v in a), tuple(int(v) for v in b), 1, width)
+    return img.astype(bool)
+
+
+def test_covered_share_of_a_known_square():
+    """Two triangles filling a 10 × 10 square cover all of it and half of a 10 × 20 rectangle."""
+    region = np.zeros((40, 40), bool)
+    region[10:20, 10:20] = True
+    v = np.array([[10, 10], [19, 10], [19, 19], [10, 19]], float)
+    t = np.array([[0, 1, 2], [0, 2, 3]])
+    assert covered_share(region, v, t) == 1.0
+    region[10:20, 20:30] = True
+    assert covered_share(region, v, t) == pytest.approx(0.5)
+
+
+@pytest.mark.parametrize("width,angle", [(3, 15.0), (5, 30.0), (6, 60.0), (4, 110.0)])
+def test_a_thin_slanted_stroke_is_meshed_over_its_pixels(width, angle):
+    """At the global spacing the plain triangulation of these strokes keeps (almost) nothing; the
+    piece's triangulation covers at least COVER of its pixels, inside the stroke."""
+    region = _stroke(width, angle)
+    try:
+        v, t, _ = meshmod._triangulate_at(region, 8.0, **ARGS)
+        plain = covered_share(region, v, t)
+    except Exception:  # no triangle left at all
+        plain = 0.0
+    assert plain < 0.5  # the failure this guards against
+    v, t = _triangulate_region(region, 8.0, ARGS)
+    assert covered_share(region, v, t) >= COVER
+    # No triangle outside the stroke (its centroid within a pixel of it).
+    grown = cv2.dilate(region.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    c = np.rint(v[t].mean(axis=1)).astype(int)
+    assert grown[c[:, 1], c[:, 0]].all()
+
+
+def test_an_orphan_component_beyond_a_cut_goes_to_the_cuts_child():
+    """Components: 1 the upper arm (left of x = 20), 2 the forearm beyond the elbow cut (no bone
+    sample voted for it), 3 a blob elsewhere.  The forearm (child 2) owns nothing, so it takes
+    component 2, which touches the cut and lies on its side; component 3 stays unowned."""
+    comp = np.zeros((30, 60), np.int32)
+    comp[10:20, 5:19] = 1
+    comp[10:20, 21:45] = 2
+    comp[0:4, 50:58] = 3
+    cut = Cut(joint=0, parent=1, child=2, p=np.array([20.0, 9.0]), q=np.array([20.0, 20.0]),
+              pivot=np.array([20.0, 15.0]), normal=np.array([1.0, 0.0]), half_width=5.0)
+    owners = np.zeros((4, len(SEGMENT_NAMES)), bool)
+    owners[1, 1] = True
+    _adopt_orphans(owners, comp, [cut], {})
+    assert owners[2, 2] and not owners[3].any() and owners[:, 2].sum() == 1
+    # A child that owns a component already keeps exactly that.
+    owners = np.zeros((4, len(SEGMENT_NAMES)), bool)
+    owners[1, 1] = owners[3, 2] = True
+    _adopt_orphans(owners, comp, [cut], {})
+    assert not owners[2].any()
+
+
+# --------------------------------------------------------------------------- the real drawings
+
+_CHARS = Path(__file__).resolve().parents[2] / "shared" / "data" / "animated-drawings" / "characters"
+needs_data = pytest.mark.skipif(not (_CHARS / "char2").is_dir() or not (_CHARS / "char4").is_dir(),
+                                reason="../shared/data (AnimatedDrawings char2, char4) not present")
+
+
+def _rot(p, c, deg):
+    a = np.radians(deg)
+    R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    return (np.asarray(p, float) - c) @ R.T + c
+
+
+@pytest.fixture(scope="module")
+def char2_rig():
+    from nnsf.reshape.formats import read_character
+    from nnsf.reshape.rig import Rig
+
+    ch = read_character(_CHARS / "char2")
+    return ch, Rig.build(ch, n_vertices=800, split="layered", handle_set="keypoints")
+
+
+@needs_data
+def test_char2_upper_arm_is_meshed_and_turns_with_the_arm(char2_rig):
+    """char2's left upper arm (a thin stroke) has triangles covering its region; turning the left
+    arm by 50° about its shoulder draws the region turned by 50° about the shoulder's pivot, and
+    leaves the shoulder's joint disc solid (the forearm does not float beside the body)."""
+    from nnsf.reshape.artefacts import JOINTS_CHECKED, joint_gaps, joint_radii
+    from nnsf.reshape.render import MeshRenderer
+    from nnsf.skeleton import JOINT_INDEX as J
+
+    ch, rig = char2_rig
+    m = rig.mesh
+    seg = SEGMENT_NAMES.index("l_upper_arm")
+    region = m.labels == seg
+    core = (m.triangles < m.n_core).all(axis=1) & (m.pieces == seg)
+    assert region.sum() > 500 and core.sum() > 0
+    assert covered_share(region, m.vertices, m.triangles[core]) >= COVER
+    kp = rig.rest_keypoints.copy()
+    piv = kp[J["l_shoulder"]]
+    for j in ("l_elbow", "l_wrist"):
+        kp[J[j]] = _rot(kp[J[j]], piv, 50.0)
+    V = rig.animate(kp[None])[0]
+    r = MeshRenderer.for_mesh(m, ch)
+    cov = r.render(V)[..., 3] >= 128
+    ys, xs = np.nonzero(region)
+    moved = np.rint(_rot(np.column_stack([xs, ys]), piv, 50.0)).astype(int)
+    H, W = cov.shape
+    ok = (moved[:, 0] >= 0) & (moved[:, 0] < W) & (moved[:, 1] >= 0) & (moved[:, 1] < H)
+    assert ok.all()
+    assert cov[moved[:, 1], moved[:, 0]].mean() >= 0.95
+    radii = joint_radii(ch.mask, rig.rest_keypoints)
+    k = list(JOINTS_CHECKED).index(J["l_shoulder"])
+    assert joint_gaps(cov, rig.drive(kp)[[J["l_shoulder"]]], radii[[k]]) <= 4
+
+
+@needs_data
+def test_char4_forearm_drawn_off_its_bone_is_its_own_piece():
+    """char4's right forearm bows off its elbow-to-wrist line: it is a piece of its own (not the
+    upper arm's), beyond the elbow cut, and the upper arm keeps to its side of that cut."""
+    from nnsf.reshape.formats import read_character
+    from nnsf.reshape.layers import build_mesh
+
+    ch = read_character(_CHARS / "char4")
+    m = build_mesh(ch.mask, ch.keypoints, 800, split="layered", texture=ch.texture, extra_limbs=ch.extra_limbs)
+    up, fore = SEGMENT_NAMES.index("r_upper_arm"), SEGMENT_NAMES.index("r_forearm")
+    assert (m.labels == fore).sum() > 1500
+    elbow = next(c for c in m.cuts if c.child == fore)
+    ys, xs = np.nonzero(m.labels == up)
+    assert np.percentile(elbow.side(np.column_stack([xs, ys]).astype(float)), 99) <= 2.0
+    # Every segment with a region is meshed over it.
+    core = (m.triangles < m.n_core).all(axis=1)
+    for seg in range(len(SEGMENT_NAMES)):
+        region = m.labels == seg
+        if region.sum() >= 50:
+            assert covered_share(region, m.vertices, m.triangles[core & (m.pieces == seg)]) >= COVER, SEGMENT_NAMES[seg]
