@@ -180,3 +180,30 @@ def test_edge_closing_is_off_on_small_drawings():
     from nnsf.roto.solve import edge_close
     assert edge_close(2, (256, 256)) == 2 and edge_close(2, (128, 160)) == 2
     assert edge_close(2, (128, 96)) == 0 and edge_close(2, (64, 64)) == 0
+
+
+def _hinge_error(T, swing, monkeypatch=None):
+    frames, truth = [], []
+    for t in range(T):
+        poly, (a0, a1), (b0, b1) = _limb(t, T, swing=swing, travel=(0.0, 0.0), start=(128.0, 60.0))
+        frames.append(draw_polygons(SIZE, [poly], [FILL]))
+        truth.append((np.stack([a0, a1]), np.stack([b0, b1])))
+    frames = np.stack(frames)
+    P, fixed = _problem(frames, truth)
+    fwd, bwd = dense_flows(frames.mean(-1).astype(np.uint8))
+    col = build_pyramid(frames, 1)[0].colour
+    frame0 = np.zeros(2, np.intp)
+    guess, _ = limb_init(fwd, bwd, col, P, fixed, frame0, np.array([1, 0]),
+                         lambda P_, f_, k_: flow_init(fwd, bwd, P_, f_, k_))
+    return _error(guess, truth)
+
+
+def test_hinge_search_follows_a_limb_turning_faster_than_the_grid(monkeypatch):
+    """A limb swinging 120° out and back about its top in 7 frames (up to 60° a frame, beyond
+    the grid's ±20°): the hinge turns about its ends find it; without them the start loses it."""
+    import nnsf.roto.limbs as limbs
+
+    with_hinge = _hinge_error(7, 120.0)
+    monkeypatch.setattr(limbs, "HINGE_ANGLES", np.zeros(1))
+    without = _hinge_error(7, 120.0)
+    assert with_hinge < 2.0 and without > 4 * with_hinge, (with_hinge, without)

@@ -42,6 +42,10 @@ COARSE_ANGLES = np.radians(np.arange(-20.0, 20.1, 5.0))
 FINE_ANGLES = np.radians(np.arange(-4.0, 4.1, 2.0))
 FINEST_ANGLES = np.radians([-1.0, 0.0, 1.0])
 COARSE_BLUR = 1.5
+#: turns of a limb about one of its ends tried when the grid search fails (a swing too fast for
+#: flow and grid: the jump's arms turn up to 80° from one frame to the next)
+HINGE_ANGLES = np.radians(np.arange(-90.0, 90.1, 6.0))
+NO_TURN = np.zeros(1)
 
 
 
@@ -195,7 +199,12 @@ def limb_init(fwd: np.ndarray, bwd: np.ndarray, colour: np.ndarray, P: np.ndarra
        same way, replaces it when
        it costs less than ``search_gain`` times as much (a limb passing over another of its
        colour makes even the true motion cost something; the margin keeps
-       the search from following the other part).
+       the search from following the other part).  If the cost is still
+       above ``search_cost``, a hinge search turns the moved limb about
+       either of its ends by ±90° in 6° steps (:data:`HINGE_ANGLES`), each
+       turn with shifts of ±6 px by 3 on the blurred frame, polishes the best
+       and takes it on the same terms: a limb swinging about its joint faster
+       than the grid's ±20° (bruno's jump: PCK 0.785 -> 0.826).
 
     The forward track (from t = 0) and the backward one (from T-1) each miss
     the other keyframe, by e_f and e_b px (largest control-point error).  Both
@@ -226,6 +235,20 @@ def limb_init(fwd: np.ndarray, bwd: np.ndarray, colour: np.ndarray, P: np.ndarra
     def polish(img, q, ref, w, R, tr):
         R, tr, _ = search_rigid(img, q, ref, w, R, tr, 1.5, 0.5, FINE_ANGLES, tau)
         return search_rigid(img, q, ref, w, R, tr, 0.5, 0.5, FINEST_ANGLES, tau)
+
+    def hinge(img, q, ref, w, R, tr, *ends):
+        """The best motion of :func:`search_rigid` (±6 px by 3, no turn about the centre) after
+        turning the moved limb about either end by each of :data:`HINGE_ANGLES`."""
+        best = None
+        for end in ends:
+            pivot = end @ R.T + tr
+            for Rh in rotation(HINGE_ANGLES):
+                # x -> Rh (R x + tr - pivot) + pivot
+                cand = search_rigid(img, q, ref, w, Rh @ R, pivot + (tr - pivot) @ Rh.T, 6.0, 3.0,
+                                    NO_TURN, tau)
+                if best is None or cand[2] < best[2]:
+                    best = cand
+        return best
 
     def carry(a0, b0, steps, there, back, key):
         ref_in = sample_image(colour[key], Wa_in @ a0 + Wb_in @ b0)
@@ -262,6 +285,11 @@ def limb_init(fwd: np.ndarray, bwd: np.ndarray, colour: np.ndarray, P: np.ndarra
                 R2, tr2, c2 = polish(colour[dst], qt, ref, w, R2, tr2)
                 if c2 < search_gain * cost:
                     R, tr, cost = R2, tr2, c2
+            if cost > search_cost:
+                R3, tr3, c3 = hinge(blur(dst), qt, ref_b, w, R, tr, (a[0] + b[0]) / 2, (a[-1] + b[-1]) / 2)
+                R3, tr3, c3 = polish(colour[dst], qt, ref, w, R3, tr3)
+                if c3 < search_gain * cost:
+                    R, tr, cost = R3, tr3, c3
             a, b = a @ R.T + tr, b @ R.T + tr
             A[k + 1], B[k + 1] = a, b
             u[k + 1] += max(1.0 - seen, min(cost / tau ** 2, 1.0))
