@@ -33,6 +33,9 @@ from nnsf.reshape import Rig, load_animated_drawings, stick_figure
 from nnsf.reshape.render import MeshRenderer
 from nnsf.skeleton import JOINT_INDEX as J
 
+# The script's own folder is on sys.path when it runs: one dense reference frame for both benchmarks.
+from bench_arap import naive_frame
+
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "animated-drawings" / "characters" / "char1"
 
 
@@ -54,19 +57,6 @@ def clip(kp: np.ndarray, frames: int) -> np.ndarray:
         leg = [J["r_knee"], J["r_ankle"]]
         out[t, leg] = _rot(kp[leg], kp[J["r_hip"]], 20 * s)
     return out
-
-
-def naive_frame(rig: Rig, targets: np.ndarray) -> np.ndarray:
-    """One frame the slow way: dense assembly and dense solves of both steps."""
-    d = rig.deformer
-    M1, r1 = d.similarity_system(targets)
-    A = M1.toarray()
-    z = np.linalg.solve(A.T @ A, A.T @ r1)
-    n = d.n_vertices
-    v1 = np.column_stack([z[:n], z[n:]])
-    M2, R2 = d.scale_system(v1, targets)
-    B = M2.toarray()
-    return np.linalg.solve(B.T @ B, B.T @ R2)
 
 
 def naive_render(renderer: MeshRenderer, V: np.ndarray) -> np.ndarray:
