@@ -16,7 +16,7 @@ import pytest
 from nnsf.reshape import mesh as meshmod
 from nnsf.reshape.cuts import Cut, SEGMENT_NAMES
 from nnsf.reshape.piece_regions import _adopt_orphans
-from nnsf.reshape.pieces import COVER, _triangulate_region, covered_share
+from nnsf.reshape.piece_mesh import COVER, covered_share, triangulate_region as _triangulate_region
 
 ARGS = dict(min_angle=15.0, simplify=0.75, jitter=0.0, smooth_sweeps=3, seed=0)
 

@@ -29,13 +29,13 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy.spatial import QhullError
 
 from nnsf.skeleton import LIMBS
 from nnsf.reshape import mesh as meshmod
 from nnsf.reshape import parts
 from nnsf.reshape.drive import TORSO
 from nnsf.reshape.cuts import Cut, HEAD, J, OVERLAP, PIECE_BONES, SEGMENT_NAMES, _dist, _lookup, _normal_of, _outline, _root_chord, _seg_dist, find_cuts, half_width, limb_reach, w_distal
+from nnsf.reshape.piece_mesh import COVER, covered_share, triangulate_region  # noqa: F401  (covered_share: re-exported)
 from nnsf.reshape.piece_regions import label_pieces
 
 PIECE_BONES.update({1 + i: (ab,) for i, ab in enumerate(LIMBS.values())})
@@ -374,64 +374,6 @@ def follower_regions(mask: np.ndarray, keypoints: np.ndarray, label: np.ndarray,
 
 
 
-#: A piece's triangles must cover this share of its region's pixels at rest, or it is re-meshed
-#: finer (:func:`_triangulate_region`).  A plain triangulation loses 5-11 % of a small piece's
-#: pixels along its outline's staircase (the Kenney sprites' limbs); a piece below 80 % has lost a
-#: part of itself (char2's left upper arm: all of it).
-COVER = 0.8
-
-
-def covered_share(region: np.ndarray, vertices: np.ndarray, triangles: np.ndarray) -> float:
-    """The share of ``region``'s pixels ``(H, W)`` bool that the triangles, filled at rest, cover."""
-    n = int(np.count_nonzero(region))
-    if n == 0:
-        return 1.0
-    img = np.zeros(region.shape, np.uint8)
-    if len(triangles):
-        cv2.fillPoly(img, list(np.rint(vertices[triangles]).astype(np.int32)), 1)
-    return float(np.count_nonzero(region & img.astype(bool))) / n
-
-
-def _triangulate_region(region, spacing, args, cover: float = COVER, retry: bool = True):
-    """``(vertices, triangles)`` of a piece's mask, or None when it is too small (under 6 px) or
-    nothing can be meshed.
-
-    Tried at ``spacing`` px with ``args`` first.  A thin piece (a stick figure's upper arm, a few
-    pixels wide and drawn at a slant) can lose every triangle to the sliver test, or keep only one
-    island of them: the polygon simplification turns its pixel staircase into a few long edges
-    whose Delaunay triangles are all slivers.  While the triangles cover less than ``cover`` of the
-    region's pixels, the spacing shrinks (× 0.75, down to 2 px), then the outline is kept closer to
-    the pixels (simplification 0.5 px), then slivers down to 5° are allowed; the best-covering mesh
-    is kept.  A piece silently left without triangles is not drawn at all (AnimatedDrawings'
-    char2: its left upper arm, so the forearm floated beside the body).  ``retry=False``: the
-    first attempt only (None when it fails).
-    """
-    if region.sum() < 6:
-        return None
-    variants = [dict(args), dict(args, simplify=min(args.get("simplify", 0.75), 0.5)),
-                dict(args, simplify=min(args.get("simplify", 0.75), 0.5), min_angle=min(args.get("min_angle", 15.0), 5.0))]
-    best, best_share = None, -1.0
-    for kw in variants:
-        h = spacing  # as given (the first attempt must be the plain triangulation's, to the bit)
-        while True:
-            try:
-                v, t, _ = meshmod._triangulate_at(region, h, **kw)
-            except (ValueError, IndexError, QhullError):  # every triangle dropped, or too few points
-                v, t = None, np.zeros((0, 3), np.int64)
-            if v is not None and len(t):
-                share = covered_share(region, v, t)
-                if share > best_share:
-                    best, best_share = (v, t), share
-                if share >= cover:
-                    return best
-            if h <= 2.0 or not retry:
-                break
-            h = max(0.75 * h, 2.0)
-        if not retry:
-            break
-    return best
-
-
 def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int = 800,
                       whole_limbs: bool = False, tab_margin: float | None = None, texture=None,
                       extra_limbs=(), **kwargs):
@@ -503,7 +445,7 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
     def triangulate_pieces(spacing, retry=True):
         out = []
         for pc, region in regions_core:
-            vt = _triangulate_region(region, spacing, args, retry=retry)
+            vt = triangulate_region(region, spacing, args, retry=retry)
             if vt is not None:  # None: too small to triangulate (a sliver between two cuts)
                 out.append((pc, *vt))
         return out
@@ -511,7 +453,7 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
     # Each piece has its own outline, so the pieces hold more vertices than one mesh of the same
     # spacing: one rescaled pass brings the solved vertices to about ``n_vertices``.  The count
     # comes from one attempt per piece; the pass kept re-meshes finer a piece that came out
-    # (nearly) empty (:func:`_triangulate_region`).
+    # (nearly) empty (:func:`nnsf.reshape.piece_mesh.triangulate_region`).
     total = sum(len(v) for _, v, _ in triangulate_pieces(h, retry=False))
     if total and abs(total / n_vertices - 1) > 0.1:
         h = h * float(np.sqrt(total / n_vertices))
@@ -556,7 +498,7 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
         region = regions[cut.child]
         # A tab is retried only when it gets no triangle at all: it hides under its parent, and a
         # finer one changes what a turning joint shows.
-        vt = _triangulate_region(region, max(h, 2.0), args, cover=0.0)
+        vt = triangulate_region(region, max(h, 2.0), args, cover=0.0)
         if vt is None:
             continue
         v, t = vt
@@ -584,7 +526,7 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
         # driven arms, so arms that turn together do not pile up in front.
         own = f["region"] | (cv2.dilate(f["region"].astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & m)
         for region, is_tab in ((tab, True), (own | grown, False)):
-            vt = _triangulate_region(region, h if not is_tab else max(h, 2.0), args, cover=0.0 if is_tab else COVER)
+            vt = triangulate_region(region, h if not is_tab else max(h, 2.0), args, cover=0.0 if is_tab else COVER)
             if vt is None:
                 continue
             v, t = vt
