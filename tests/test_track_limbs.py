@@ -200,7 +200,8 @@ def _hinge_error(T, swing, monkeypatch=None):
 
 def test_hinge_search_follows_a_limb_turning_faster_than_the_grid(monkeypatch):
     """A limb swinging 120° out and back about its top in 7 frames (up to 60° a frame, beyond
-    the grid's ±20°): the hinge turns about its ends find it; without them the start loses it."""
+    the grid's ±20°): the hinge turns about its top (proximal) end find it; without them the start
+    loses it."""
     import nnsf.roto.limbs as limbs
 
     with_hinge = _hinge_error(7, 120.0)
