@@ -385,6 +385,16 @@ def test_constructor_defaults_equal_the_pipelines_params():
     assert {k: have[k] for k in want} == want
 
 
+def _doubled_swing(X, clips):
+    """``X`` with every coordinate's deviation from its clip mean doubled (clip by clip)."""
+    out = np.empty_like(X)
+    for q in np.unique(clips):
+        r = clips == q
+        m = X[r].mean(axis=0)
+        out[r] = m + 2.0 * (X[r] - m)
+    return out
+
+
 def test_style_amplitude_carries_a_wider_swinging_style_to_an_unseen_content(unified):
     """Style "wide" is style "base" with every coordinate's deviation from its clip mean doubled.
     With (wide, jump) hidden, amplitude="style" learns from the other contents that "wide" swings
@@ -393,11 +403,7 @@ def test_style_amplitude_carries_a_wider_swinging_style_to_an_unseen_content(uni
     X, mo, ch, cl = unified
     keep = ch == "bruno"
     Xa, moa, cla = X[keep], mo[keep], cl[keep]
-    wide = np.empty_like(Xa)
-    for q in np.unique(cla):
-        r = cla == q
-        m = Xa[r].mean(axis=0)
-        wide[r] = m + 2.0 * (Xa[r] - m) + 1.0          # + 1 keeps it non-negative
+    wide = _doubled_swing(Xa, cla) + 1.0                 # + 1 keeps it non-negative
     base = Xa + 1.0
     hide = moa == "jump"
     Xt = np.concatenate([base, wide[~hide]])
@@ -421,11 +427,7 @@ def base_and_wide(unified):
     X, mo, ch, cl = unified
     keep = ch == "bruno"
     Xa, moa, cla = X[keep], mo[keep], cl[keep]
-    wide = np.empty_like(Xa)
-    for q in np.unique(cla):
-        r = cla == q
-        m = Xa[r].mean(axis=0)
-        wide[r] = m + 2.0 * (Xa[r] - m)
+    wide = _doubled_swing(Xa, cla)
     lift = 1.0 + max(0.0, -wide.min())                 # keeps both styles non-negative
     wide += lift
     Xt = np.concatenate([Xa + lift, wide])

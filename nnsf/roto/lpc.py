@@ -22,10 +22,8 @@ import pandas as pd
 
 from nnsf.errors import InputError
 from nnsf.frames.annotation import read_annotation
-from nnsf.io import write_csv, write_json
 from nnsf.params import TRACKERS
-from nnsf.roto.figures import roto_overlay
-from nnsf.roto.real import REPORTED, score_trackers, silhouette_summary
+from nnsf.roto.real import REPORTED, score_trackers, write_silhouette_report
 
 #: px from the silhouette that count as on it.  Why not Kenney's 1.5: the annotated control
 #: points sit on the centres of outline pixels, 0.5 px inside the alpha boundary (0.7 on a
@@ -88,24 +86,7 @@ def lpc_report(data_root, annotations_dir, out_dir, tol: float = TOL, **options)
     if not data_root.is_dir():
         raise InputError(data_root, "folder", "the lpc-bodies folder of the shared data")
     table, tracked = track_lpc(data_root, annotations_dir, methods=REPORTED, tol=tol, **options)
-    if table.empty:
-        raise InputError(annotations_dir, "annotations",
-                         "at least one <body>.annotation.json for a sheet in " + str(data_root))
-    summary = silhouette_summary(table, tol)
-    write_csv(out_dir / "roto_lpc.csv", table)
-    write_json(out_dir / "roto_lpc.json", summary)
-    first = summary["characters"][0]
-    ann = read_annotation(Path(annotations_dir) / f"{first}.annotation.json")
-    frames, _ = read_tiles(data_root / f"{first}.png", ann.frames)
-    up = 6
-    big = np.stack([cv2.resize(f, (TILE * up, TILE * up), interpolation=cv2.INTER_NEAREST)
-                    for f in frames])
-    inb = [t for t in range(len(frames)) if t not in set(ann.keyframe_indices)]
-    show = [inb[i] for i in np.unique(np.linspace(0, len(inb) - 1, 4).round().astype(int))]
-    # pixel centres at integers: x_big = (x + 0.5)·up - 0.5
-    roto_overlay(big, {m: (c + 0.5) * up - 0.5 for (b, m), c in tracked.items()
-                           if b == first and m != "linear"},
-                     None, show, out_dir / "figures" / "roto_lpc.png", crop_margin=200,
-                     title=f"{first} (LPC, walk row): tracked outlines between keyframes "
-                           f"{ann.keyframe_indices}")
-    return summary
+    return write_silhouette_report(
+        table, tracked, tol, annotations_dir, out_dir, "roto_lpc",
+        "at least one <body>.annotation.json for a sheet in " + str(data_root),
+        lambda name, ann: read_tiles(data_root / f"{name}.png", ann.frames)[0], "LPC, walk row", upscale=6)

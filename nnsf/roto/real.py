@@ -217,6 +217,38 @@ def silhouette_summary(table, tol: float) -> dict:
     }
 
 
+def write_silhouette_report(table, tracked: dict, tol: float, annotations_dir, out_dir, stem: str,
+                            wanted: str, frames_of, label: str, upscale: int = 1) -> dict:
+    """Write a real-frame report (Kenney, LPC): ``<stem>.csv``, ``<stem>.json`` and ``figures/<stem>.png``.
+
+    ``table``/``tracked`` as :func:`score_trackers` fills them; ``wanted`` says
+    what an empty table lacked (the :class:`InputError`'s expectation);
+    ``frames_of(name, annotation)`` reads the first character's frames
+    ``(T, H, W, 3)``, drawn ``upscale`` times larger (nearest pixel; curves
+    mapped with pixel centres at integers).  Returns the JSON summary.
+    """
+    if table.empty:
+        raise InputError(annotations_dir, "annotations", wanted)
+    out_dir = Path(out_dir)
+    summary = silhouette_summary(table, tol)
+    write_csv(out_dir / f"{stem}.csv", table)
+    write_json(out_dir / f"{stem}.json", summary)
+    first = summary["characters"][0]
+    ann = read_annotation(Path(annotations_dir) / f"{first}.annotation.json")
+    frames = frames_of(first, ann)
+    shown = {m: c for (ch, m), c in tracked.items() if ch == first and m != "linear"}
+    if upscale != 1:
+        frames = np.stack([cv2.resize(f, (f.shape[1] * upscale, f.shape[0] * upscale),
+                                      interpolation=cv2.INTER_NEAREST) for f in frames])
+        # pixel centres at integers: x_big = (x + 0.5)·upscale - 0.5
+        shown = {m: (c + 0.5) * upscale - 0.5 for m, c in shown.items()}
+    inb = [t for t in range(len(frames)) if t not in set(ann.keyframe_indices)]
+    show = [inb[i] for i in np.unique(np.linspace(0, len(inb) - 1, 4).round().astype(int))]
+    roto_overlay(frames, shown, None, show, out_dir / "figures" / f"{stem}.png", crop_margin=200,
+                 title=f"{first} ({label}): tracked outlines between keyframes {ann.keyframe_indices}")
+    return summary
+
+
 def kenney_report(data_root, annotations_dir, out_dir, tol: float = 1.5, **options) -> dict:
     """Track the Kenney walk cycles with the three trackers and write the report files.
 
@@ -232,20 +264,7 @@ def kenney_report(data_root, annotations_dir, out_dir, tol: float = 1.5, **optio
     if not data_root.is_dir():
         raise InputError(data_root, "folder", "the Kenney toon characters folder (female_adventurer/, robot/, ...)")
     table, tracked = track_kenney(data_root, annotations_dir, methods=REPORTED, tol=tol, **options)
-    if table.empty:
-        raise InputError(annotations_dir, "annotations",
-                         "at least one <character>.annotation.json for a character in " + str(data_root))
-    summary = silhouette_summary(table, tol)
-    write_csv(out_dir / "roto_kenney.csv", table)
-    write_json(out_dir / "roto_kenney.json", summary)
-    first = summary["characters"][0]
-    ann = read_annotation(Path(annotations_dir) / f"{first}.annotation.json")
-    frames, _ = read_rgba(data_root / first, ann.frames)
-    inb = [t for t in range(len(frames)) if t not in set(ann.keyframe_indices)]
-    show = [inb[i] for i in np.unique(np.linspace(0, len(inb) - 1, 4).round().astype(int))]
-    roto_overlay(frames, {m: c for (ch, m), c in tracked.items() if ch == first and m != "linear"},
-                     None, show,
-                     out_dir / "figures" / "roto_kenney.png", crop_margin=200,
-                     title=f"{first} (Kenney toon): tracked outlines between keyframes "
-                           f"{ann.keyframe_indices}")
-    return summary
+    return write_silhouette_report(
+        table, tracked, tol, annotations_dir, out_dir, "roto_kenney",
+        "at least one <character>.annotation.json for a character in " + str(data_root),
+        lambda name, ann: read_rgba(data_root / name, ann.frames)[0], "Kenney toon")
