@@ -239,18 +239,18 @@ def limb_init(fwd: np.ndarray, bwd: np.ndarray, colour: np.ndarray, P: np.ndarra
         R, tr, _ = search_rigid(img, q, ref, w, R, tr, 1.5, 0.5, FINE_ANGLES, tau)
         return search_rigid(img, q, ref, w, R, tr, 0.5, 0.5, FINEST_ANGLES, tau)
 
-    def hinge(img, q, ref, w, R, tr, *ends):
+    def hinge(img, q, ref, w, R, tr, end):
         """The best motion of :func:`search_rigid` (±6 px by 3, no turn about the centre) after
-        turning the moved limb about each of ``ends`` by each of :data:`HINGE_ANGLES`."""
+        turning the moved limb about ``end`` (its proximal end, template coordinates) by each of
+        :data:`HINGE_ANGLES`."""
         best = None
-        for end in ends:
-            pivot = end @ R.T + tr
-            for Rh in rotation(HINGE_ANGLES):
-                # x -> Rh (R x + tr - pivot) + pivot
-                cand = search_rigid(img, q, ref, w, Rh @ R, pivot + (tr - pivot) @ Rh.T, 6.0, 3.0,
-                                    NO_TURN, tau)
-                if best is None or cand[2] < best[2]:
-                    best = cand
+        pivot = end @ R.T + tr
+        for Rh in rotation(HINGE_ANGLES):
+            # x -> Rh (R x + tr - pivot) + pivot
+            cand = search_rigid(img, q, ref, w, Rh @ R, pivot + (tr - pivot) @ Rh.T, 6.0, 3.0,
+                                NO_TURN, tau)
+            if best is None or cand[2] < best[2]:
+                best = cand
         return best
 
     def carry(a0, b0, steps, there, back, key):
