@@ -76,6 +76,9 @@ def test_the_judges_never_see_the_hidden_cell(pixels):
     same = [*JUDGE_COLUMNS, "jerk_ratio", "style_acc", "content_acc"]
     pd.testing.assert_frame_equal(a[same], b[same])
     assert not np.allclose(a["dtw_error"], b["dtw_error"])
+    # No training clip is of the hidden cell, so one nearest neighbour can name its style or its
+    # content, never both: a leak of the cell into the judges would break this bound.
+    assert ((a["style_nn1"] + a["content_nn1"]) <= 1 + 1e-12).all()
 
 
 # --------------------------------------------------------------- the offset baseline

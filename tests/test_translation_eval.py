@@ -253,4 +253,6 @@ def test_target_check_records_every_target_of_issue_11():
     assert t["checks"]["dtw_error <= 0.17"]["met"] is False
     assert t["checks"]["content_lr >= 0.70"]["met"] is True
     assert t["beats"] == {"offset": {"dtw_error": True, "style": True, "content": False}}
+    assert t["nn1_bound"]["style_nn1 + content_nn1"] == pytest.approx(0.44 + 0.75)
+    assert t["nn1_bound"]["targets_sum"] == pytest.approx(1.15)
     assert _target_check({"offset": off})["met"] is None
