@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import os
 import time
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -33,16 +32,9 @@ from nnsf.reshape import Rig, load_animated_drawings, stick_figure
 from nnsf.reshape.render import MeshRenderer
 from nnsf.skeleton import JOINT_INDEX as J
 
-# The script's own folder is on sys.path when it runs: one dense reference frame for both benchmarks.
-from bench_arap import naive_frame
-
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "animated-drawings" / "characters" / "char1"
-
-
-def _rot(p, c, deg):
-    a = np.radians(deg)
-    R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
-    return (p - c) @ R.T + c
+# The script's own folder is on sys.path when it runs: one dense reference frame, one rotation
+# and one data folder for both benchmarks.
+from bench_arap import DATA, _rot, naive_frame
 
 
 def clip(kp: np.ndarray, frames: int) -> np.ndarray:
@@ -98,9 +90,12 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=120)
     ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--naive-frames", type=int, default=1)
+    ap.add_argument("--naive-frames", type=int, default=1,
+                    help="frames solved densely for the comparison (at least 1)")
     ap.add_argument("--sizes", type=int, nargs="+", default=[800, 3000])
     args = ap.parse_args(argv)
+    if args.naive_frames < 1:
+        ap.error("--naive-frames: expected 1 or more (the comparison needs one dense frame)")
     if DATA.is_dir():
         ch, what = load_animated_drawings(DATA), "char1 (AnimatedDrawings, 508x602)"
     else:
