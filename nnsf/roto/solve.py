@@ -38,7 +38,7 @@ from scipy.optimize import least_squares
 from nnsf.params import LK_ENDS, TRACK_INITS, TRACKERS
 from nnsf.roto.energy import LevelImages, SpaceTimeProblem, Weights, build_pyramid
 from nnsf.roto.lm import levenberg_marquardt
-from nnsf.roto.limbs import limb_init, side_pairs
+from nnsf.roto.limbs import limb_init, limb_parents, side_pairs
 
 METHODS = TRACKERS
 INITS = TRACK_INITS
@@ -474,9 +474,11 @@ class ClipTracker:
             if opts.init == "lk":
                 P = self.lk(P, fixed, frame0, "blend")
             elif opts.init == "limb" and ours and names is not None:
-                pairs = side_pairs([(int(f), n) for f, n in zip(frame0, names)])
-                P, conf = limb_init(*self.flows, self.pyramid[0].colour, P, fixed, frame0, pairs,
-                                    lambda P_, f_, k_: flow_init(*self.flows, P_, f_, k_))
+                keys = [(int(f), n) for f, n in zip(frame0, names)]
+                P, conf = limb_init(*self.flows, self.pyramid[0].colour, P, fixed, frame0,
+                                    side_pairs(keys),
+                                    lambda P_, f_, k_: flow_init(*self.flows, P_, f_, k_),
+                                    parents=limb_parents(keys))
                 prior = P
             elif opts.init in ("flow", "limb"):
                 P = prior = flow_init(*self.flows, P, fixed, frame0)
