@@ -35,6 +35,56 @@ def test_holes_count_enclosed_background_only():
     assert A.holes(c2) == (0, 0)
 
 
+def test_hole_kinds_seam_inside_one_part_or_between_joined_parts():
+    # A ring inside one part: its hole is a defect (seam), whatever its size.
+    lab = np.full((50, 50), -1)
+    lab[5:45, 5:45] = P["torso"]
+    lab[20:26, 20:26] = -1
+    assert A.hole_kinds(lab >= 0, lab) == (1, 0)
+    # A crack enclosed between head and torso (joined at the neck): seam.
+    lab = np.full((60, 60), -1)
+    lab[5:30, 10:50] = P["head"]
+    lab[33:55, 10:50] = P["torso"]
+    lab[30:33, 10:14] = P["torso"]
+    lab[30:33, 46:50] = P["torso"]
+    borders = A.hole_borders(lab >= 0, lab)
+    assert [(a, p_) for a, p_, _ in borders] == [(3 * 32, {P["head"], P["torso"]})]
+    assert A.hole_kinds(lab >= 0, lab) == (1, 0)
+    # The same crack with a seal-filled pixel on its rim (drawn, no part): still seam.
+    cov = lab >= 0
+    lab2 = lab.copy()
+    lab2[31, 10] = -1
+    assert A.hole_kinds(cov, lab2) == (1, 0)
+
+
+def test_hole_kinds_pose_between_a_hand_and_the_head():
+    # The head, and a forearm bent round to touch it above and below: the gap they enclose is
+    # background the pose closes (forearm and head are not joined in the skeleton).
+    lab = np.full((60, 70), -1)
+    lab[10:50, 10:35] = P["head"]
+    lab[10:16, 35:60] = P["l_forearm"]
+    lab[44:50, 35:60] = P["l_forearm"]
+    lab[16:44, 54:60] = P["l_forearm"]
+    cov = lab >= 0
+    assert A.holes(cov) == (28 * 19, 1)
+    assert A.hole_kinds(cov, lab) == (0, 1)
+    (area, parts, contacts), = A.hole_borders(cov, lab)
+    assert area == 28 * 19 and parts == {P["head"], P["l_forearm"]}
+    assert contacts == {tuple(sorted((P["head"], P["l_forearm"])))}
+    # Its far side drawn by the upper arm instead (joined to the forearm where they meet on the
+    # rim): the forearm still touches the head, so the pose still closes the loop.
+    lab[16:44, 54:60] = P["l_upper_arm"]
+    assert A.hole_kinds(cov, lab) == (0, 1)
+    # With the arm replaced by the torso all round (head and torso joined): a seam hole.
+    lab[lab >= 0] = np.where(lab[lab >= 0] == P["head"], P["head"], P["torso"])
+    assert A.hole_kinds(cov, lab) == (1, 0)
+    # Holes of 4 px² or less are not classified.
+    small = np.zeros((20, 20), bool)
+    small[2:18, 2:18] = True
+    small[8:10, 8:10] = False
+    assert A.hole_kinds(small, np.where(small, 0, -1)) == (0, 0)
+
+
 # --------------------------------------------------------------------------- tears
 
 def _blocks(gap: int, cap: bool):
@@ -52,6 +102,19 @@ def test_tears_a_capped_crack_between_two_parts_is_all_tear():
     assert A.tears(lab) == 2 * 40           # every pixel of the 2 × 40 crack
     assert A.holes(lab >= 0) == (80, 1)
     assert A.tears(_blocks(0, cap=True)) == 0  # no gap, no tear
+
+
+def test_tears_by_pair_and_joint_gaps_by_joint():
+    lab = _blocks(2, cap=True)
+    t, counts = A.tear_pixels(lab, by_pair=True)
+    pair = A.ADJACENT.index((P["torso"], P["l_upper_arm"]))
+    assert t.sum() == 80 and counts[pair] == 80 and counts.sum() == 80
+    # Two joint discs of radius 3 on a drawn square, one of them half off its edge.
+    cov = np.zeros((40, 40), bool)
+    cov[5:35, 5:35] = True
+    total, each = A.joint_gaps(cov, np.array([[20.0, 20.0], [34.5, 20.0]]), np.array([3.0, 3.0]), per_joint=True)
+    assert each[0] == 0 and each[1] == total == A.joint_gaps(cov, np.array([[34.5, 20.0]]), np.array([3.0]))
+    assert 10 <= total <= 20  # about half of a disc of 28 px
 
 
 def test_tears_leave_out_a_wide_gap_and_an_inside_corner():

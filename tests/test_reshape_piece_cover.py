@@ -156,3 +156,31 @@ def test_char4_forearm_drawn_off_its_bone_is_its_own_piece():
         region = m.labels == seg
         if region.sum() >= 50:
             assert covered_share(region, m.vertices, m.triangles[core & (m.pieces == seg)]) >= COVER, SEGMENT_NAMES[seg]
+
+
+def test_an_elbow_tab_reaches_the_outline_in_the_band_along_its_cut():
+    """A straight horizontal arm, 11 px thick (rows 15-25), cut across at x = 40: the forearm's tab
+    under the upper arm reaches the outline's second row next to the cut (the outer corner a bend
+    opens), but keeps off it farther along the upper arm and at a knee; never the outermost row
+    (at rest the tab hides under the parent's edge)."""
+    from nnsf.reshape.cuts import Cut, SEGMENT_NAMES
+    from nnsf.reshape.pieces import tab_region
+
+    label = np.full((40, 80), -1)
+    label[15:26, 10:40] = SEGMENT_NAMES.index("l_upper_arm")
+    label[15:26, 40:70] = SEGMENT_NAMES.index("l_forearm")
+
+    def tab(child: str, parent: str):
+        lab = np.where(label == SEGMENT_NAMES.index("l_upper_arm"), SEGMENT_NAMES.index(parent),
+                       np.where(label >= 0, SEGMENT_NAMES.index(child), -1))
+        cut = Cut(joint=12, parent=SEGMENT_NAMES.index(parent), child=SEGMENT_NAMES.index(child),
+                  p=np.array([40.0, 15.0]), q=np.array([40.0, 25.0]), pivot=np.array([37.0, 20.0]),
+                  normal=np.array([1.0, 0.0]), half_width=5.0)
+        return tab_region(lab, cut, 0.0)
+
+    elbow = tab("l_forearm", "l_upper_arm")
+    assert elbow[16, 37:41].any() and elbow[24, 37:41].any()      # the second rows next to the cut
+    assert not elbow[16, 10:33].any() and not elbow[24, 10:33].any()  # not farther along
+    assert not elbow[:16].any() and not elbow[25:].any()           # never the outermost row
+    knee = tab("l_shin", "l_thigh")
+    assert not knee[16].any() and not knee[24].any() and knee[17, 37:40].any()

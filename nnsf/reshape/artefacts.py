@@ -80,8 +80,81 @@ def holes(coverage: np.ndarray, min_area: int = 4) -> tuple[int, int]:
     return int(areas.sum()), int((areas > min_area).sum())
 
 
-def joint_gaps(coverage: np.ndarray, centres: np.ndarray, radii: np.ndarray) -> int:
+#: Every pair of parts joined in the skeleton, both orders (for :func:`hole_kinds`).
+_JOINED = frozenset(ADJACENT) | frozenset((b, a) for a, b in ADJACENT)
+
+
+def hole_borders(coverage: np.ndarray, labels: np.ndarray, min_area: int = 4):
+    """Each enclosed hole larger than ``min_area`` px²: ``(area, parts, contacts)``.
+
+    ``parts``: the set of parts on its rim (the drawn pixels 8-adjacent to
+    it); ``contacts``: the set of unordered part pairs ``(a, b)`` that touch
+    each other *on* the rim (two 8-neighbouring rim pixels of different
+    parts), where the loop around the hole passes from one part to the next.
+    Drawn pixels without a part (``labels < 0`` inside ``coverage``: filled
+    by the seal) take the nearest part's label.
+    """
+    cov = np.asarray(coverage, dtype=bool)
+    lab = np.asarray(labels)
+    bg = (~cov).astype(np.uint8)
+    n, comp, stats, _ = cv2.connectedComponentsWithStats(bg, connectivity=4)
+    if n <= 1:
+        return []
+    border = np.unique(np.concatenate([comp[0], comp[-1], comp[:, 0], comp[:, -1]]))
+    outside = set(border.tolist())
+    inner = [i for i in range(1, n) if i not in outside and stats[i, cv2.CC_STAT_AREA] > min_area]
+    if not inner:
+        return []
+    part = np.where(cov, lab, -1)
+    orphan = cov & (part < 0)
+    if orphan.any() and (part >= 0).any():  # nearest labelled pixel (SciPy's exact EDT with indices)
+        _, (iy, ix) = ndimage.distance_transform_edt(part < 0, return_indices=True)
+        part = np.where(orphan, part[iy, ix], part)
+    H, W = cov.shape
+    out = []
+    for i in inner:
+        x, y, w, h = stats[i, :4]
+        y0, y1, x0, x1 = max(y - 2, 0), min(y + h + 2, H), max(x - 2, 0), min(x + w + 2, W)
+        hole = (comp[y0:y1, x0:x1] == i).astype(np.uint8)
+        rim = cv2.dilate(hole, np.ones((3, 3), np.uint8)).astype(bool) & ~hole.astype(bool)
+        p = np.where(rim, part[y0:y1, x0:x1], -1)
+        parts = set(np.unique(p[p >= 0]).tolist())
+        contacts = set()
+        for dy, dx in ((0, 1), (1, 0), (1, 1), (1, -1)):  # every 8-neighbour pair once
+            hh, ww = p.shape
+            a = p[:hh - dy, max(-dx, 0):ww - max(dx, 0)]
+            b = p[dy:, max(dx, 0):ww - max(-dx, 0)]
+            m = (a >= 0) & (b >= 0) & (a != b)
+            contacts |= {(min(u, v), max(u, v)) for u, v in set(zip(a[m].tolist(), b[m].tolist()))}
+        out.append((int(stats[i, cv2.CC_STAT_AREA]), parts, contacts))
+    return out
+
+
+def hole_kinds(coverage: np.ndarray, labels: np.ndarray, min_area: int = 4) -> tuple[int, int]:
+    """Holes larger than ``min_area`` px² as ``(seam, pose)`` counts (:func:`hole_borders`).
+
+    A **pose** hole is background the pose encloses: somewhere on its rim
+    two parts *not* joined in the skeleton (:data:`ADJACENT`) touch (a hand
+    against the chest or the face, two crossing shins), so the loop around
+    it closes through a contact the drawing does not have.  Every other hole
+    is a **seam** hole (a defect): inside one part, or on a rim whose parts
+    meet only where the skeleton joins them (a crack between head and
+    torso, a hole at a shoulder).
+    """
+    seam = pose = 0
+    for _, parts, contacts in hole_borders(coverage, labels, min_area):
+        if any(c not in _JOINED for c in contacts):
+            pose += 1
+        else:
+            seam += 1
+    return seam, pose
+
+
+def joint_gaps(coverage: np.ndarray, centres: np.ndarray, radii: np.ndarray, per_joint: bool = False):
     """Pixels of the joint discs ``(k,)`` (centre ``(k, 2)`` px, radius ``(k,)`` px) not drawn.
+
+    ``per_joint``: also each disc's own undrawn pixels ``(k,)`` int (discs
+    that overlap count their common pixels in each), as ``(total, each)``.
 
     A drawn joint is solid around its pivot: at rest the disc of each joint
     (shoulders, elbows, hips, knees, neck) of radius 0.8 × the drawing's
@@ -91,11 +164,19 @@ def joint_gaps(coverage: np.ndarray, centres: np.ndarray, radii: np.ndarray) -> 
     cov = np.asarray(coverage, dtype=bool)
     H, W = cov.shape
     gap = np.zeros((H, W), np.uint8)
-    for (x, y), r in zip(np.asarray(centres, dtype=np.float64), np.asarray(radii, dtype=np.float64)):
+    each = np.zeros(len(np.asarray(radii)), np.int64)
+    for j, ((x, y), r) in enumerate(zip(np.asarray(centres, dtype=np.float64), np.asarray(radii, dtype=np.float64))):
         if r < 0.5 or not (np.isfinite(x) and np.isfinite(y)):
             continue
-        cv2.circle(gap, (int(round(x * 8)), int(round(y * 8))), int(round(r * 8)), 1, -1, cv2.LINE_8, 3)
-    return int((gap.astype(bool) & ~cov).sum())
+        if per_joint:
+            one = np.zeros((H, W), np.uint8)
+            cv2.circle(one, (int(round(x * 8)), int(round(y * 8))), int(round(r * 8)), 1, -1, cv2.LINE_8, 3)
+            each[j] = int((one.astype(bool) & ~cov).sum())
+            gap |= one
+        else:
+            cv2.circle(gap, (int(round(x * 8)), int(round(y * 8))), int(round(r * 8)), 1, -1, cv2.LINE_8, 3)
+    total = int((gap.astype(bool) & ~cov).sum())
+    return (total, each) if per_joint else total
 
 
 #: Joints whose discs :func:`joint_gaps` checks: where two parts turn against each other.
@@ -143,8 +224,11 @@ def _part_edges(lab: np.ndarray) -> dict[int, np.ndarray]:
 
 
 def tear_pixels(labels: np.ndarray, radius: float = 3.0, pairs=ADJACENT, min_angle: float = 120.0,
-                background=None) -> np.ndarray:
+                background=None, by_pair: bool = False):
     """Tear pixels ``(H, W)`` bool from a visible-part image ``(H, W)`` int (−1 background); module docstring.
+
+    ``by_pair``: also the tear pixels of each pair of ``pairs`` ``(len(pairs),)``
+    int, as ``(pixels, counts)`` (a pixel between three parts counts for each pair).
 
     ``background`` ``(H, W)`` bool: what counts as background (default
     ``labels < 0``).  Candidates come from :func:`two_parts_near`; the
@@ -156,6 +240,7 @@ def tear_pixels(labels: np.ndarray, radius: float = 3.0, pairs=ADJACENT, min_ang
     lab = np.asarray(labels)
     bg = lab < 0 if background is None else np.asarray(background, dtype=bool)
     out = np.zeros(lab.shape, bool)
+    counts = np.zeros(len(pairs), np.int64)
     cand = bg & two_parts_near(lab, int(np.ceil(radius)))
     if cand.any():
         # Narrow gaps only: inside the closing of the drawn pixels by a disc of ``radius``.
@@ -166,12 +251,12 @@ def tear_pixels(labels: np.ndarray, radius: float = 3.0, pairs=ADJACENT, min_ang
                                   cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))).astype(bool)
         cand &= closed
     if not cand.any():
-        return out
+        return (out, counts) if by_pair else out
     yx = np.argwhere(cand)
     edges = _part_edges(lab)
     trees = {}
     cos_max = np.cos(np.radians(min_angle))
-    for a, b in pairs:
+    for i, (a, b) in enumerate(pairs):
         if a not in edges or b not in edges:
             continue
         vs = []
@@ -191,7 +276,8 @@ def tear_pixels(labels: np.ndarray, radius: float = 3.0, pairs=ADJACENT, min_ang
             np.linalg.norm(va[both], axis=1) * np.linalg.norm(vb[both], axis=1), 1e-9)
         hit = yx[both][cos < cos_max]
         out[hit[:, 0], hit[:, 1]] = True
-    return out
+        counts[i] = len(hit)
+    return (out, counts) if by_pair else out
 
 
 def tears(labels: np.ndarray, radius: float = 3.0, background=None) -> int:
@@ -395,11 +481,14 @@ def frame_artefacts(rgba: np.ndarray, labels: np.ndarray, ink_thr: float, spike_
     # Drawn pixels with no part (filled by the seal) are ink, not background: label them apart.
     lab = np.where(cov, np.where(labels >= 0, labels, len(PARTS)), -1)
     hp, hn = holes(cov)
-    out = {"hole_px": hp, "holes_gt4": hn, "tear_px": tears(lab, background=~cov),
+    seam, pose = hole_kinds(cov, np.where(cov, labels, -1))
+    tp, pair_tears = tear_pixels(lab, background=~cov, by_pair=True)
+    out = {"hole_px": hp, "holes_gt4": hn, "seam_holes": seam, "pose_holes": pose,
+           "tear_px": int(tp.sum()), "tear_pairs": pair_tears,
            "outline_ink": outline_continuity(cov, rgba[..., :3], ink_thr, reach),
            "spikes": count_spikes(outline_turning(cov), spike_thr)}
     if joints is not None:
-        out["joint_gap_px"] = joint_gaps(cov, *joints)
+        out["joint_gap_px"], out["joint_gap_each"] = joint_gaps(cov, *joints, per_joint=True)
     return out
 
 
@@ -414,12 +503,21 @@ def clip_artefacts(renderer, frames: np.ndarray, orders: np.ndarray, keypoints: 
     renderer's canvas).  Columns: ``hole_px`` (mean per frame),
     ``holes_gt4`` (total over the measured frames), ``holes_gt4_rest`` (in
     the drawing's mask), ``extra_holes`` (total of each frame's holes beyond
-    the drawing's: holes the artist did not draw), ``frames_with_holes``,
+    the drawing's: holes the artist did not draw), split into ``seam_holes``
+    (defects) and ``pose_holes`` (background the pose encloses;
+    :func:`hole_kinds`: per frame, the seam holes beyond the drawing's own
+    seam-kind holes, at most that frame's extra holes; the rest of its extra
+    holes are pose holes), ``frames_with_seam_holes``, ``frames_with_holes``,
     ``tear_px`` (mean), ``tear_px_max``, ``outline_ink`` and
     ``outline_ink_rest``, ``spikes`` (mean per frame) and ``spikes_rest``,
     the :func:`width_profile_stats`, ``joint_gap_px`` (mean), ``joint_gap_max``
     and ``joint_gap_rest`` (:func:`joint_gaps`, around the frame's key points),
-    ``frames_with_joint_gaps`` (more than 4 px), ``frames_with_tears``, and
+    ``frames_with_joint_gaps`` (more than 4 px), ``frames_with_tears``;
+    ``tear_beyond_rest`` (mean) and ``_max``: per frame, the tear pixels of
+    each joined pair beyond that pair's in the rest pose, summed over the
+    pairs; ``joint_gap_beyond_rest`` (mean), ``_max`` and
+    ``frames_with_joint_gaps_beyond_rest`` (more than 4 px): likewise joint
+    by joint (what the undeformed rig already shows is the drawing's); and
     ``artefact_frames`` (how many frames were measured).  Key points are the
     ones that drove the mesh (``rig.drive``), in the same sense as
     ``rest_keypoints``.
@@ -451,10 +549,19 @@ def clip_artefacts(renderer, frames: np.ndarray, orders: np.ndarray, keypoints: 
         widths.append(limb_widths(frames[t] + off, renderer.triangles, parts, keypoints[t] + off, shape))
     hole = np.array([r["hole_px"] for r in rows], float)
     drawn_holes = holes(np.asarray(mask, dtype=bool))[1]  # the drawing's own (the robot's arm gaps)
+    # Of the drawing's own holes, how many are seam-kind at rest (the robot's: between arm and body).
+    drawn_seam = min(rest_frame["seam_holes"], drawn_holes)
+    extra = [max(r["holes_gt4"] - drawn_holes, 0) for r in rows]
+    tear_more = [int(np.maximum(r["tear_pairs"] - rest_frame["tear_pairs"], 0).sum()) for r in rows]
+    gap_more = [int(np.maximum(r["joint_gap_each"] - rest_frame["joint_gap_each"], 0).sum()) for r in rows]
+    seam = [min(max(r["seam_holes"] - drawn_seam, 0), e) for r, e in zip(rows, extra)]
     out = {"hole_px": float(hole.mean()), "holes_gt4": int(sum(r["holes_gt4"] for r in rows)),
            "holes_gt4_rest": drawn_holes,
            # holes the drawing does not have: per frame, beyond the drawing's own count
-           "extra_holes": int(sum(max(r["holes_gt4"] - drawn_holes, 0) for r in rows)),
+           "extra_holes": int(sum(extra)),
+           # ... split: seam holes (defects) and pose holes (background the pose encloses)
+           "seam_holes": int(sum(seam)), "pose_holes": int(sum(extra) - sum(seam)),
+           "frames_with_seam_holes": int(sum(s_ > 0 for s_ in seam)),
            "frames_with_holes": int(sum(r["holes_gt4"] > 0 for r in rows)),
            "tear_px": float(np.mean([r["tear_px"] for r in rows])),
            "tear_px_max": int(max(r["tear_px"] for r in rows)),
@@ -467,6 +574,11 @@ def clip_artefacts(renderer, frames: np.ndarray, orders: np.ndarray, keypoints: 
            "joint_gap_max": int(max(r["joint_gap_px"] for r in rows)),
            "joint_gap_rest": int(rest_frame["joint_gap_px"]),
            "frames_with_joint_gaps": int(sum(r["joint_gap_px"] > 4 for r in rows)),
+           # beyond the rest pose's, pair by pair and joint by joint (what the undeformed rig shows
+           # already, a sprite's drawn gap between arm and body, is the drawing)
+           "tear_beyond_rest": float(np.mean(tear_more)), "tear_beyond_rest_max": int(max(tear_more)),
+           "joint_gap_beyond_rest": float(np.mean(gap_more)), "joint_gap_beyond_rest_max": int(max(gap_more)),
+           "frames_with_joint_gaps_beyond_rest": int(sum(g > 4 for g in gap_more)),
            "frames_with_tears": int(sum(r["tear_px"] > 0 for r in rows)),
            "artefact_frames": int(len(pick))}
     out.update(width_profile_stats(np.stack(widths), rest_w))

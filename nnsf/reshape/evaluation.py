@@ -103,9 +103,12 @@ LABELS = {"connected/keypoints": "ARAP, key points (connected mesh)",
           "layered/ours_unsealed": "subkeys (layered mesh), not sealed"}
 FIGURE_ITEMS = (("char1", "kick_normal_001"), ("char4", "walk_normal_001"))
 #: Columns of :func:`nnsf.reshape.artefacts.clip_artefacts` (copied for a variant with the same frames).
-ARTEFACT_COLUMNS = ("hole_px", "holes_gt4", "holes_gt4_rest", "extra_holes", "frames_with_holes", "tear_px",
+ARTEFACT_COLUMNS = ("hole_px", "holes_gt4", "holes_gt4_rest", "extra_holes", "seam_holes", "pose_holes",
+                    "frames_with_seam_holes", "frames_with_holes", "tear_px",
                     "tear_px_max", "tear_px_rest", "outline_ink", "outline_ink_rest", "spikes", "spikes_rest",
                     "joint_gap_px", "joint_gap_max", "joint_gap_rest", "frames_with_joint_gaps",
+                    "tear_beyond_rest", "tear_beyond_rest_max", "joint_gap_beyond_rest",
+                    "joint_gap_beyond_rest_max", "frames_with_joint_gaps_beyond_rest",
                     "frames_with_tears", "artefact_frames", "width_change", "width_error", "width_roughness",
                     "width_jitter")
 #: Side-by-side GIF panels: the key-point baseline and subkeys on whole-limb
@@ -471,7 +474,7 @@ def reshape_eval(params: dict, data_root, out_dir=Path("reports"),
     metrics = {}
     for v, m in s["means"].items():
         for k in ("driving_failure_ratio", "arap_energy_mean", "stretch_ratio_max", "flipped_triangles",
-                  "depth_agreement", "subkey_slide", "extra_holes", "tear_px", "outline_ink", "spikes",
+                  "depth_agreement", "subkey_slide", "extra_holes", "seam_holes", "tear_px", "outline_ink", "spikes",
                   "width_error", "width_jitter"):
             if m.get(k) is not None:
                 metrics[f"{v.replace('/', '_')}_{k}"] = m[k]
@@ -512,7 +515,8 @@ def main(argv=None) -> int:
                                       "temporal_jitter", "depth_agreement", "order_flips_per_100_frames",
                                       "subkey_slide"]].round(4).to_string())
     print(pd.DataFrame(s["failure_ratio"]).T.round(3).to_string())
-    print(pd.DataFrame(s["means"]).T[["hole_px", "holes_gt4", "extra_holes", "tear_px", "tear_px_max",
+    print(pd.DataFrame(s["means"]).T[["hole_px", "holes_gt4", "extra_holes", "seam_holes", "pose_holes", "tear_px",
+                                      "tear_px_max",
                                       "joint_gap_px", "joint_gap_max", "outline_ink", "outline_ink_rest", "spikes",
                                       "spikes_rest", "width_error", "width_change", "width_roughness",
                                       "width_jitter"]].round(4).to_string())
