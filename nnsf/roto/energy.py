@@ -320,17 +320,12 @@ class SpaceTimeProblem:
         # the velocity term penalises the change of each sample between frames minus
         # that of ``motion_prior`` (e.g. the flow init): motion is then judged against
         # the flow, not against standing still, which punished fast limbs (a jump)
-        self.vref = None
-        self.vtrust = None
+        self.vref = self.vtrust = None
         if motion_prior is not None:
             S0 = np.einsum("nc,gtcd->gtnd", self.B0, np.asarray(motion_prior, np.float64))
             self.vref = S0[:, :-1] - S0[:, 1:]                            # (G, T-1, n, 2)
-            # ``velocity_trust``: the start's motion is trusted as far as the start is: the
-            # velocity residuals between frames t and t+1 are scaled by sqrt of the start's mean
-            # confidence in those two frames (docs/method.md §2.2)
-            if velocity_trust and conf is not None:
-                self.vtrust = np.sqrt(np.clip(0.5 * (conf[:, :-1] + conf[:, 1:]), 0.0, 1.0)
-                                      )[..., None]                             # (G, T-1, 1)
+            if velocity_trust and conf is not None:   # the start trusted as far as it is (§2.2)
+                self.vtrust = np.sqrt(np.clip(conf[:, :-1] + conf[:, 1:], 0, 2) / 2)[..., None]
         # the slide anchor: each in-between sample's offset from the prior along the prior's
         # tangent (constant unit vectors, so the residual is linear in P)
         self.slide = None
@@ -411,8 +406,7 @@ class SpaceTimeProblem:
             r = (s * dv).reshape(G, T - 1, 2 * n)
             J = lin(M, s) if jacobian else None
             if V is S and self.vtrust is not None:
-                r = self.vtrust * r
-                J = None if J is None else self.vtrust[..., None] * J
+                r, J = self.vtrust * r, None if J is None else self.vtrust[..., None] * J
             out.append(Block(r, J, 0, None if J is None else -J))
         # length (see the module notes): (n-1)(|c_t'| - |c_{t+1}'|) between adjacent
         # frames, and (n-1)(|c_t'| - ℓ_t) against the keyframes' blended speeds
