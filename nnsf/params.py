@@ -184,6 +184,7 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "roto.max_iter": _int(1, 10000),
     "roto.w_slide": _num(0, 1e6),
     "roto.edge_gate": _num(0, 1000),
+    "roto.velocity_trust": _bool(),
     "roto.init": _choice(TRACK_INITS),
     "roto.lk_end": _choice(LK_ENDS),
     "roto.eval_clips": _int(1, 1000),

@@ -71,6 +71,7 @@ roto:
   w_colour: 100.0
   w_slide: 10.0
   edge_gate: 1.0
+  velocity_trust: false
   window: 3
   samples: 8
   levels: 1

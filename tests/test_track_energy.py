@@ -27,7 +27,7 @@ def _problem(image_terms=True, seed=0, gated=False):
     extra = {}
     if gated:      # edge gate, slide anchor to a start with a confidence per frame
         extra = dict(edge_gate=1.5, slide=50.0, motion_prior=P + rng.normal(0, 0.5, P.shape),
-                     prior_confidence=rng.uniform(0.2, 1.0, (2, T)))
+                     prior_confidence=rng.uniform(0.2, 1.0, (2, T)), velocity_trust=True)
     prob = SpaceTimeProblem(lev, P, fixed, Weights(), n_samples=9, K=2,
                             use_image_terms=image_terms, **extra)
     if gated:
@@ -158,3 +158,25 @@ def test_edge_gate_and_slide_anchor_residuals_against_their_definitions():
     e = bilinear(prob.images.edge, prob._t(np.arange(1, T - 1), 1), S[:, 1:-1], grad=False)[..., 0]
     assert any(r.shape == e.shape and np.allclose(r, keep[:, None] * e) for r in extra)
     assert 0 < on.sum() < on.size
+
+
+def test_velocity_trust_scales_the_velocity_term_by_the_start_confidence():
+    # velocity_trust: r = sqrt(w_v (c_t + c_{t+1}) / 2) ((c_t - c_{t+1}) - (c̃_t - c̃_{t+1})),
+    # c the start's confidence (docs/method.md §2.2); off, or without a confidence: full weight
+    from nnsf.roto import curves
+    base, x = _problem()
+    rng = np.random.default_rng(7)
+    T = base.T
+    prior = base.P0 + rng.normal(0, 0.5, base.P0.shape)
+    conf = rng.uniform(0.0, 1.0, (2, T))
+    B0 = curves.basis(base.C, base.n)[0]
+    P = base.controls(x)
+    S, Sp = np.einsum("nc,gtcd->gtnd", B0, P), np.einsum("nc,gtcd->gtnd", B0, prior)
+    dv = ((S[:, :-1] - S[:, 1:]) - (Sp[:, :-1] - Sp[:, 1:])).reshape(2, T - 1, -1)
+    w = Weights()
+    trusted = np.sqrt(0.5 * (conf[:, :-1] + conf[:, 1:]))[..., None]
+    for c, on, scale in ((conf, True, trusted), (conf, False, 1.0), (None, True, 1.0)):
+        prob = SpaceTimeProblem(base.images, base.P0, base.fixed, w, n_samples=9, K=2,
+                                motion_prior=prior, prior_confidence=c, velocity_trust=on)
+        r = prob.blocks(x, jacobian=False)[0].r
+        np.testing.assert_allclose(r, np.sqrt(w.velocity) * scale * dv, rtol=1e-10, atol=1e-12)

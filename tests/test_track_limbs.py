@@ -169,7 +169,8 @@ def test_init_limb_through_track_clip_and_the_do_nothing_floor():
     np.testing.assert_array_equal(ag, ag_flow)
 
 
-@pytest.mark.parametrize("bad", [{"edge_gate": -1.0}, {"slide": float("nan")}, {"init": "limbs"}])
+@pytest.mark.parametrize("bad", [{"edge_gate": -1.0}, {"slide": float("nan")}, {"init": "limbs"},
+                                 {"velocity_trust": 1.0}])
 def test_bad_new_options_raise(bad):
     from nnsf.roto.solve import TrackOptions
     with pytest.raises(ValueError, match="track option"):

@@ -259,6 +259,8 @@ class SpaceTimeProblem:
         samples NOT within that distance of an edge in both keyframes by
         1 - the start's mean confidence (0 with no start: dropped).
     slide : weight of the slide anchor to ``motion_prior`` (0: none).
+    velocity_trust : with ``motion_prior`` and ``prior_confidence``, scale the
+        velocity residuals between frames t and t+1 by sqrt((c_t + c_{t+1}) / 2).
 
     The unknown vector ``x`` holds the free entries of P (``P[free]`` order).
     """
@@ -268,7 +270,7 @@ class SpaceTimeProblem:
                  frame0: np.ndarray | None = None, length_anchor: float = 4.0,
                  motion_prior: np.ndarray | None = None,
                  prior_confidence: np.ndarray | None = None, edge_gate: float = 0.0,
-                 slide: float = 0.0):
+                 slide: float = 0.0, velocity_trust: bool = False):
         P0 = np.asarray(P0, dtype=np.float64)
         self.G, self.T, self.C, _ = P0.shape
         self.frame0 = np.zeros(self.G, np.intp) if frame0 is None else \
@@ -318,10 +320,12 @@ class SpaceTimeProblem:
         # the velocity term penalises the change of each sample between frames minus
         # that of ``motion_prior`` (e.g. the flow init): motion is then judged against
         # the flow, not against standing still, which punished fast limbs (a jump)
-        self.vref = None
+        self.vref = self.vtrust = None
         if motion_prior is not None:
             S0 = np.einsum("nc,gtcd->gtnd", self.B0, np.asarray(motion_prior, np.float64))
             self.vref = S0[:, :-1] - S0[:, 1:]                            # (G, T-1, n, 2)
+            if velocity_trust and conf is not None:   # the start trusted as far as it is (§2.2)
+                self.vtrust = np.sqrt(np.clip(conf[:, :-1] + conf[:, 1:], 0, 2) / 2)[..., None]
         # the slide anchor: each in-between sample's offset from the prior along the prior's
         # tangent (constant unit vectors, so the residual is linear in P)
         self.slide = None
@@ -401,6 +405,8 @@ class SpaceTimeProblem:
                 dv = dv - self.vref
             r = (s * dv).reshape(G, T - 1, 2 * n)
             J = lin(M, s) if jacobian else None
+            if V is S and self.vtrust is not None:
+                r, J = self.vtrust * r, None if J is None else self.vtrust[..., None] * J
             out.append(Block(r, J, 0, None if J is None else -J))
         # length (see the module notes): (n-1)(|c_t'| - |c_{t+1}'|) between adjacent
         # frames, and (n-1)(|c_t'| - ℓ_t) against the keyframes' blended speeds

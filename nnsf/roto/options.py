@@ -26,6 +26,7 @@ OPTION_PARAMS: dict[str, tuple[str, str, float]] = {
 OPTIONAL_PARAMS: dict[str, tuple[str, str, float]] = {
     "w_slide": ("slide", "num", 0.0),
     "edge_gate": ("edge_gate", "num", 0.0),
+    "velocity_trust": ("velocity_trust", "bool", 0.0),
 }
 
 
@@ -38,8 +39,8 @@ def track_options(params: dict) -> dict:
     out = {name: require(params, f"roto.{key}") for key, (name, _, _) in OPTION_PARAMS.items()}
     out["init"] = require(params, "roto.init")
     out["lk_end"] = require(params, "roto.lk_end")
-    for key, (name, _, _) in OPTIONAL_PARAMS.items():     # absent in older params files: off
-        out[name] = checked(params, f"roto.{key}", 0.0)
+    for key, (name, kind, _) in OPTIONAL_PARAMS.items():     # absent in older params files: off
+        out[name] = checked(params, f"roto.{key}", False if kind == "bool" else 0.0)
     return out
 
 

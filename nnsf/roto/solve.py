@@ -68,7 +68,9 @@ class TrackOptions:
     image edge in both keyframes by 1 - the start's confidence, and
     ``slide`` weighs the anchor of each sample's position ALONG its curve to
     the limb start, times the start's confidence (see
-    :class:`nnsf.roto.energy.SpaceTimeProblem`).
+    :class:`nnsf.roto.energy.SpaceTimeProblem`).  ``velocity_trust`` (off by
+    default) weighs the velocity term against the start's motion by the
+    start's confidence too.
     """
 
     # The energy weights and their defaults are :class:`Weights`' (one source).
@@ -96,6 +98,7 @@ class TrackOptions:
     length_anchor: float = 4.0
     edge_gate: float = 0.0
     slide: float = 0.0
+    velocity_trust: bool = False
 
     def __post_init__(self):
         for name in ("velocity", "length", "curvature", "edge", "sketch", "colour", "length_anchor",
@@ -114,6 +117,8 @@ class TrackOptions:
             raise ValueError(f"track option solver must be one of {SOLVERS}, got {self.solver!r}")
         if not 0 < self.ftol < 1:
             raise ValueError(f"track option ftol must be in (0, 1), got {self.ftol!r}")
+        if not isinstance(self.velocity_trust, (bool, np.bool_)):
+            raise ValueError(f"track option velocity_trust must be true or false, got {self.velocity_trust!r}")
         if self.lk_end not in LK_ENDS:
             raise ValueError(f"track option lk_end must be one of {LK_ENDS}, got {self.lk_end!r}")
 
@@ -295,7 +300,7 @@ def solve_interval(pyramid: list[LevelImages], P: np.ndarray, fixed: np.ndarray,
                    levels: int | None = None, frame0: np.ndarray | None = None,
                    motion_prior: np.ndarray | None = None,
                    prior_confidence: np.ndarray | None = None, edge_gate: float = 0.0,
-                   slide: float = 0.0) -> np.ndarray:
+                   slide: float = 0.0, velocity_trust: bool = False) -> np.ndarray:
     """Solve the space-time problem of G curves over one interval, coarse to fine.
 
     pyramid : the interval's frames as from :func:`build_pyramid`, finest first
@@ -308,7 +313,8 @@ def solve_interval(pyramid: list[LevelImages], P: np.ndarray, fixed: np.ndarray,
               so curves of several intervals of equal length solve together.
     motion_prior : optional (G, T, C, 2) full-resolution track (the flow init)
               whose frame-to-frame motion the velocity term takes as its zero.
-    prior_confidence, edge_gate, slide : see :class:`nnsf.roto.energy.SpaceTimeProblem`
+    prior_confidence, edge_gate, slide, velocity_trust : see
+              :class:`nnsf.roto.energy.SpaceTimeProblem`
               (``edge_gate`` in full-resolution px).
     Returns (G, T, C, 2) full-resolution control points.
     """
@@ -328,7 +334,8 @@ def solve_interval(pyramid: list[LevelImages], P: np.ndarray, fixed: np.ndarray,
                                 motion_prior=None if motion_prior is None
                                 else _to_level(motion_prior, L.scale),
                                 prior_confidence=prior_confidence,
-                                edge_gate=edge_gate * L.scale, slide=slide)
+                                edge_gate=edge_gate * L.scale, slide=slide,
+                                velocity_trust=velocity_trust)
         if opts.solver == "lm":
             x, _ = levenberg_marquardt(prob, prob.x0(), max_iter=opts.max_nfev, ftol=opts.ftol,
                                       max_step=opts.max_step)
@@ -487,7 +494,8 @@ class ClipTracker:
         return solve_interval(self.pyramid, P, fixed, opts, use_image_terms=ours,
                               levels=1 if warm else None, frame0=frame0, motion_prior=prior,
                               prior_confidence=conf, edge_gate=opts.edge_gate if ours else 0.0,
-                              slide=opts.slide if conf is not None else 0.0)
+                              slide=opts.slide if conf is not None else 0.0,
+                              velocity_trust=opts.velocity_trust)
 
 
 def assemble(T: int, names: list[str], kfs: dict, batches: list[Batch],
