@@ -530,17 +530,14 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
     regions = {}
     # Parents first (shoulders and hips before elbows and knees): a segment drawn too short to
     # hold its child's tab lends it its own tab.
-    # Tabs keep inside the solid drawing: an opaque tab under a faint pixel (the robot's 2 px
-    # crotch gap, alpha below 10 %) would show there at rest.
-    tab_label = np.where(solid, label, -1)
     for cut in sorted(cuts, key=lambda c: c.parent != 0):
         if cut.parent == 0:
-            regions[cut.child] = tab_region(tab_label, cut, margin)
+            regions[cut.child] = tab_region(label, cut, margin)
         else:
             under = regions.get(cut.parent, np.zeros(label.shape, bool))
             # An elbow's or knee's cut ends on the outline: the wedge a bend opens reaches the
             # outline, so this tab keeps no margin.
-            regions[cut.child] = tab_region(tab_label, cut, 0.0, under=under)
+            regions[cut.child] = tab_region(label, cut, 0.0, under=under)
     for k, cut in enumerate(cuts):
         region = regions[cut.child]
         # A tab is retried only when it gets no triangle at all: it hides under its parent, and a
