@@ -20,6 +20,12 @@ PARTS: tuple[str, ...] = ("torso", "head") + tuple(LIMBS)
 
 PART_INDEX = {name: i for i, name in enumerate(PARTS)}
 
+#: Part pairs a joint joins ``((ancestor, part), ...)``: the torso with the head and with each limb
+#: segment (a lower segment meets the torso where its upper one is drawn hidden, AnimatedDrawings'
+#: char1), each upper segment with its lower one.  Two limbs, or a limb and the head, are not joined.
+JOINED_PARTS: tuple[tuple[int, int], ...] = ((0, 1),) + tuple((0, i) for i in range(2, len(PARTS))) + tuple(
+    (i - 1, i) for i, name in enumerate(PARTS) if i >= 2 and not ("upper" in name or "thigh" in name))
+
 
 def _bones_of_parts() -> list[tuple[int, int, int]]:
     """(parent key point, child key point, part id) for every bone used to label parts."""

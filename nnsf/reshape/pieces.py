@@ -226,6 +226,37 @@ def move_pivots(mask: np.ndarray, keypoints: np.ndarray, cuts: list[Cut], reach:
     return kp
 
 
+def solid_mask(mask: np.ndarray, texture=None, level: int = 128) -> np.ndarray:
+    """The mask's solid pixels ``(H, W)`` bool: alpha at least ``level`` (of 255), where ``texture`` has alpha.
+
+    A sprite's anti-aliased edge (Kenney's: alpha ramps over 1-2 px) is no
+    part of any shape, but its faint pixels bridge shapes drawn a pixel
+    apart: the robot's claws touch its legs through them, so cut and
+    labelled on the whole mask a claw's prong went to the thigh beside it and
+    the hip's cut ran along the claw.  Without alpha, or when the solid
+    pixels are less than half the mask (a drawing made of soft strokes), the
+    mask itself.
+    """
+    m = np.asarray(mask, dtype=bool)
+    if texture is None or np.asarray(texture).ndim != 3 or np.asarray(texture).shape[2] < 4:
+        return m
+    solid = m & (np.asarray(texture)[..., 3] >= level)
+    return solid if solid.sum() >= 0.5 * m.sum() else m
+
+
+def _fill_soft(label: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """``label`` of the solid pixels extended to every pixel of ``m``: each soft one takes its nearest piece."""
+    from scipy.ndimage import distance_transform_edt
+
+    miss = m & (label < 0)
+    if not miss.any() or not (label >= 0).any():
+        return np.where(m, label, -1)
+    _, (iy, ix) = distance_transform_edt(label < 0, return_indices=True)
+    out = np.where(m, label, -1)
+    out[miss] = label[iy[miss], ix[miss]]
+    return out
+
+
 def _child_bone(child: int) -> tuple[int, int]:
     if child == HEAD:
         return J["neck"], J["head_top"]
@@ -397,12 +428,15 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
     """
     m = np.asarray(mask, dtype=bool)
     kp = np.asarray(keypoints, dtype=np.float64)
-    all_cuts = find_cuts(m, kp)
-    label = label_pieces(m, kp, all_cuts, texture=texture)
+    # Cuts and regions from the drawing's solid pixels; its soft edge then goes to the nearest piece
+    # (:func:`solid_mask`).
+    solid = solid_mask(m, texture)
+    all_cuts = find_cuts(solid, kp)
+    label = _fill_soft(label_pieces(solid, kp, all_cuts, texture=texture), m)
     overlay = np.zeros(m.shape, bool)
     if texture is not None:
         # Limbs drawn over the body as shapes of their own: the body goes on under them, painted in.
-        geo = label_pieces(m, kp, all_cuts)
+        geo = _fill_soft(label_pieces(solid, kp, all_cuts), m)
         overlay = (geo == 0) & (label > 0) & (label != HEAD)
     # A whole-limb mesh cuts at the shoulders, hips and neck only; its parts still follow the
     # segments (for the depth order and the measures).

@@ -32,7 +32,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from nnsf.reshape.parts import PARTS
+from nnsf.reshape.parts import JOINED_PARTS, PARTS
 from nnsf.reshape.parts import SEGMENT_PART
 from nnsf.reshape.regions import body_line
 from nnsf.reshape.pieces import ink_mask, tab_texture
@@ -67,6 +67,8 @@ class MeshRenderer:
             ys = np.flatnonzero(np.asarray(mask, dtype=bool).any(axis=1))
             height = float(ys[-1] - ys[0] + 1) if len(ys) else 0.0
             self._seal_kw["close"] = int(np.clip(round(0.007 * height), 1, 4))
+            # Cracks only where a joint joins two parts; a gap between others is drawn.
+            self._seal_kw["joined"] = JOINED_PARTS
         self.uv = np.asarray(rest_vertices, dtype=np.float64)
         self.triangles = np.asarray(triangles, dtype=np.int64)
         self.parts = np.asarray(parts, dtype=np.int64)

@@ -34,13 +34,33 @@ from nnsf.reshape.artefacts import two_parts_near
 
 
 
+def joined_near(labels: np.ndarray, reach: int, pairs) -> np.ndarray:
+    """Pixels ``(H, W)`` bool within ``reach`` px (Chebyshev) of both parts of one of ``pairs`` ((a, b) part ids)."""
+    lab = np.asarray(labels)
+    k = np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)
+    near = {}
+    for p in {x for ab in pairs for x in ab}:
+        own = lab == p
+        near[p] = cv2.dilate(own.astype(np.uint8), k).astype(bool) if own.any() else None
+    out = np.zeros(lab.shape, bool)
+    for a, b in pairs:
+        if near[a] is not None and near[b] is not None:
+            out |= near[a] & near[b]
+    return out
+
+
 def seal_mask(labels: np.ndarray, alpha: np.ndarray, close: int = 4, hole_share: float = 0.02,
-              thin: float = 3.0, hole_max: float | None = None) -> np.ndarray:
+              thin: float = 3.0, hole_max: float | None = None, joined=None) -> np.ndarray:
     """Pixels ``(h, w)`` bool to fill, from visible parts ``(h, w)`` int (−1 empty) and alpha ``(h, w)`` uint8.
 
     ``hole_max``: fill no wider-than-thin hole larger than this (px²); the
     renderer sets it to half the drawing's own smallest hole
     (:func:`drawn_hole_limit`), so a gap the artist drew is never filled.
+    ``joined``: part pairs ``[(a, b), ...]`` joined at a joint; when given, a
+    crack is filled only between the two parts of such a pair.  A crack
+    between parts no joint joins (two legs, an arm and the body's side) is
+    the drawing's own gap: the Kenney robot's 2 px crotch, which the
+    closing otherwise paints over.
     """
     cov = np.asarray(alpha) >= 128
     if not cov.any():
@@ -51,7 +71,8 @@ def seal_mask(labels: np.ndarray, alpha: np.ndarray, close: int = 4, hole_share:
     closed = cv2.morphologyEx(cov.astype(np.uint8), cv2.MORPH_CLOSE, ker).astype(bool)
     fill = closed & ~cov
     if fill.any():
-        fill &= two_parts_near(np.where(cov, labels, -1), close + 1)
+        lab = np.where(cov, labels, -1)
+        fill &= two_parts_near(lab, close + 1) if joined is None else joined_near(lab, close + 1, joined)
     drawn = cov | fill
     bg = (~drawn).astype(np.uint8)
     n, lab, stats, _ = cv2.connectedComponentsWithStats(bg, connectivity=4)
