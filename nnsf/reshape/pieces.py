@@ -229,18 +229,14 @@ def move_pivots(mask: np.ndarray, keypoints: np.ndarray, cuts: list[Cut], reach:
 def solid_mask(mask: np.ndarray, texture=None, level: int = 128) -> np.ndarray:
     """The mask's solid pixels ``(H, W)`` bool: alpha at least ``level`` (of 255), where ``texture`` has alpha.
 
-    A sprite's anti-aliased edge (Kenney's: alpha ramps over 1-2 px) is no
-    part of any shape, but its faint pixels bridge shapes drawn a pixel
-    apart: the robot's claws touch its legs through them, so cut and
-    labelled on the whole mask a claw's prong went to the thigh beside it and
-    the hip's cut ran along the claw.  Without alpha, or when the solid
-    pixels are less than half the mask (a drawing made of soft strokes), the
-    mask itself.
+    A sprite's anti-aliased edge bridges shapes drawn a pixel apart (the robot's claws touch its
+    legs through it), so cuts and labels on the whole mask mix them up.  Without alpha, or when
+    under half the mask is solid (soft strokes), the mask itself.
     """
-    m = np.asarray(mask, dtype=bool)
-    if texture is None or np.asarray(texture).ndim != 3 or np.asarray(texture).shape[2] < 4:
+    m, t = np.asarray(mask, dtype=bool), None if texture is None else np.asarray(texture)
+    if t is None or t.ndim != 3 or t.shape[2] < 4:
         return m
-    solid = m & (np.asarray(texture)[..., 3] >= level)
+    solid = m & (t[..., 3] >= level)
     return solid if solid.sum() >= 0.5 * m.sum() else m
 
 
@@ -248,12 +244,10 @@ def _fill_soft(label: np.ndarray, m: np.ndarray) -> np.ndarray:
     """``label`` of the solid pixels extended to every pixel of ``m``: each soft one takes its nearest piece."""
     from scipy.ndimage import distance_transform_edt
 
-    miss = m & (label < 0)
-    if not miss.any() or not (label >= 0).any():
-        return np.where(m, label, -1)
-    _, (iy, ix) = distance_transform_edt(label < 0, return_indices=True)
-    out = np.where(m, label, -1)
-    out[miss] = label[iy[miss], ix[miss]]
+    miss, out = m & (label < 0), np.where(m, label, -1)
+    if miss.any() and (label >= 0).any():
+        _, (iy, ix) = distance_transform_edt(label < 0, return_indices=True)
+        out[miss] = label[iy[miss], ix[miss]]
     return out
 
 
