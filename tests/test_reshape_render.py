@@ -134,6 +134,28 @@ def test_depth_order_decides_which_part_is_seen():
     assert arm_front[65, 65, 3] == 0
 
 
+def test_soft_rim_over_a_part_shows_that_part_not_the_paper():
+    # A limb's anti-aliased outline (texels of alpha 128) laid over the torso must blend with the
+    # torso's colour; blended with the paper it draws a light hairline along the limb.
+    V = np.array([[0, 0], [40, 0], [40, 40], [0, 40], [20, 20], [60, 20], [60, 60], [20, 60]], float)
+    T = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]])
+    tex = np.zeros((70, 140, 4), np.uint8)
+    tex[:, :70] = (255, 0, 0, 255)           # torso: opaque red
+    tex[:, 70:] = (0, 0, 255, 255)           # limb: opaque blue ...
+    tex[:, 88:92] = (0, 0, 255, 128)         # ... with a soft rim of half alpha
+    uv = V.copy()
+    uv[4:, 0] += 70
+    parts = np.array([PART_INDEX["torso"]] * 2 + [PART_INDEX["l_forearm"]] * 2)
+    r = MeshRenderer(uv, T, parts, tex, size=(70, 70))
+    out = r.render(V, order=[PART_INDEX["torso"], PART_INDEX["l_forearm"]], background=(255, 255, 255))
+    over_torso, over_paper = out[30, 20].astype(int), out[50, 20].astype(int)
+    # half blue over red: no green (the paper is the only green source)
+    assert over_torso[1] <= 2 and abs(over_torso[0] - 127) <= 2 and abs(over_torso[2] - 128) <= 2
+    # where nothing lies under the rim, the paper does show through it
+    assert abs(over_paper[1] - 127) <= 2
+    assert tuple(out[30, 30]) == (0, 0, 255)
+
+
 def test_overlaps_from_boxes(rig):
     V = rig.mesh.vertices[None]
     ov = part_overlaps(V, rig.mesh.triangles, rig.mesh.parts)

@@ -228,10 +228,14 @@ class MeshRenderer:
         b[:, 0] += self._shift
         return A, b
 
-    def _crop_maps(self, vertices, order, with_ids: bool = False):
+    def _crop_maps(self, vertices, order, with_ids: bool = False, below: bool = False):
         """Maps for the bounding box of the drawn pixels: ``(y0, x0, ids, map_x, map_y)``, crop-sized.
 
         ``ids`` (triangle per pixel, −1 empty) is None unless ``with_ids``.
+        With ``below``, two more maps follow: the texel of the draw group
+        each pixel showed before the nearest one covered it (−1 where
+        nothing lay under it), for compositing a soft edge over what it
+        covers (:meth:`render_labelled`).
         Along a run the texel coordinate is linear in x, so per-run offsets
         are computed once and repeated (no per-pixel gather of triangle maps).
         """
@@ -240,7 +244,7 @@ class MeshRenderer:
         ry, rx, rn, rt = self._raster(V, order)
         if len(ry) == 0:
             e = np.zeros((0, 0), np.float32)
-            return 0, 0, (e.astype(np.int32) if with_ids else None), e, e
+            return (0, 0, (e.astype(np.int32) if with_ids else None), e, e) + ((e, e) if below else ())
         y0, x0 = int(ry.min()), int(rx.min())
         h, w = int(ry.max()) - y0 + 1, int((rx + rn).max()) - x0
         A, b = self._affine(V)
@@ -257,6 +261,8 @@ class MeshRenderer:
         mx = np.full(h * w, -1.0, dtype=np.float32)
         my = np.full(h * w, -1.0, dtype=np.float32)
         ids = np.full(h * w, -1, dtype=np.int32) if with_ids else None
+        bx = np.full(h * w, -1.0, dtype=np.float32) if below else None
+        by = np.full(h * w, -1.0, dtype=np.float32) if below else None
         # Runs come grouped by part in depth order; numpy leaves the order of
         # duplicate writes within one fancy assignment unspecified, so each
         # part is written separately: a later (nearer) part always wins.
@@ -266,11 +272,15 @@ class MeshRenderer:
         rstart = np.r_[0, cut, len(rt)]
         for g in range(len(pstart) - 1):
             s, e = pstart[g], pstart[g + 1]
+            if below:  # what this group covers (read before it is written)
+                bx[cpix[s:e]] = mx[cpix[s:e]]
+                by[cpix[s:e]] = my[cpix[s:e]]
             mx[cpix[s:e]] = mxv[s:e]
             my[cpix[s:e]] = myv[s:e]
             if with_ids:
                 ids[cpix[s:e]] = np.repeat(rt[rstart[g]:rstart[g + 1]], rn[rstart[g]:rstart[g + 1]])
-        return (y0, x0, None if ids is None else ids.reshape(h, w), mx.reshape(h, w), my.reshape(h, w))
+        out = (y0, x0, None if ids is None else ids.reshape(h, w), mx.reshape(h, w), my.reshape(h, w))
+        return out + ((bx.reshape(h, w), by.reshape(h, w)) if below else ())
 
     def maps(self, vertices, order=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Texture look-up maps for one frame.
@@ -299,11 +309,22 @@ class MeshRenderer:
         shows no part).
         """
         H, W = self.size
-        y0, x0, ids, mx, my = self._crop_maps(vertices, order, with_ids=self.seal or labels)
+        y0, x0, ids, mx, my, bx, by = self._crop_maps(vertices, order, with_ids=self.seal or labels, below=True)
         h, w = mx.shape
         # One bilinear remap of the premultiplied 8-bit atlas, on the drawn box only.
         crop = cv2.remap(self._tex8, mx, my, interpolation=cv2.INTER_LINEAR,
                          borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0, 0)) if h else None
+        if h:
+            # A pixel keeps only its nearest triangle's texel; where that texel is part
+            # transparent (the soft rim of a limb's outline) it is laid over the texel of
+            # the part it covers, premultiplied "over".  Without this a limb crossing the
+            # body is edged with the paper's colour: a light hairline along its outline.
+            soft = (crop[..., 3] < 255) & (bx >= 0)
+            if soft.any():
+                under = cv2.remap(self._tex8, bx, by, interpolation=cv2.INTER_LINEAR,
+                                  borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0, 0))
+                f = crop[soft].astype(np.uint16)
+                crop[soft] = np.minimum(f + ((255 - f[:, 3:4]) * under[soft] + 127) // 255, 255).astype(np.uint8)
         part_crop = None
         if ids is not None and h:
             part_crop = np.where(ids >= 0, self.parts[np.maximum(ids, 0)], -1)
