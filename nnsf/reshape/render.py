@@ -319,12 +319,15 @@ class MeshRenderer:
             # transparent (the soft rim of a limb's outline) it is laid over the texel of
             # the part it covers, premultiplied "over".  Without this a limb crossing the
             # body is edged with the paper's colour: a light hairline along its outline.
-            soft = (crop[..., 3] < 255) & (bx >= 0)
-            if soft.any():
-                under = cv2.remap(self._tex8, bx, by, interpolation=cv2.INTER_LINEAR,
-                                  borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0, 0))
-                f = crop[soft].astype(np.uint16)
-                crop[soft] = np.minimum(f + ((255 - f[:, 3:4]) * under[soft] + 127) // 255, 255).astype(np.uint8)
+            soft = np.flatnonzero(((crop[..., 3] < 255) & (bx >= 0)).ravel())
+            if soft.size:
+                # only those pixels are looked up again: a (k, 1) map
+                under = cv2.remap(self._tex8, bx.ravel()[soft, None], by.ravel()[soft, None],
+                                  interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                                  borderValue=(0, 0, 0, 0))[:, 0].astype(np.uint16)
+                flat = crop.reshape(-1, 4)
+                f = flat[soft].astype(np.uint16)
+                flat[soft] = np.minimum(f + ((255 - f[:, 3:4]) * under + 127) // 255, 255).astype(np.uint8)
         part_crop = None
         if ids is not None and h:
             part_crop = np.where(ids >= 0, self.parts[np.maximum(ids, 0)], -1)
