@@ -249,3 +249,24 @@ def test_outline_is_redrawn_along_new_edges_only():
     arc = half & ~cv2.erode(half.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
     arc &= np.abs(np.arange(W)[None, :] - W / 2) > 12                  # away from the cut's ends
     assert np.array_equal(a[arc], b[arc])                             # the drawn outline is untouched
+
+
+def test_a_short_unlined_notch_is_inked_inside_the_silhouette_only():
+    """A 10 px stretch of edge whose texels are a joint tab's (deep inside the drawing), between two
+    drawn outline ends: shorter than three line widths, it is still inked, within the silhouette; a
+    run of the same length just past the depth threshold is the outline's wiggle and stays."""
+    from nnsf.reshape.outline import redraw_outline
+
+    h, w = 60, 80
+    crop = np.zeros((h, w, 4), np.uint8)
+    crop[10:50, 10:70] = (150, 150, 150, 255)              # premultiplied, opaque
+    rgb, width, paper = np.array([40.0, 30.0, 90.0], np.float32), 6.0, 0.0   # min run 18 points
+    depth = np.zeros((h, w), np.float32)
+    depth[10, 30:40] = 1e3                                 # the tab's edge along the top side
+    depth[49, 30:40] = paper + 0.5 * width + 2.5           # just past the threshold (5 px)
+    out = redraw_outline(crop, depth, (rgb, width, paper))
+    assert (out[:10, :, 3] == 0).all() and (out[50:, :, 3] == 0).all()   # nothing outside
+    lum = out[..., :3].astype(float) @ [0.299, 0.587, 0.114]
+    assert (lum[10:13, 31:39] < 60).all()                  # the notch is inked
+    assert np.array_equal(out[44:, :], crop[44:, :])       # the wiggle is left alone
+    assert np.array_equal(out[20:40, :], crop[20:40, :])   # and nothing else changes
