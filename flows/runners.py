@@ -200,6 +200,7 @@ def prefect_mapper(task_name: str, retries: int = RETRIES,
         from prefect import task
         from prefect.cache_policies import NO_CACHE
         from prefect.futures import as_completed
+        from threadpoolctl import threadpool_limits
 
         items = list(items)
         labels = [name(item) if name else f"[{i}]" for i, item in enumerate(items)]
@@ -208,26 +209,32 @@ def prefect_mapper(task_name: str, retries: int = RETRIES,
                     retry_delay_seconds=retry_delay_seconds,
                     retry_condition_fn=retry_unless_bad_input, cache_policy=NO_CACHE,
                     persist_result=False)
-        futures = [base.with_options(task_run_name=_escape(f"{task_name} {label}"))
-                   .submit((fn, item) if recording else item)
-                   for label, item in zip(labels, items)]
-        position = {f.task_run_id: i for i, f in enumerate(futures)}
-        results: list = [None] * len(items)
-        failed: dict[int, BaseException] = {}
-        for future in as_completed(futures):
-            i = position[future.task_run_id]
-            try:
-                results[i] = future.result()
-                if recording:
-                    results[i], files = results[i]
-                    WORKER_FILES.update(files)
-            except BaseException as err:  # noqa: BLE001  (reported by name below)
-                if isinstance(err, (KeyboardInterrupt, SystemExit)):
-                    raise
-                failed[i] = err
-                continue
-            if on_result is not None:
-                on_result(items[i], results[i])
+        # Items on the thread runner share this process's BLAS pool: one BLAS thread for the
+        # whole fan-out, set once here, so that a sum does not depend on what else runs.  (A
+        # limit set and restored per item, as a fit does, let an item still running go on with
+        # two threads when another one ended, and round differently: a CV fit's iteration count
+        # changed between two cold runs.)  Worker processes set their own.
+        with threadpool_limits(1, user_api="blas"):
+            futures = [base.with_options(task_run_name=_escape(f"{task_name} {label}"))
+                       .submit((fn, item) if recording else item)
+                       for label, item in zip(labels, items)]
+            position = {f.task_run_id: i for i, f in enumerate(futures)}
+            results: list = [None] * len(items)
+            failed: dict[int, BaseException] = {}
+            for future in as_completed(futures):
+                i = position[future.task_run_id]
+                try:
+                    results[i] = future.result()
+                    if recording:
+                        results[i], files = results[i]
+                        WORKER_FILES.update(files)
+                except BaseException as err:  # noqa: BLE001  (reported by name below)
+                    if isinstance(err, (KeyboardInterrupt, SystemExit)):
+                        raise
+                    failed[i] = err
+                    continue
+                if on_result is not None:
+                    on_result(items[i], results[i])
         if failed:
             by_name = {labels[i]: failed[i] for i in sorted(failed)}
             cls = (FanOutInputError if all(isinstance(e, InputError) for e in by_name.values())

@@ -38,6 +38,20 @@ def square_sum(item: tuple[int, int]) -> int:
     return int(np.sum(np.arange(a, b) ** 2))
 
 
+def blas_threads_seen(item: tuple[str, float]) -> int:
+    """As a fit does, limit BLAS to one thread for the item, after ``delay`` s; report the BLAS
+    threads the item has at the end of its 0.3 s, while the other item starts or ends."""
+    import time
+
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    kind, delay = item
+    time.sleep(delay)
+    with threadpool_limits(1, user_api="blas"):
+        time.sleep(0.3)
+        return max(m["num_threads"] for m in threadpool_info() if m["user_api"] == "blas")
+
+
 def _attempt(job: dict) -> int:
     """Record one attempt at this job's point; return how many there have been."""
     folder = Path(os.environ[ATTEMPTS_DIR])
@@ -133,6 +147,29 @@ def test_prefect_mapper_returns_results_in_order(prefect_here, monkeypatch):
         return runners.prefect_mapper("square-sum")(square_sum, items)
 
     assert runners.configured(fan_out)() == runners.local_mapper(square_sum, items)
+
+
+def test_items_on_threads_keep_one_blas_thread_when_another_item_ends(prefect_here, monkeypatch):
+    """A limit set and restored per item races on the thread runner (the BLAS pool is the
+    process's): an item ending restores what it found, two threads, under one still running,
+    whose sums then round differently (a CV fit's iteration count changed between two cold
+    runs).  The mapper holds one BLAS thread for the whole fan-out (without it: [2, 1])."""
+    from prefect import flow
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    monkeypatch.setenv("NNSF_TASK_RUNNER", "threads")
+    monkeypatch.setenv("NNSF_WORKERS", "2")
+    items = [("short", 0.0), ("long", 0.15)]
+
+    @flow(persist_result=False)
+    def fan_out():
+        return runners.prefect_mapper("blas-threads")(blas_threads_seen, items)
+
+    with threadpool_limits(2, user_api="blas"):   # the default on a 2-core machine
+        if max(m["num_threads"] for m in threadpool_info() if m["user_api"] == "blas") < 2:
+            pytest.skip("this BLAS cannot run two threads here (capped by its environment)")
+        seen = runners.configured(fan_out)()
+    assert seen == [1, 1]
 
 
 def test_worker_processes_report_the_project_files_they_ran(prefect_here, monkeypatch, tmp_path):

@@ -270,3 +270,28 @@ def test_a_short_unlined_notch_is_inked_inside_the_silhouette_only():
     assert (lum[10:13, 31:39] < 60).all()                  # the notch is inked
     assert np.array_equal(out[44:, :], crop[44:, :])       # the wiggle is left alone
     assert np.array_equal(out[20:40, :], crop[20:40, :])   # and nothing else changes
+
+
+def test_a_new_edge_is_inked_inside_and_crosses_only_a_narrow_gap():
+    """A cut's edge (texels deep inside the drawing) along a straight side is inked a full line
+    width deep inside the silhouette with nothing outside it (the drawn outline lies inside the
+    silhouette too: a stroke centred on the edge was a bump beside it); across a notch narrower
+    than the line (a gap between two pieces at a joint) the stroke closes the silhouette."""
+    from nnsf.reshape.outline import redraw_outline
+
+    h, w = 80, 120
+    crop = np.zeros((h, w, 4), np.uint8)
+    crop[20:60, 10:110] = (150, 150, 150, 255)             # premultiplied, opaque
+    crop[20:30, 58:61] = 0                                  # a 3 px gap, 10 px deep, in the top side
+    rgb, width, paper = np.array([40.0, 30.0, 90.0], np.float32), 6.0, 0.0
+    depth = np.zeros((h, w), np.float32)
+    depth[20, 10:110] = 1e3                                 # the top side and the gap's walls: a cut's
+    depth[20:31, 57:62] = 1e3                               # texels
+    out = redraw_outline(crop, depth, (rgb, width, paper))
+    assert (out[:20, :, 3] == 0).all()                      # no ink beyond the straight edge
+    lum = out[..., :3].astype(float) @ [0.299, 0.587, 0.114]
+    assert (lum[20:25, 16:52] < 60).all() and (lum[20:25, 67:104] < 60).all()   # a line width deep
+    assert (out[21:30, 58:61, 3] > 200).all()               # the gap is closed ...
+    assert (lum[21:30, 58:61] < 60).all()                   # ... with ink
+    for cols in (slice(16, 48), slice(72, 104)):            # away from the gap, below the line
+        assert np.array_equal(out[30:, cols], crop[30:, cols])      # the fill is left alone

@@ -69,8 +69,14 @@ def redraw_outline(crop: np.ndarray, depth: np.ndarray, style) -> np.ndarray:
     (a moving average of 5 points, so the stroke does not follow the pixel
     staircase) and stroked with the drawing's outline colour, its line width
     plus a pixel wide, anti-aliased (``cv2.polylines``, LINE_AA, 1/8 px),
-    centred on the edge: half of it inside, half outside (which also hides
-    the pixel staircase of the cut), as a pen would.  A run shorter than
+    inside the silhouette along the edge (:func:`inward`), where the drawn
+    outline lies too; outside it only in pockets narrower than the stroke
+    (the closing of the silhouette by a disc and by a square of the
+    stroke's width on either side: a gap between two pieces at a joint),
+    where the stroke centred on the edge closes the outline.  (Centred on
+    every edge, its outer half was a bump beside the drawn line:
+    ``benchmarks/bench_seal.py`` counts the ink it adds outside the pieces.)
+    A run shorter than
     three times the line width is the outline's own wiggle and is left
     alone, unless its texels lie a line width beyond that depth: then it is
     a notch (a tab's edge where a bent knee opens, between two drawn outline
@@ -120,20 +126,65 @@ def redraw_outline(crop: np.ndarray, depth: np.ndarray, style) -> np.ndarray:
         return crop
     shift = 3
     thick = max(int(round(width)) + 1, 1)
+    # Work in the box around the strokes: the closing below sees the silhouette up to three
+    # stroke widths from them, which is all it needs there (and most of the frame is untouched).
+    pts = np.vstack(runs + notches)
+    pad = 3 * thick + 2
+    x0, y0 = np.maximum(np.floor(pts.min(axis=0)).astype(int) - pad, 0)
+    x1, y1 = np.minimum(np.ceil(pts.max(axis=0)).astype(int) + pad + 1, [cov.shape[1], cov.shape[0]])
+    box = (slice(y0, y1), slice(x0, x1))
+    cov_b = cov[box]
+    at = np.array([x0, y0], np.float64)
 
-    def stroke(lines):
-        canvas = np.zeros(cov.shape, np.uint8)
-        cv2.polylines(canvas, [np.rint(r * (1 << shift)).astype(np.int32).reshape(-1, 1, 2) for r in lines],
-                      False, 255, thick, cv2.LINE_AA, shift)
+    def stroke(lines, thickness):
+        canvas = np.zeros(cov_b.shape, np.uint8)
+        cv2.polylines(canvas, [np.rint((r - at) * (1 << shift)).astype(np.int32).reshape(-1, 1, 2)
+                               for r in lines], False, 255, thickness, cv2.LINE_AA, shift)
         return canvas.astype(np.float32) / 255.0
 
-    a = stroke(runs)
+    alpha = crop[box][..., 3].astype(np.float32) / 255.0
+    # The drawn outline lies inside the silhouette, a line width deep: a new edge is inked the
+    # same way, along the run moved inward by half the stroke.  Outside the silhouette the stroke
+    # is laid only where the silhouette is concave by less than a line width (a gap between two
+    # pieces at a joint): there it closes the outline; elsewhere its outer half would be a bump
+    # beside the drawn line.
+    a = np.zeros(cov_b.shape, np.float32)
+    if runs:
+        a = stroke([inward(r, cov, 0.5 * thick) for r in runs], thick) * alpha
+        # The pockets: a closing by a disc rounds concave corners, one by a square also closes
+        # the mouth of a narrow gap (the disc's narrow top misses its outermost row).
+        size = (2 * thick + 1, 2 * thick + 1)
+        c8 = cov_b.astype(np.uint8)
+        pocket = (cv2.morphologyEx(c8, cv2.MORPH_CLOSE, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, size))
+                  | cv2.morphologyEx(c8, cv2.MORPH_CLOSE, np.ones(size, np.uint8))).astype(np.float32)
+        a = np.maximum(a, stroke(runs, thick) * (1.0 - alpha) * pocket)
     if notches:
-        a = np.maximum(a, stroke(notches) * (crop[..., 3].astype(np.float32) / 255.0))
-    a = a[..., None]
-    out = crop.astype(np.float32)
-    ink = np.asarray(rgb, np.float32)[None, None, :]
-    # Premultiplied "over": the stroke (opaque ink, coverage a) over the frame.
-    out[..., :3] = ink * a + out[..., :3] * (1 - a)
-    out[..., 3:4] = 255.0 * a + out[..., 3:4] * (1 - a)
-    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+        a = np.maximum(a, stroke(notches, thick) * alpha)
+    hit = a > 0
+    a = a[hit][:, None]
+    out = crop.copy()
+    px = out[box][hit].astype(np.float32)
+    ink = np.asarray(rgb, np.float32)[None, :]
+    # Premultiplied "over": the stroke (opaque ink, coverage a) over the frame, where it lies.
+    px[:, :3] = ink * a + px[:, :3] * (1 - a)
+    px[:, 3:4] = 255.0 * a + px[:, 3:4] * (1 - a)
+    view = out[box]
+    view[hit] = np.clip(np.rint(px), 0, 255).astype(np.uint8)
+    return out
+
+
+def inward(run: np.ndarray, cov: np.ndarray, by: float) -> np.ndarray:
+    """The polyline ``run`` ``(n, 2)`` (x, y px, along a silhouette edge) moved ``by`` px along its
+    normal, to the side of ``cov`` ``(h, w)`` bool (the silhouette) for most of its points."""
+    run = np.asarray(run, dtype=np.float64)
+    if len(run) < 2:
+        return run
+    t = np.gradient(run, axis=0)
+    t /= np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-9)
+    n = np.stack([-t[:, 1], t[:, 0]], axis=1)
+    h, w = cov.shape
+    probe = np.rint(run + 2.0 * n).astype(int)
+    probe[:, 0] = np.clip(probe[:, 0], 0, w - 1)
+    probe[:, 1] = np.clip(probe[:, 1], 0, h - 1)
+    side = 1.0 if cov[probe[:, 1], probe[:, 0]].mean() >= 0.5 else -1.0
+    return run + side * by * n
