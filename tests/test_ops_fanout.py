@@ -152,8 +152,8 @@ def test_prefect_mapper_returns_results_in_order(prefect_here, monkeypatch):
 def test_items_on_threads_keep_one_blas_thread_when_another_item_ends(prefect_here, monkeypatch):
     """A limit set and restored per item races on the thread runner (the BLAS pool is the
     process's): an item ending restores what it found, two threads, under one still running,
-    whose sums then round differently (a CV fit's iteration count changed between two cold
-    runs).  The mapper holds one BLAS thread for the whole fan-out (without it: [2, 1])."""
+    whose sums then round differently (a CV fit's iteration count differed between a cold run
+    and the committed one).  The mapper holds one BLAS thread for the whole fan-out (without it: [2, 1])."""
     from prefect import flow
     from threadpoolctl import threadpool_info, threadpool_limits
 
