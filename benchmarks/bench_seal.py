@@ -52,10 +52,9 @@ def main(frames: int = 60, repeat: int = 3) -> None:
     sealed.reink = None
     times = {"plain": _time(plain, anim, off, frames, repeat), "seal": _time(sealed, anim, off, frames, repeat),
              "full": _time(full, anim, off, frames, repeat)}
-    outside = [int(((full.render(anim.frames[t] + off, anim.orders[t])[..., 3] >= 128)
-                    & (sealed.render(anim.frames[t] + off, anim.orders[t])[..., 3] < 128)).sum())
-               for t in range(frames)]
     imgs = [full.render_labelled(anim.frames[t] + off, anim.orders[t], labels=True) for t in range(frames)]
+    outside = [int(((rgba[..., 3] >= 128) & (sealed.render(anim.frames[t] + off, anim.orders[t])[..., 3] < 128)).sum())
+               for t, (rgba, _) in enumerate(imgs)]
     t0 = time.perf_counter()
     for rgba, lab in imgs:
         frame_artefacts(rgba, lab, thr, 90.0)

@@ -45,7 +45,7 @@ def blas_threads_seen(item: tuple[str, float]) -> int:
 
     from threadpoolctl import threadpool_info, threadpool_limits
 
-    kind, delay = item
+    _, delay = item
     time.sleep(delay)
     with threadpool_limits(1, user_api="blas"):
         time.sleep(0.3)
