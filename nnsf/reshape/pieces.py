@@ -17,7 +17,7 @@ paper puppet (docs/method.md §13.1):
    of the cut, clipped to the parent's region.  A renderer draws it just
    before the parent, so at rest it is hidden, and when the joint turns it
    fills the wedge that opens between the two pieces.  Its texture is the
-   limb's own fill continued (:func:`tab_texture`, OpenCV's Telea inpainting
+   limb's own fill continued (:func:`nnsf.reshape.tab_texture.tab_texture`, OpenCV's Telea inpainting
    from the limb's non-ink pixels), so a limb swung away from the body takes
    no torso fill or torso ink with it.
 
@@ -104,48 +104,6 @@ def tab_region(label: np.ndarray, cut: Cut, margin: float = 0.0, band: float | N
     ij = np.clip(np.rint(piv).astype(int), 0, [W - 1, H - 1])
     own &= np.linalg.norm(pts - piv, axis=-1) <= float(inner[ij[1], ij[0]])
     out[lo[1]:hi[1] + 1, lo[0]:hi[0] + 1] = inside & (parent_side | own) & grow
-    return out
-
-
-def ink_mask(texture: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """The drawing's lines ``(H, W)`` bool: mask pixels darker than the midpoint of line and fill.
-
-    Line luminance: the 5th percentile inside the mask; fill: the median.  A
-    pixel is ink when darker than their midpoint.
-    """
-    m = np.asarray(mask, dtype=bool)
-    if not m.any():
-        return m.copy()
-    lum = np.asarray(texture)[..., :3].astype(np.float64) @ np.array([0.299, 0.587, 0.114])
-    line, fill = np.percentile(lum[m], 5), np.median(lum[m])
-    return m & (lum < 0.5 * (line + fill))
-
-
-def tab_texture(texture: np.ndarray, label: np.ndarray, child: int, tab: np.ndarray,
-                ink: np.ndarray) -> np.ndarray:
-    """RGBA ``(H, W, 4)`` uint8: the child's fill continued over ``tab`` (opaque there, clear elsewhere)."""
-    H, W = label.shape
-    out = np.zeros((H, W, 4), np.uint8)
-    if not tab.any():
-        return out
-    ys, xs = np.nonzero(tab)
-    pad = int(max(np.ptp(ys), np.ptp(xs))) + 8
-    y0, y1 = max(ys.min() - pad, 0), min(ys.max() + pad + 1, H)
-    x0, x1 = max(xs.min() - pad, 0), min(xs.max() + pad + 1, W)
-    # The limb's fill: its pixels away from any line (2 px), so no ink bleeds into the tab.
-    lines = cv2.dilate(ink[y0:y1, x0:x1].astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
-    own = (label[y0:y1, x0:x1] == child) & ~lines
-    if own.sum() < 4:
-        own = (label[y0:y1, x0:x1] == child) & ~ink[y0:y1, x0:x1]
-    if own.sum() < 4:
-        own = label[y0:y1, x0:x1] == child
-    rgb = np.ascontiguousarray(texture[y0:y1, x0:x1, :3]).copy()
-    if own.any():
-        rgb[~own] = np.median(rgb[own], axis=0).astype(np.uint8)
-        unknown = (~own).astype(np.uint8)
-        rgb = cv2.inpaint(rgb, unknown, 5, cv2.INPAINT_TELEA)
-    out[y0:y1, x0:x1, :3] = rgb
-    out[..., 3] = np.where(tab, 255, 0)
     return out
 
 

@@ -33,10 +33,9 @@ import cv2
 import numpy as np
 
 from nnsf.reshape.parts import JOINED_PARTS, PARTS
-from nnsf.reshape.parts import SEGMENT_PART
 from nnsf.reshape.regions import body_line
 from nnsf.reshape.outline import outline_style, redraw_outline
-from nnsf.reshape.pieces import ink_mask, tab_texture
+from nnsf.reshape.tab_texture import ink_mask, tab_textures
 from nnsf.reshape.seal import drawn_hole_limit, seal
 
 
@@ -93,6 +92,9 @@ class MeshRenderer:
         # where nothing else is drawn (where a limb has moved away), and their
         # transparent texels never hide a limb.
         rim_first = self.layer == 2
+        # Each triangle's layer as given (a layer without its texture is drawn as layer 0 below):
+        # layers 3 and up are joint tabs, whose slivers the seal closes.
+        self._tab_layer = self.layer.copy()
         # Layer k ≥ 3: ``textures[k]`` (a pieced mesh's joint tabs, several layers may share one image).
         extra = {1: underlay, 2: rim}
         extra.update(dict(textures or {}))
@@ -333,7 +335,8 @@ class MeshRenderer:
         if ids is not None and h:
             part_crop = np.where(ids >= 0, self.parts[np.maximum(ids, 0)], -1)
         if self.seal and h:
-            crop = seal(crop, part_crop, **self._seal_kw)
+            tab = (ids >= 0) & (self._tab_layer[np.maximum(ids, 0)] >= 3)
+            crop = seal(crop, part_crop, tab=tab, **self._seal_kw)
         if self.reink is not None and h:
             # A margin for the half of the stroke that lies outside the silhouette.
             H, W = self.size
@@ -442,42 +445,6 @@ def overlay_texture(texture: np.ndarray, mask: np.ndarray, overlay: np.ndarray) 
         rgb[~m] = np.median(rgb[m & ~unknown] if (m & ~unknown).any() else rgb[m], axis=0).astype(np.uint8)
     filled = cv2.inpaint(rgb, unknown.astype(np.uint8), 2 * r + 3, cv2.INPAINT_TELEA)
     return np.dstack([filled, texture[..., 3]])
-
-
-def tab_textures(mesh, character) -> dict[int, np.ndarray]:
-    """Textures of a pieced mesh's joint tabs: ``{layer: RGBA (H, W, 4) uint8}``.
-
-    Each tab shows its limb's fill continued (:func:`nnsf.reshape.pieces.tab_texture`).
-    Tabs whose regions do not touch (2 px apart) share one image, so the
-    atlas stays a few drawings wide.
-    """
-    ink = ink_mask(character.texture, character.mask)
-    groups: list[tuple[np.ndarray, np.ndarray]] = []  # (taken pixels, image)
-    out = {}
-    k3 = np.ones((5, 5), np.uint8)
-    for k, tab in enumerate(mesh.tabs):
-        if tab.drawn:  # a follower's own region shows the drawing
-            continue
-        if tab.fill is not None:
-            img = tab_texture(character.texture, np.where(tab.fill, 1, 0), 1, tab.region, ink)
-        else:
-            img = tab_texture(character.texture, mesh.labels, _segment_of(mesh, tab), tab.region, ink)
-        grown = cv2.dilate(tab.region.astype(np.uint8), k3).astype(bool)
-        for taken, gimg in groups:
-            if not (taken & grown).any():
-                taken |= grown
-                gimg[tab.region] = img[tab.region]
-                out[3 + k] = gimg
-                break
-        else:
-            groups.append((grown.copy(), img))
-            out[3 + k] = img
-    return out
-
-
-def _segment_of(mesh, tab) -> int:
-    """The label (index into ``nnsf.reshape.pieces.SEGMENT_NAMES``) a tab's child region has."""
-    return int(np.flatnonzero(SEGMENT_PART == tab.part)[0])
 
 
 def rim_texture(texture: np.ndarray, mask: np.ndarray, keypoints: np.ndarray) -> np.ndarray:

@@ -104,16 +104,37 @@ def drawn_hole_limit(mask: np.ndarray) -> float | None:
     return 0.5 * float(min(areas)) if areas else None
 
 
-def seal(crop: np.ndarray, labels: np.ndarray, **kw) -> np.ndarray:
-    """A premultiplied RGBA crop ``(h, w, 4)`` uint8 with :func:`seal_mask` filled (nearest opaque colour)."""
+def tab_slivers(alpha: np.ndarray, tab: np.ndarray, close: int = 4) -> np.ndarray:
+    """Pixels ``(h, w)`` bool of joint tabs ``tab`` seen through a crack no wider than the closing
+    of :func:`seal_mask` (``2·close + 1`` px) between the pieces drawn over them.
+
+    A tab shows the limb's fill continued: right for the wedge a bent joint
+    opens, wrong in a sliver a joint turned a degree or two opens across the
+    drawing's lines (char1's neck: a line of paper colour through the torso's
+    top line).  A sliver is sealed as a crack is.
+    """
+    over = (np.asarray(alpha) >= 128) & ~np.asarray(tab, dtype=bool)
+    k = 2 * close + 1
+    ker = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
+    return np.asarray(tab, dtype=bool) & cv2.morphologyEx(over.astype(np.uint8), cv2.MORPH_CLOSE, ker).astype(bool)
+
+
+def seal(crop: np.ndarray, labels: np.ndarray, tab: np.ndarray | None = None, **kw) -> np.ndarray:
+    """A premultiplied RGBA crop ``(h, w, 4)`` uint8 with :func:`seal_mask` filled (nearest opaque colour).
+
+    ``tab`` ``(h, w)`` bool: the pixels showing a joint tab; its slivers
+    (:func:`tab_slivers`) are filled as well, from the pixels around them.
+    """
     fill = seal_mask(labels, crop[..., 3], **kw)
+    if tab is not None and tab.any():
+        fill |= tab_slivers(crop[..., 3], tab, kw.get("close", 4))
     if not fill.any():
         return crop
     ys, xs = np.nonzero(fill)
     pad = 8
     y0, y1 = max(ys.min() - pad, 0), min(ys.max() + pad + 1, crop.shape[0])
     x0, x1 = max(xs.min() - pad, 0), min(xs.max() + pad + 1, crop.shape[1])
-    solid = crop[y0:y1, x0:x1, 3] == 255
+    solid = (crop[y0:y1, x0:x1, 3] == 255) & ~fill[y0:y1, x0:x1]
     if not solid.any():
         return crop
     # Nearest opaque pixel of every pixel: OpenCV labels each zero pixel of its input in raster
