@@ -184,4 +184,3 @@ def test_an_elbow_tab_reaches_the_outline_in_the_band_along_its_cut():
     assert not elbow[:16].any() and not elbow[25:].any()           # never the outermost row
     knee = tab("l_shin", "l_thigh")
     assert not knee[16].any() and not knee[24].any() and knee[17, 37:40].any()
-

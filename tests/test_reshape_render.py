@@ -295,4 +295,3 @@ def test_a_new_edge_is_inked_inside_and_crosses_only_a_narrow_gap():
     assert (lum[21:30, 58:61] < 60).all()                   # ... with ink
     for cols in (slice(16, 48), slice(72, 104)):            # away from the gap, below the line
         assert np.array_equal(out[30:, cols], crop[30:, cols])      # the fill is left alone
-

@@ -155,12 +155,13 @@ class MeshRenderer:
             underlay = underlay_texture(character.texture, character.mask, mesh) if (mesh.layer == 1).any() else None
         rim = (rim_texture(character.texture, character.mask, character.keypoints)
                if (mesh.layer == 2).any() else None)
-        textures = tab_textures(mesh, character) if mesh.tabs else None
+        style = outline_style(character.texture, character.mask) if mesh.tabs else None
+        textures = tab_textures(mesh, character, style) if mesh.tabs else None
         pieced = mesh.is_split
         out = cls(mesh.vertices, mesh.triangles, mesh.parts, character.texture, character.mask,
                    size=size, layer=mesh.layer, underlay=underlay, behind=mesh.collar, rim=rim,
                    seal=seal if seal is not None else pieced, textures=textures,
-                   reink=outline_style(character.texture, character.mask) if (pieced and mesh.tabs) else None)
+                   reink=style if pieced else None)
         out._tab_textures = textures
         return out
 

@@ -11,7 +11,6 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from nnsf.reshape.outline import outline_style
 from nnsf.reshape.parts import SEGMENT_PART
 
 
@@ -57,18 +56,19 @@ def tab_texture(texture: np.ndarray, label: np.ndarray, child: int, tab: np.ndar
     return out
 
 
-def tab_textures(mesh, character) -> dict[int, np.ndarray]:
+def tab_textures(mesh, character, style=None) -> dict[int, np.ndarray]:
     """Textures of a pieced mesh's joint tabs: ``{layer: RGBA (H, W, 4) uint8}``.
 
-    Each tab shows its limb's fill continued (:func:`nnsf.reshape.pieces.tab_texture`),
-    except in the band of the drawn outline (:func:`outline_band`), where it
+    Each tab shows its limb's fill continued (:func:`tab_texture`), except in
+    the band of the drawn outline (:func:`outline_band`; ``style``: the
+    drawing's :func:`nnsf.reshape.outline.outline_style`, None without one), where it
     shows the drawing: a joint turned a little opens a sliver of tab across
     the outline, and fill there cut the line with a tick of paper colour.
     Tabs whose regions do not touch (2 px apart) share one image, so the
     atlas stays a few drawings wide.
     """
     ink = ink_mask(character.texture, character.mask)
-    band = outline_band(character.texture, character.mask)
+    band = outline_band(character.mask, style)
     groups: list[tuple[np.ndarray, np.ndarray]] = []  # (taken pixels, image)
     out = {}
     k3 = np.ones((5, 5), np.uint8)
@@ -95,10 +95,9 @@ def tab_textures(mesh, character) -> dict[int, np.ndarray]:
     return out
 
 
-def outline_band(texture: np.ndarray, mask: np.ndarray) -> np.ndarray | None:
+def outline_band(mask: np.ndarray, style) -> np.ndarray | None:
     """The drawn outline's band ``(H, W)`` bool: mask pixels no deeper than its paper margin and
-    line width (:func:`nnsf.reshape.outline.outline_style`), or None for a drawing without one."""
-    style = outline_style(texture, mask)
+    line width (``style``, from :func:`nnsf.reshape.outline.outline_style`), or None without one."""
     if style is None:
         return None
     _, width, paper = style
