@@ -133,6 +133,9 @@ class Tab:
     fill: np.ndarray | None = None
     #: Whether the vertices show the drawing (a follower's own region) rather than a tab texture.
     drawn: bool = False
+    #: The cut the tab lies behind (rest pixels) and the piece it hides under (None: a follower's tab).
+    cut: Cut | None = None
+    parent_piece: int | None = None
 
 
 def move_pivots(mask: np.ndarray, keypoints: np.ndarray, cuts: list[Cut], reach: float = 0.5) -> np.ndarray:
@@ -510,7 +513,8 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
         layer.append(np.full(len(t), 3 + len(tabs), np.int64))
         under = int(parts.SEGMENT_PART[shown_parent(cut.parent)])
         collar.append(np.full(len(t), under))
-        tabs.append(Tab(idx, _child_bone(cut.child), region, pc, part, under))
+        tabs.append(Tab(idx, _child_bone(cut.child), region, pc, part, under, cut=cut,
+                        parent_piece=piece_of[shown_parent(cut.parent)]))
     for f in followers:
         # The extra arm (the part of the driven arm of its side) and its tab.
         cut = f["cut"]

@@ -35,7 +35,7 @@ import numpy as np
 from nnsf.reshape.parts import JOINED_PARTS, PARTS
 from nnsf.reshape.regions import body_line
 from nnsf.reshape.outline import outline_style, redraw_outline
-from nnsf.reshape.tab_texture import ink_mask, tab_textures
+from nnsf.reshape.tab_texture import TabClip, ink_mask, tab_textures
 from nnsf.reshape.seal import drawn_hole_limit, seal
 
 
@@ -95,6 +95,8 @@ class MeshRenderer:
         # Each triangle's layer as given (a layer without its texture is drawn as layer 0 below):
         # layers 3 and up are joint tabs, whose slivers the seal closes.
         self._tab_layer = self.layer.copy()
+        # Turned tabs to hide beside their parents (:class:`TabClip`; set by :meth:`for_mesh`).
+        self._clip = None
         # Layer k ≥ 3: ``textures[k]`` (a pieced mesh's joint tabs, several layers may share one image).
         extra = {1: underlay, 2: rim}
         extra.update(dict(textures or {}))
@@ -163,6 +165,7 @@ class MeshRenderer:
                    seal=seal if seal is not None else pieced, textures=textures,
                    reink=style if pieced else None)
         out._tab_textures = textures
+        out._clip = TabClip(mesh, character.mask) if mesh.tabs else None
         return out
 
     def _raster(self, V: np.ndarray, order):
@@ -236,10 +239,11 @@ class MeshRenderer:
         """Maps for the bounding box of the drawn pixels: ``(y0, x0, ids, map_x, map_y)``, crop-sized.
 
         ``ids`` (triangle per pixel, −1 empty) is None unless ``with_ids``.
-        With ``below``, two more maps follow: the texel of the draw group
+        With ``below``, three more maps follow: the texel of the draw group
         each pixel showed before the nearest one covered it (−1 where
         nothing lay under it), for compositing a soft edge over what it
-        covers (:meth:`render_labelled`).
+        covers (:meth:`render_labelled`), and that texel's triangle (None
+        unless ``with_ids``).
         Along a run the texel coordinate is linear in x, so per-run offsets
         are computed once and repeated (no per-pixel gather of triangle maps).
         """
@@ -267,6 +271,7 @@ class MeshRenderer:
         ids = np.full(h * w, -1, dtype=np.int32) if with_ids else None
         bx = np.full(h * w, -1.0, dtype=np.float32) if below else None
         by = np.full(h * w, -1.0, dtype=np.float32) if below else None
+        bid = np.full(h * w, -1, dtype=np.int32) if (below and with_ids) else None
         # Runs come grouped by part in depth order; numpy leaves the order of
         # duplicate writes within one fancy assignment unspecified, so each
         # part is written separately: a later (nearer) part always wins.
@@ -279,12 +284,15 @@ class MeshRenderer:
             if below:  # what this group covers (read before it is written)
                 bx[cpix[s:e]] = mx[cpix[s:e]]
                 by[cpix[s:e]] = my[cpix[s:e]]
+                if bid is not None:
+                    bid[cpix[s:e]] = ids[cpix[s:e]]
             mx[cpix[s:e]] = mxv[s:e]
             my[cpix[s:e]] = myv[s:e]
             if with_ids:
                 ids[cpix[s:e]] = np.repeat(rt[rstart[g]:rstart[g + 1]], rn[rstart[g]:rstart[g + 1]])
         out = (y0, x0, None if ids is None else ids.reshape(h, w), mx.reshape(h, w), my.reshape(h, w))
-        return out + ((bx.reshape(h, w), by.reshape(h, w)) if below else ())
+        return out + ((bx.reshape(h, w), by.reshape(h, w), None if bid is None else bid.reshape(h, w))
+                      if below else ())
 
     def maps(self, vertices, order=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Texture look-up maps for one frame.
@@ -313,8 +321,16 @@ class MeshRenderer:
         shows no part).
         """
         H, W = self.size
-        y0, x0, ids, mx, my, bx, by = self._crop_maps(vertices, order, with_ids=self.seal or labels, below=True)
+        clip = self._clip
+        y0, x0, ids, mx, my, bx, by, bid = self._crop_maps(vertices, order, with_ids=self.seal or labels or bool(clip),
+                                                           below=True)
         h, w = mx.shape
+        if clip and h:
+            # Turned tabs that stick out beside their parent show what lies under them (TabClip).
+            hide = clip.hidden(vertices, ids, self._tab_layer, y0, x0)
+            if hide.any():
+                mx[hide], my[hide], ids[hide] = bx[hide], by[hide], bid[hide]
+                bx[hide] = by[hide] = -1
         # One bilinear remap of the premultiplied 8-bit atlas, on the drawn box only.
         crop = cv2.remap(self._tex8, mx, my, interpolation=cv2.INTER_LINEAR,
                          borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0, 0)) if h else None

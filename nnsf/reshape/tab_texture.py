@@ -109,3 +109,114 @@ def outline_band(mask: np.ndarray, style) -> np.ndarray | None:
 def _segment_of(mesh, tab) -> int:
     """The label (index into ``nnsf.reshape.pieces.SEGMENT_NAMES``) a tab's child region has."""
     return int(np.flatnonzero(SEGMENT_PART == tab.part)[0])
+
+
+class TabClip:
+    """The pixels of turned joint tabs that stick out beside their parent, to hide.
+
+    At rest a tab lies under its parent (the thigh above a knee, the body
+    above a hip or a leg whose thigh the body hides), its rim
+    along the parent's outline.  It turns with the child, so where the joint
+    bends the rim swings out beside the parent, and its edge, stroked as a
+    new edge, runs beside the parent's drawn outline: a double line.  Only
+    the wedge the bend opens beyond the cut needs the tab.  Hidden, per
+    frame: a tab pixel that, taken back into the parent's rest frame (the
+    parent piece's rigid motion, a least-squares fit to its vertices), lies
+    on the parent's side of the cut (``side`` px past its line) and outside
+    the drawing by more than ``off`` px.  What the tab filled inside the
+    parent's outline, or past the cut, stays.
+
+    ``mesh``: a pieced mesh with ``tabs``; ``mask`` ``(H, W)`` bool: the
+    drawing's silhouette, rest pixels.  Pieces move rigidly, so the fit is
+    exact; a follower's tab (no cut) is left as it is.
+    """
+
+    def __init__(self, mesh, mask: np.ndarray, off: float = 1.5, side: float = 0.5):
+        m = np.asarray(mask, dtype=bool)
+        # Distance (px) of each rest pixel from the drawing, outside it (0 inside).
+        self.outside = cv2.distanceTransform(np.pad((~m).astype(np.uint8), 1, constant_values=1),
+                                             cv2.DIST_L2, 3)[1:-1, 1:-1]
+        self.off, self.side = float(off), float(side)
+        self.clips = []
+        inner = cv2.distanceTransform(np.pad(m.astype(np.uint8), 1), cv2.DIST_L2, 3)[1:-1, 1:-1]
+        H, W = m.shape
+        tri, pieces, layer = mesh.triangles, mesh.pieces, np.asarray(mesh.layer)
+        V0 = np.asarray(mesh.vertices, dtype=np.float64)
+        for k, tab in enumerate(mesh.tabs):
+            cut = tab.cut
+            if cut is None or tab.parent_piece is None or tab.parent_piece == tab.piece:
+                continue
+            idx = np.unique(tri[(pieces == tab.parent_piece) & (layer < 3)].ravel())
+            if len(idx) < 2 or len(tab.vertices) < 2:
+                continue
+            piv = np.asarray(cut.pivot, np.float64)
+            i, j = np.clip(np.rint(piv).astype(int), 0, [W - 1, H - 1])
+            self.clips.append((3 + k, _Frame(V0, idx), _Frame(V0, np.asarray(tab.vertices)), piv, float(inner[j, i]),
+                               np.asarray(cut.mid, np.float64), np.asarray(cut.normal, np.float64)))
+
+    def __bool__(self) -> bool:
+        return bool(self.clips)
+
+    def hidden(self, vertices: np.ndarray, ids: np.ndarray, layer: np.ndarray, y0: int, x0: int) -> np.ndarray:
+        """Pixels ``(h, w)`` bool to hide, of a crop at ``(y0, x0)`` whose nearest triangle is ``ids``
+        ``(h, w)`` int (−1 empty); ``layer`` ``(t,)``: each triangle's layer (tab k: 3 + k);
+        ``vertices`` ``(n, 2)``: the frame's, px."""
+        out = np.zeros(ids.shape, bool)
+        h, w = ids.shape
+        H, W = self.outside.shape
+        V = np.asarray(vertices, dtype=np.float64)
+        for lay, parent, tab, piv, radius, mid, normal in self.clips:
+            # Only the box around the tab's vertices is looked at: the crop is the whole character.
+            P = V[tab.idx]
+            bx0, by0 = np.maximum(np.floor(P.min(axis=0)).astype(int) - [x0, y0], 0)
+            bx1, by1 = np.minimum(np.ceil(P.max(axis=0)).astype(int) - [x0, y0] + 1, [w, h])
+            if bx1 <= bx0 or by1 <= by0:
+                continue
+            box = ids[by0:by1, bx0:bx1]
+            ys, xs = np.nonzero((box >= 0) & (layer[np.maximum(box, 0)] == lay))
+            if not len(ys):
+                continue
+            ys, xs = ys + by0, xs + bx0
+            pts = np.stack([xs + x0, ys + y0], -1).astype(np.float64)
+            u = parent.to_rest(V, pts)
+            # The joint is solid about its pivot (where the child turns now) out to the drawing's
+            # thickness there: kept, so a pivot carried off the parent keeps its joint closed.
+            near = np.hypot(*(pts - tab.from_rest(V, piv[None])[0]).T) <= radius
+            before = (u - mid) @ normal < -self.side
+            ij = np.rint(u).astype(np.int64)
+            inside = (ij[:, 0] >= 0) & (ij[:, 0] < W) & (ij[:, 1] >= 0) & (ij[:, 1] < H)
+            far = np.ones(len(ys), bool)
+            far[inside] = self.outside[ij[inside, 1], ij[inside, 0]] > self.off
+            hide = before & far & ~near
+            out[ys[hide], xs[hide]] = True
+        return out
+
+
+class _Frame:
+    """A rigidly moving set of mesh vertices: the least-squares rotation and shift (2-D Procrustes)
+    between their rest and current positions, px."""
+
+    def __init__(self, rest_vertices: np.ndarray, idx: np.ndarray):
+        self.idx = idx
+        self.mean = rest_vertices[idx].mean(axis=0)
+        self.rest = rest_vertices[idx] - self.mean
+
+    def _pose(self, V: np.ndarray):
+        P = V[self.idx]
+        pm = P.mean(axis=0)
+        Q = P - pm
+        ang = np.arctan2((self.rest[:, 0] * Q[:, 1] - self.rest[:, 1] * Q[:, 0]).sum(),
+                         (self.rest * Q).sum())
+        return np.cos(ang), np.sin(ang), pm
+
+    def to_rest(self, V: np.ndarray, pts: np.ndarray) -> np.ndarray:
+        """Points ``(k, 2)`` of the frame (vertices ``V``) taken back to rest."""
+        c, s, pm = self._pose(V)
+        d = pts - pm
+        return np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], -1) + self.mean
+
+    def from_rest(self, V: np.ndarray, pts: np.ndarray) -> np.ndarray:
+        """Rest points ``(k, 2)`` carried to the frame (vertices ``V``)."""
+        c, s, pm = self._pose(V)
+        d = pts - self.mean
+        return np.stack([c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1]], -1) + pm
