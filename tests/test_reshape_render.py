@@ -296,19 +296,3 @@ def test_a_new_edge_is_inked_inside_and_crosses_only_a_narrow_gap():
     for cols in (slice(16, 48), slice(72, 104)):            # away from the gap, below the line
         assert np.array_equal(out[30:, cols], crop[30:, cols])      # the fill is left alone
 
-
-def test_a_rigid_frame_takes_points_back_to_rest_and_out_again():
-    """TabClip's rigid fit: vertices turned by 30° and shifted give back the rest position of a
-    point the same motion moved, and carry a rest point to where the motion puts it."""
-    from nnsf.reshape.tab_texture import _Frame
-
-    rng = np.random.default_rng(3)
-    rest = rng.uniform(0, 100, (40, 2))
-    a = np.radians(30.0)
-    R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
-    shift = np.array([12.5, -7.0])
-    V = np.vstack([rest @ R.T + shift, rng.uniform(0, 100, (5, 2))])  # other vertices after them
-    frame = _Frame(np.vstack([rest, np.zeros((5, 2))]), np.arange(40))
-    p = np.array([[3.0, 80.0], [50.0, 50.0]])
-    np.testing.assert_allclose(frame.to_rest(V, p @ R.T + shift), p, atol=1e-9)
-    np.testing.assert_allclose(frame.from_rest(V, p), p @ R.T + shift, atol=1e-9)

@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 
 from nnsf.reshape.parts import SEGMENT_PART
+from nnsf.skeleton.rigid import rigid_fit
 
 
 def ink_mask(texture: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -151,7 +152,8 @@ class TabClip:
                 continue
             piv = np.asarray(cut.pivot, np.float64)
             i, j = np.clip(np.rint(piv).astype(int), 0, [W - 1, H - 1])
-            self.clips.append((3 + k, _Frame(V0, idx), _Frame(V0, np.asarray(tab.vertices)), piv, float(inner[j, i]),
+            tv = np.asarray(tab.vertices)
+            self.clips.append((3 + k, idx, V0[idx], tv, V0[tv], piv, float(inner[j, i]),
                                np.asarray(cut.mid, np.float64), np.asarray(cut.normal, np.float64)))
 
     def __bool__(self) -> bool:
@@ -165,9 +167,9 @@ class TabClip:
         h, w = ids.shape
         H, W = self.outside.shape
         V = np.asarray(vertices, dtype=np.float64)
-        for lay, parent, tab, piv, radius, mid, normal in self.clips:
+        for lay, pidx, prest, tidx, trest, piv, radius, mid, normal in self.clips:
             # Only the box around the tab's vertices is looked at: the crop is the whole character.
-            P = V[tab.idx]
+            P = V[tidx]
             bx0, by0 = np.maximum(np.floor(P.min(axis=0)).astype(int) - [x0, y0], 0)
             bx1, by1 = np.minimum(np.ceil(P.max(axis=0)).astype(int) - [x0, y0] + 1, [w, h])
             if bx1 <= bx0 or by1 <= by0:
@@ -178,10 +180,12 @@ class TabClip:
                 continue
             ys, xs = ys + by0, xs + bx0
             pts = np.stack([xs + x0, ys + y0], -1).astype(np.float64)
-            u = parent.to_rest(V, pts)
+            R, t = rigid_fit(prest, V[pidx])  # the parent piece's motion: u = its rest place
+            u = (pts - t) @ R
             # The joint is solid about its pivot (where the child turns now) out to the drawing's
             # thickness there: kept, so a pivot carried off the parent keeps its joint closed.
-            near = np.hypot(*(pts - tab.from_rest(V, piv[None])[0]).T) <= radius
+            Rt, tt = rigid_fit(trest, P)
+            near = np.hypot(*(pts - (piv @ Rt.T + tt)).T) <= radius
             before = (u - mid) @ normal < -self.side
             ij = np.rint(u).astype(np.int64)
             inside = (ij[:, 0] >= 0) & (ij[:, 0] < W) & (ij[:, 1] >= 0) & (ij[:, 1] < H)
@@ -191,32 +195,3 @@ class TabClip:
             out[ys[hide], xs[hide]] = True
         return out
 
-
-class _Frame:
-    """A rigidly moving set of mesh vertices: the least-squares rotation and shift (2-D Procrustes)
-    between their rest and current positions, px."""
-
-    def __init__(self, rest_vertices: np.ndarray, idx: np.ndarray):
-        self.idx = idx
-        self.mean = rest_vertices[idx].mean(axis=0)
-        self.rest = rest_vertices[idx] - self.mean
-
-    def _pose(self, V: np.ndarray):
-        P = V[self.idx]
-        pm = P.mean(axis=0)
-        Q = P - pm
-        ang = np.arctan2((self.rest[:, 0] * Q[:, 1] - self.rest[:, 1] * Q[:, 0]).sum(),
-                         (self.rest * Q).sum())
-        return np.cos(ang), np.sin(ang), pm
-
-    def to_rest(self, V: np.ndarray, pts: np.ndarray) -> np.ndarray:
-        """Points ``(k, 2)`` of the frame (vertices ``V``) taken back to rest."""
-        c, s, pm = self._pose(V)
-        d = pts - pm
-        return np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], -1) + self.mean
-
-    def from_rest(self, V: np.ndarray, pts: np.ndarray) -> np.ndarray:
-        """Rest points ``(k, 2)`` carried to the frame (vertices ``V``)."""
-        c, s, pm = self._pose(V)
-        d = pts - self.mean
-        return np.stack([c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1]], -1) + pm

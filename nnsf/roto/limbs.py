@@ -33,6 +33,7 @@ import cv2
 import numpy as np
 
 from nnsf.roto.curves import basis
+from nnsf.skeleton.rigid import rigid_fit, rotation
 
 #: across-limb fractions (0 = side a, 1 = side b) of the flow samples (inside the limb)
 INSIDE = (0.2, 0.35, 0.5, 0.65, 0.8)
@@ -87,26 +88,6 @@ def limb_parents(keys) -> np.ndarray:
         if part in PARENT:
             out[i] = where.get(k[:-1] + (f"{side}_{PARENT[part]}.a",), -1)
     return out
-
-
-def rigid_fit(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares rotation R (2, 2) and translation t with ``dst ≈ src @ R.T + t``.
-
-    Hand-written because OpenCV's ``estimateAffinePartial2D`` also fits a
-    scale (a limb does not grow between frames) and samples with RANSAC; in
-    2-D the problem has a closed form, the angle of the cross-covariance.
-    """
-    ms, md = src.mean(0), dst.mean(0)
-    H = (src - ms).T @ (dst - md)
-    th = np.arctan2(H[0, 1] - H[1, 0], H[0, 0] + H[1, 1])
-    R = rotation(th)
-    return R, md - ms @ R.T
-
-
-def rotation(th) -> np.ndarray:
-    """Rotation matrices (..., 2, 2) of angles ``th`` (rad)."""
-    c, s = np.cos(th), np.sin(th)
-    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
 
 
 def limb_weights(C: int, n_along: int, across, extend: int = 0) -> tuple[np.ndarray, np.ndarray]:
