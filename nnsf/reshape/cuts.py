@@ -282,9 +282,12 @@ def _root_chord(m, kp, contour, child, w) -> tuple[np.ndarray, np.ndarray] | Non
     dist = _dist(m)
     w_low = half_width(dist, kp, b, c)
     # The lower segment's own outline, and its hand or foot around the tip (as far as 2.5 × the
-    # tip's distance to the outline, or 60 % of the segment).
+    # tip's distance to the outline, or 60 % of the segment).  Its half-width is at least the
+    # upper's near the joint: measured on the bone, it sees only the near side of a limb whose
+    # key points run off its middle, and char1's left leg then lost the outline beside its knee,
+    # so the run stopped there and the hip cut fell on the knee cut.
     blob = max(0.6 * L_low, 2.5 * float(_lookup(dist, tip[None])[0]) + 2.0)
-    low = (who == lower) & ((d <= limb_reach(w_low, L_low)) | (np.linalg.norm(contour - tip, axis=1) <= blob))
+    low = (who == lower) & ((d <= limb_reach(max(w_low, w), L_low)) | (np.linalg.norm(contour - tip, axis=1) <= blob))
     member = low | ((who == upper) & (d <= reach))
     run = _run_around(member, contour, tip)
     if run is None:

@@ -102,6 +102,10 @@ class Mesh:
     #: overlaps, else −1, ``(t,)``; a renderer draws a collar just before its
     #: parent part, so it fills the joint's gap but never covers the parent.
     collar: np.ndarray | None = None
+    #: For a piece's own triangle, the part it goes under whenever the piece is drawn in front of
+    #: that part, else −1, ``(t,)``: a thigh's band along its hip cut under the body
+    #: (:func:`nnsf.reshape.pieces.hip_tucks`).
+    tuck: np.ndarray | None = None
     #: Vertices ``[:n_core]`` are deformed (ARAP); the rest belong to joint
     #: tabs (:mod:`nnsf.reshape.pieces`), moved rigidly with their child's
     #: bone after the solve.  None: every vertex is deformed.
@@ -121,6 +125,8 @@ class Mesh:
     def __post_init__(self):
         if self.collar is None:
             self.collar = np.full(len(self.triangles), -1, dtype=np.int64)
+        if self.tuck is None:
+            self.tuck = np.full(len(self.triangles), -1, dtype=np.int64)
         if self.pieces is None:
             self.pieces = np.zeros(len(self.triangles), dtype=np.int64)
         if self.layer is None:

@@ -479,6 +479,7 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
         return seg
 
     tabs, collar = [], [np.full(sum(len(t) for t in T), -1)]
+    tuck = hip_tucks(cuts, V, T, PC, piece_of)
     # The body samples the drawing with the limbs drawn over it painted out (layer 1, overlay_texture).
     layer = [np.concatenate([np.full(len(t), 1 if (overlay.any() and int(pc[0]) == 0) else 0, np.int64)
                              for t, pc in zip(T, PC)]) if T else np.zeros(0, np.int64)]
@@ -543,7 +544,8 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
     mesh = meshmod.Mesh(vertices=np.vstack(V), triangles=np.vstack(T).astype(np.int64),
                         parts=np.concatenate(PT).astype(np.int64), spacing=h,
                         pieces=np.concatenate(PC).astype(np.int64), piece_names=names, piece_keypoints=piece_kp,
-                        layer=np.concatenate(layer), collar=np.concatenate(collar).astype(np.int64))
+                        layer=np.concatenate(layer), collar=np.concatenate(collar).astype(np.int64),
+                        tuck=np.r_[tuck, np.full(sum(len(t) for t in T) - len(tuck), -1)].astype(np.int64))
     mesh.n_core = n_core
     mesh.tabs = tabs
     mesh.pivots = pivots
@@ -552,6 +554,39 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
     mesh.cuts = cuts
     mesh.followers = [{"name": f["name"], "side": f["side"]} for f in followers]
     return mesh
+
+
+#: Depth of the band of a thigh tucked under the body (:func:`hip_tucks`), as a share of the hip
+#: cut's length.
+TUCK = 0.35
+
+
+def hip_tucks(cuts: list[Cut], V: list, T: list, PC: list, piece_of: dict) -> np.ndarray:
+    """Part each core triangle tucks under, ``(t,)`` (−1: none): a thigh's band along its hip cut
+    goes under the body.
+
+    Legs hang from the body's bottom edge: drawn in front of the body, a thigh turning about its
+    hip would lay its straight top edge over the belly (AnimatedDrawings' char1: a kite-shaped
+    corner across the belt).  The band of the thigh's own triangles whose centroids lie within
+    :data:`TUCK` × the cut's length of the hip cut (and within half the way to the knee) is drawn
+    under the body instead (``Mesh.tuck``), so the thigh comes out from under the body's edge.
+    Arms are left alone: an arm may be drawn over the chest at rest, and its band would vanish.
+    """
+    verts = np.vstack(V) if V else np.zeros((0, 2))
+    out = [np.full(len(t), -1, np.int64) for t in T]
+    knees = {c.parent: c for c in cuts if c.parent != 0}
+    torso = int(parts.SEGMENT_PART[0])
+    for c in cuts:
+        if c.parent != 0 or "thigh" not in SEGMENT_NAMES[c.child]:
+            continue
+        depth = TUCK * float(np.linalg.norm(c.q - c.p))
+        knee = knees.get(c.child)
+        if knee is not None:
+            depth = min(depth, 0.5 * float(c.side(knee.mid[None])[0]))
+        for k, (t, p) in enumerate(zip(T, PC)):
+            if len(t) and int(p[0]) == piece_of[c.child]:
+                out[k][c.side(verts[t].mean(axis=1)) < depth] = torso
+    return np.concatenate(out) if out else np.zeros(0, np.int64)
 
 
 def near_cut_f(cut: Cut, m: np.ndarray, ov: int) -> np.ndarray:

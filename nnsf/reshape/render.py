@@ -53,7 +53,8 @@ class MeshRenderer:
     """
 
     def __init__(self, rest_vertices, triangles, parts, texture, mask=None, size=None,
-                 layer=None, underlay=None, behind=None, rim=None, seal=False, textures=None, reink=None):
+                 layer=None, underlay=None, behind=None, rim=None, seal=False, textures=None, reink=None,
+                 tuck=None):
         #: Whether :meth:`render` seals holes and joint cracks (:mod:`nnsf.reshape.seal`).
         self.seal = bool(seal)
         #: Outline redrawn along new silhouette edges (:func:`outline_style`, :meth:`_reink`):
@@ -137,11 +138,27 @@ class MeshRenderer:
                   else np.asarray(behind, dtype=np.int64))
         P = len(PARTS)
         own = (behind < 0) & ~rim_first
-        self._order = [np.concatenate([np.flatnonzero(behind == p), np.flatnonzero((self.parts == p) & own)])
+        self._collars = [np.flatnonzero(behind == p) for p in range(P)]
+        self._order = [np.concatenate([self._collars[p], np.flatnonzero((self.parts == p) & own)])
                        for p in range(P)]
         self._first = [np.flatnonzero((self.parts == p) & (behind < 0) & rim_first) for p in range(P)]
         # Draw groups: rim copies −1, collars before part p 2p, part p's own 2p + 1.
         self._group = np.where(behind >= 0, 2 * behind, np.where(rim_first, -1, 2 * self.parts + 1))
+        # ``tuck[k] = p`` (a thigh's band along its hip cut, :func:`nnsf.reshape.pieces.hip_tucks`):
+        # in a frame whose order draws k's part q after part p, triangle k is drawn just before p's
+        # own triangles, after p's collars, and q's collars (the tabs hidden under q) with it:
+        # under the body, over what lay under the whole thigh before.  Otherwise it is drawn with
+        # q.  Per part: its tucked triangles, the part they go under, its draw list without them.
+        tuck = (np.full(len(self.triangles), -1, np.int64) if tuck is None
+                else np.where(own, np.asarray(tuck, dtype=np.int64), -1))
+        self._tucked = {}
+        for q in range(P):
+            k = np.flatnonzero((self.parts == q) & (tuck >= 0))
+            if k.size:
+                under = np.unique(tuck[k])
+                if len(under) != 1:
+                    raise ValueError(f"part {PARTS[q]} tucks under several parts {under.tolist()}; expected one")
+                self._tucked[q] = (k, int(under[0]), self._order[q][~np.isin(self._order[q], k)])
 
     @classmethod
     def for_mesh(cls, mesh, character, size=None, seal=None) -> "MeshRenderer":
@@ -161,7 +178,7 @@ class MeshRenderer:
         textures = tab_textures(mesh, character, style) if mesh.tabs else None
         pieced = mesh.is_split
         out = cls(mesh.vertices, mesh.triangles, mesh.parts, character.texture, character.mask,
-                   size=size, layer=mesh.layer, underlay=underlay, behind=mesh.collar, rim=rim,
+                   size=size, layer=mesh.layer, underlay=underlay, behind=mesh.collar, rim=rim, tuck=mesh.tuck,
                    seal=seal if seal is not None else pieced, textures=textures,
                    reink=style if pieced else None)
         out._tab_textures = textures
@@ -177,8 +194,7 @@ class MeshRenderer:
         only the runs are expanded into pixels.
         """
         H, W = self.size
-        sel = np.concatenate([np.zeros(0, np.int64)] + [self._first[p] for p in order]
-                             + [self._order[p] for p in order])
+        sel, grp = self._draw_list(order)
         P = V[self.triangles[sel]]  # (s, 3, 2)
         y0 = np.clip(np.ceil(P[..., 1].min(axis=1) - 1e-9), 0, H).astype(np.int64)
         y1 = np.clip(np.floor(P[..., 1].max(axis=1) + 1e-9), -1, H - 1).astype(np.int64)
@@ -189,7 +205,7 @@ class MeshRenderer:
         total = int(nrows.sum())
         if total == 0:
             z = np.zeros(0, np.int64)
-            return z, z, z, z
+            return z, z, z, z, z
         sgn = np.where(area2 >= 0, 1.0, -1.0)
         # Edge k from corner k to k+1: inside when sgn·((q−p) × (x−p)) ≥ 0, i.e.
         # a x + b y + c ≥ 0 with a = −sgn·dy, b = sgn·dx, c = sgn·(dy px − dx py).
@@ -215,7 +231,33 @@ class MeshRenderer:
         xr = np.clip(np.floor(hi), -1, W - 1).astype(np.int64)
         n = np.where(blocked, 0, np.maximum(xr - xl + 1, 0))
         keep = n > 0
-        return y[keep].astype(np.int64), xl[keep], n[keep], sel[row_t[keep]]
+        return y[keep].astype(np.int64), xl[keep], n[keep], sel[row_t[keep]], grp[row_t[keep]]
+
+    def _draw_list(self, order) -> tuple[np.ndarray, np.ndarray]:
+        """Triangles in drawing order for the part ``order`` of one frame, and each one's draw group."""
+        pos = {int(p): i for i, p in enumerate(order)}
+        # Tucked bands of parts drawn after the part they tuck under go just before that part.
+        moved = {q: t for q, t in self._tucked.items() if q in pos and pos.get(t[1], len(pos)) < pos[q]}
+        sel = [np.zeros(0, np.int64)] + [self._first[p] for p in order]
+        grp = [np.zeros(0, np.int64)] + [self._group[self._first[p]] for p in order]
+        for p in order:
+            bands = sorted((q for q, t in moved.items() if t[1] == p), key=pos.get)
+            if bands:
+                sel.append(self._collars[p])
+                grp.append(self._group[self._collars[p]])
+            # A band goes with the tabs hidden under its own part (before it, as under the whole
+            # part); nearer parts' bands last, each a group of its own (−2 − its part), so two
+            # bands that overlap are written in order.
+            for q in bands:
+                sel += [self._collars[q], moved[q][0]]
+                grp += [self._group[self._collars[q]], np.full(len(moved[q][0]), -2 - q, np.int64)]
+            if p in moved:  # its collars went with its band
+                own = moved[p][2][len(self._collars[p]):]
+            else:
+                own = self._order[p][len(self._collars[p]) if bands else 0:]
+            sel.append(own)
+            grp.append(self._group[own])
+        return np.concatenate(sel), np.concatenate(grp)
 
     def _affine(self, V: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Inverse affine map of every triangle, deformed pixel -> atlas texel: A ``(t, 2, 2)``, b ``(t, 2)``."""
@@ -249,7 +291,7 @@ class MeshRenderer:
         """
         V = np.asarray(vertices, dtype=np.float64)
         order = list(range(len(PARTS))) if order is None else list(order)
-        ry, rx, rn, rt = self._raster(V, order)
+        ry, rx, rn, rt, rg = self._raster(V, order)
         if len(ry) == 0:
             e = np.zeros((0, 0), np.float32)
             return (0, 0, (e.astype(np.int32) if with_ids else None), e, e) + ((e, e) if below else ())
@@ -275,7 +317,7 @@ class MeshRenderer:
         # Runs come grouped by part in depth order; numpy leaves the order of
         # duplicate writes within one fancy assignment unspecified, so each
         # part is written separately: a later (nearer) part always wins.
-        run_part = self._group[rt]
+        run_part = rg
         cut = np.flatnonzero(np.diff(run_part)) + 1
         pstart = np.r_[0, first[cut], k] if len(cut) else np.r_[0, k]
         rstart = np.r_[0, cut, len(rt)]
