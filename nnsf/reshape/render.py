@@ -142,7 +142,8 @@ class MeshRenderer:
         self._order = [np.concatenate([self._collars[p], np.flatnonzero((self.parts == p) & own)])
                        for p in range(P)]
         self._first = [np.flatnonzero((self.parts == p) & (behind < 0) & rim_first) for p in range(P)]
-        # Draw groups: rim copies −1, collars before part p 2p, part p's own 2p + 1.
+        # Draw groups: rim copies −1, collars before part p 2p, part p's own 2p + 1 (and, per frame,
+        # a tucked band moved before the body −2 − its part: :meth:`_draw_list`).
         self._group = np.where(behind >= 0, 2 * behind, np.where(rim_first, -1, 2 * self.parts + 1))
         # ``tuck[k] = p`` (a thigh's band along its hip cut, :func:`nnsf.reshape.pieces.hip_tucks`):
         # in a frame whose order draws k's part q after part p, triangle k is drawn just before p's
