@@ -138,9 +138,9 @@ class MeshRenderer:
                   else np.asarray(behind, dtype=np.int64))
         P = len(PARTS)
         own = (behind < 0) & ~rim_first
+        # Per part: the collars drawn just before it, and its own triangles.
         self._collars = [np.flatnonzero(behind == p) for p in range(P)]
-        self._order = [np.concatenate([self._collars[p], np.flatnonzero((self.parts == p) & own)])
-                       for p in range(P)]
+        self._own = [np.flatnonzero((self.parts == p) & own) for p in range(P)]
         self._first = [np.flatnonzero((self.parts == p) & (behind < 0) & rim_first) for p in range(P)]
         # Draw groups: rim copies −1, collars before part p 2p, part p's own 2p + 1 (and, per frame,
         # a tucked band moved before the body −2 − its part: :meth:`_draw_list`).
@@ -149,7 +149,7 @@ class MeshRenderer:
         # in a frame whose order draws k's part q after part p, triangle k is drawn just before p's
         # own triangles, after p's collars, and q's collars (the tabs hidden under q) with it:
         # under the body, over what lay under the whole thigh before.  Otherwise it is drawn with
-        # q.  Per part: its tucked triangles, the part they go under, its draw list without them.
+        # q.  Per part: its tucked triangles, the part they go under, its own triangles without them.
         tuck = (np.full(len(self.triangles), -1, np.int64) if tuck is None
                 else np.where(own, np.asarray(tuck, dtype=np.int64), -1))
         self._tucked = {}
@@ -159,7 +159,7 @@ class MeshRenderer:
                 under = np.unique(tuck[k])
                 if len(under) != 1:
                     raise ValueError(f"part {PARTS[q]} tucks under several parts {under.tolist()}; expected one")
-                self._tucked[q] = (k, int(under[0]), self._order[q][~np.isin(self._order[q], k)])
+                self._tucked[q] = (k, int(under[0]), self._own[q][~np.isin(self._own[q], k)])
 
     @classmethod
     def for_mesh(cls, mesh, character, size=None, seal=None) -> "MeshRenderer":
@@ -239,26 +239,22 @@ class MeshRenderer:
         pos = {int(p): i for i, p in enumerate(order)}
         # Tucked bands of parts drawn after the part they tuck under go just before that part.
         moved = {q: t for q, t in self._tucked.items() if q in pos and pos.get(t[1], len(pos)) < pos[q]}
-        sel = [np.zeros(0, np.int64)] + [self._first[p] for p in order]
-        grp = [np.zeros(0, np.int64)] + [self._group[self._first[p]] for p in order]
+        drawn = [(k, self._group[k]) for k in (self._first[p] for p in order)]
         for p in order:
-            bands = sorted((q for q, t in moved.items() if t[1] == p), key=pos.get)
-            if bands:
-                sel.append(self._collars[p])
-                grp.append(self._group[self._collars[p]])
-            # A band goes with the tabs hidden under its own part (before it, as under the whole
-            # part); nearer parts' bands last, each a group of its own (−2 − its part), so two
-            # bands that overlap are written in order.
-            for q in bands:
-                sel += [self._collars[q], moved[q][0]]
-                grp += [self._group[self._collars[q]], np.full(len(moved[q][0]), -2 - q, np.int64)]
-            if p in moved:  # its collars went with its band
-                own = moved[p][2][len(self._collars[p]):]
-            else:
-                own = self._order[p][len(self._collars[p]) if bands else 0:]
-            sel.append(own)
-            grp.append(self._group[own])
-        return np.concatenate(sel), np.concatenate(grp)
+            if p not in moved:  # a moved part's collars go with its band
+                drawn.append((self._collars[p], self._group[self._collars[p]]))
+            # A moved band takes the tabs hidden under its own part with it (before it, as under the
+            # whole part); nearer parts' bands last, each a group of its own (−2 − its part), so
+            # two bands that overlap are written in order.
+            for q in sorted((q for q, t in moved.items() if t[1] == p), key=pos.get):
+                band = moved[q][0]
+                drawn += [(self._collars[q], self._group[self._collars[q]]),
+                          (band, np.full(len(band), -2 - q, np.int64))]
+            own = moved[p][2] if p in moved else self._own[p]
+            drawn.append((own, self._group[own]))
+        sel = np.concatenate([np.zeros(0, np.int64)] + [k for k, _ in drawn])
+        grp = np.concatenate([np.zeros(0, np.int64)] + [g for _, g in drawn])
+        return sel, grp
 
     def _affine(self, V: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Inverse affine map of every triangle, deformed pixel -> atlas texel: A ``(t, 2, 2)``, b ``(t, 2)``."""
