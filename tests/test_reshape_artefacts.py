@@ -221,6 +221,9 @@ def test_layered_mesh_has_no_holes_on_char1_kick():
     # (4 at most since turned tabs are clipped beside their parent: t = 215 shows single pixels at
     # the inside corners of armpit and crotch, none of them two pixels together)
     assert sealed["tear_px_max"] <= 4
+    # nothing floats free of the character: the seal once filled the middle of two 8-10 px gaps
+    # between arm and body (t = 81 and 129), leaving a grey sliver in each
+    assert raw["frames_with_detached"] == sealed["frames_with_detached"] == 0
 
 
 @pytest.mark.skipif(not (SHARED / "animated-drawings" / "characters" / "char1").is_dir(),
@@ -392,3 +395,34 @@ def test_depth_override_bad_input_from_the_command_line(tmp_path):
         lines = [ln for ln in (r.stderr + r.stdout).splitlines() if ln.strip()]
         assert len(lines) == 1 and field in lines[0], lines
         assert not out.exists()
+
+
+def test_detached_counts_bits_apart_from_the_character():
+    cov = np.zeros((40, 60), bool)
+    cov[5:35, 5:30] = True                      # the character
+    cov[10:12, 40:43] = True                    # a 6 px bit floating beside it
+    cov[30, 50] = True                          # a single stray pixel: below 3 px², not counted
+    assert A.detached(cov) == 1
+    cov[10:12, 30:43] = True                    # joined to the character: nothing apart
+    assert A.detached(cov) == 0
+
+
+@pytest.mark.parametrize("gap, filled", [(4, True), (8, False)])
+def test_the_seal_closes_a_crack_whole_or_not_at_all(gap, filled):
+    """Two joined parts side by side.  A 4 px crack between them is sealed across.  An 8 px gap is
+    closed by the seal's closing (9 px), but only its middle two columns lie within the crack reach
+    (5 px) of both parts: sealed alone they floated in the gap, a sliver apart from both parts
+    (char1's kick, t = 81 and 129).  The gap stays open instead."""
+    from nnsf.reshape.seal import seal
+
+    crop = np.zeros((40, 70, 4), np.uint8)
+    labels = np.full((40, 70), -1, np.int64)
+    crop[5:35, 5:20] = (150, 150, 150, 255)
+    labels[5:35, 5:20] = 0                                  # torso
+    crop[5:35, 20 + gap:50] = (120, 120, 120, 255)
+    labels[5:35, 20 + gap:50] = 2                           # a limb segment joined to it
+    out = seal(crop, labels, close=4, joined=[(0, 2)])
+    opened = out[10:30, 20:20 + gap, 3]
+    assert (opened == 255).all() if filled else (opened == 0).all()
+    # the seal adds no bit apart from what is drawn (the two parts are apart across the 8 px gap)
+    assert A.detached(out[..., 3] >= 128) == (0 if filled else 1) == A.detached(crop[..., 3] >= 128) - filled

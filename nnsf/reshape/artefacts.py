@@ -17,6 +17,8 @@ pixel ``(H, W)`` int (−1 = background; from the triangle-id image of
   (there both parts lie on the same side) and the pixel nicks of an open
   corner where two parts meet on the outline, which are drawing, not tears;
   a crack between two parts has them on opposite sides, a few pixels apart.
+* :func:`detached` — drawn components apart from the largest (3 px² or
+  more): bits of the character floating free of it.
 * :func:`outline_continuity` — the share of the outer outline's pixels with
   ink within 2 px (ink: darker than 0.55 × the rest drawing's median
   luminance, the rule of :func:`nnsf.reshape.mesh.ink_pixels`); compare it
@@ -63,6 +65,13 @@ assert len(LIMBS) == 8
 
 
 # --------------------------------------------------------------------------- holes and tears
+
+def detached(coverage: np.ndarray, min_area: int = 3) -> int:
+    """Drawn components (8-connected) of ``coverage`` ``(H, W)`` bool apart from the largest, of at
+    least ``min_area`` px: bits floating free of the character (a sealed sliver in a gap)."""
+    _, _, st, _ = cv2.connectedComponentsWithStats(np.asarray(coverage, np.uint8), connectivity=8)
+    return int((np.sort(st[1:, cv2.CC_STAT_AREA])[::-1][1:] >= min_area).sum())
+
 
 def holes(coverage: np.ndarray, min_area: int = 4) -> tuple[int, int]:
     """Background pixels enclosed by the character, and how many enclosed components exceed ``min_area`` px².
@@ -486,7 +495,7 @@ def frame_artefacts(rgba: np.ndarray, labels: np.ndarray, ink_thr: float, spike_
     out = {"hole_px": hp, "holes_gt4": hn, "seam_holes": seam, "pose_holes": pose,
            "tear_px": int(tp.sum()), "tear_pairs": pair_tears,
            "outline_ink": outline_continuity(cov, rgba[..., :3], ink_thr, reach),
-           "spikes": count_spikes(outline_turning(cov), spike_thr)}
+           "spikes": count_spikes(outline_turning(cov), spike_thr), "detached": detached(cov)}
     if joints is not None:
         out["joint_gap_px"], out["joint_gap_each"] = joint_gaps(cov, *joints, per_joint=True)
     return out
@@ -517,7 +526,8 @@ def clip_artefacts(renderer, frames: np.ndarray, orders: np.ndarray, keypoints: 
     each joined pair beyond that pair's in the rest pose, summed over the
     pairs; ``joint_gap_beyond_rest`` (mean), ``_max`` and
     ``frames_with_joint_gaps_beyond_rest`` (more than 4 px): likewise joint
-    by joint (what the undeformed rig already shows is the drawing's); and
+    by joint (what the undeformed rig already shows is the drawing's);
+    ``detached`` (:func:`detached`, total) and ``frames_with_detached``; and
     ``artefact_frames`` (how many frames were measured).  Key points are the
     ones that drove the mesh (``rig.drive``), in the same sense as
     ``rest_keypoints``.
@@ -580,6 +590,7 @@ def clip_artefacts(renderer, frames: np.ndarray, orders: np.ndarray, keypoints: 
            "joint_gap_beyond_rest": float(np.mean(gap_more)), "joint_gap_beyond_rest_max": int(max(gap_more)),
            "frames_with_joint_gaps_beyond_rest": int(sum(g > 4 for g in gap_more)),
            "frames_with_tears": int(sum(r["tear_px"] > 0 for r in rows)),
-           "artefact_frames": int(len(pick))}
+           "detached": int(sum(r["detached"] for r in rows)),
+           "frames_with_detached": int(sum(r["detached"] > 0 for r in rows)), "artefact_frames": int(len(pick))}
     out.update(width_profile_stats(np.stack(widths), rest_w))
     return out

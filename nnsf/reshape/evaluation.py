@@ -109,7 +109,7 @@ ARTEFACT_COLUMNS = ("hole_px", "holes_gt4", "holes_gt4_rest", "extra_holes", "se
                     "joint_gap_px", "joint_gap_max", "joint_gap_rest", "frames_with_joint_gaps",
                     "tear_beyond_rest", "tear_beyond_rest_max", "joint_gap_beyond_rest",
                     "joint_gap_beyond_rest_max", "frames_with_joint_gaps_beyond_rest",
-                    "frames_with_tears", "artefact_frames", "width_change", "width_error", "width_roughness",
+                    "frames_with_tears", "detached", "frames_with_detached", "artefact_frames", "width_change", "width_error", "width_roughness",
                     "width_jitter")
 #: Side-by-side GIF panels: the key-point baseline and subkeys on whole-limb
 #: pieces (the comparison of the paper's Fig. 8), and the stage's default.

@@ -14,8 +14,9 @@ where two parts meet.  :func:`seal` closes them on the rendered frame:
   Kenney robot's arm and body) is drawing and stays;
 * **cracks and notches**: background pixels inside the morphological
   closing of the coverage (an ellipse of ``2·close + 1`` px) that lie within
-  ``close + 1`` px (Chebyshev) of two different parts are filled.  The closing also
-  rounds the inside corner of a bent joint a little, as a drawn joint is.
+  ``close + 1`` px (Chebyshev) of two different parts, in runs that touch the
+  drawn pixels (:func:`touching`), are filled.  The closing also rounds the
+  inside corner of a bent joint a little, as a drawn joint is.
 
 Filled pixels take the colour of the nearest fully opaque pixel of the frame
 (OpenCV's distance transform with per-pixel labels): the body's fill
@@ -49,6 +50,30 @@ def joined_near(labels: np.ndarray, reach: int, pairs) -> np.ndarray:
     return out
 
 
+def touching(fill: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """The 8-connected components of ``fill`` ``(h, w)`` bool that touch ``cov`` ``(h, w)`` bool.
+
+    A gap between two parts about twice the crack reach wide has only its
+    middle line within reach of both: filled alone, that line floats in the
+    gap, a speck of colour apart from the character.  Such a gap is open, not
+    a crack, and stays so.
+    """
+    ys, xs = np.nonzero(fill)
+    if not len(ys):
+        return fill
+    # Only the box around the filled pixels, with a pixel of margin for their neighbours.
+    box = (slice(max(ys.min() - 1, 0), ys.max() + 2), slice(max(xs.min() - 1, 0), xs.max() + 2))
+    sub = fill[box]
+    n, comp = cv2.connectedComponents(sub.astype(np.uint8), connectivity=8)
+    near = cv2.dilate(cov[box].astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & sub
+    keep = np.zeros(n, bool)
+    keep[np.unique(comp[near])] = True
+    keep[0] = False
+    out = np.zeros_like(fill)
+    out[box] = keep[comp]
+    return out
+
+
 def seal_mask(labels: np.ndarray, alpha: np.ndarray, close: int = 4, hole_share: float = 0.02,
               thin: float = 3.0, hole_max: float | None = None, joined=None) -> np.ndarray:
     """Pixels ``(h, w)`` bool to fill, from visible parts ``(h, w)`` int (−1 empty) and alpha ``(h, w)`` uint8.
@@ -73,6 +98,7 @@ def seal_mask(labels: np.ndarray, alpha: np.ndarray, close: int = 4, hole_share:
     if fill.any():
         lab = np.where(cov, labels, -1)
         fill &= two_parts_near(lab, close + 1) if joined is None else joined_near(lab, close + 1, joined)
+        fill = touching(fill, cov)
     drawn = cov | fill
     bg = (~drawn).astype(np.uint8)
     n, lab, stats, _ = cv2.connectedComponentsWithStats(bg, connectivity=4)
