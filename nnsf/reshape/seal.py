@@ -58,20 +58,14 @@ def touching(fill: np.ndarray, cov: np.ndarray) -> np.ndarray:
     gap, a speck of colour apart from the character.  Such a gap is open, not
     a crack, and stays so.
     """
-    ys, xs = np.nonzero(fill)
-    if not len(ys):
+    if not fill.any():
         return fill
-    # Only the box around the filled pixels, with a pixel of margin for their neighbours.
-    box = (slice(max(ys.min() - 1, 0), ys.max() + 2), slice(max(xs.min() - 1, 0), xs.max() + 2))
-    sub = fill[box]
-    n, comp = cv2.connectedComponents(sub.astype(np.uint8), connectivity=8)
-    near = cv2.dilate(cov[box].astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & sub
+    n, comp = cv2.connectedComponents(fill.astype(np.uint8), connectivity=8)
+    near = cv2.dilate(cov.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & fill
     keep = np.zeros(n, bool)
     keep[np.unique(comp[near])] = True
     keep[0] = False
-    out = np.zeros_like(fill)
-    out[box] = keep[comp]
-    return out
+    return keep[comp]
 
 
 def seal_mask(labels: np.ndarray, alpha: np.ndarray, close: int = 4, hole_share: float = 0.02,
