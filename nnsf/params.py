@@ -25,6 +25,7 @@ LABELS = ("motion", "character")
 TRACKERS = ("ours", "agarwala", "lk")
 TRACK_INITS = ("linear", "lk", "flow", "limb")
 LK_ENDS = ("blend", "none")
+SNAP_TARGETS = ("profile", "edge")
 #: StyleTranslator settings (nnsf.factor.translate).
 BASES = ("aligned", "refit", "separate")
 SYNTHESES = ("consensus", "source")
@@ -185,6 +186,8 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "roto.w_slide": _num(0, 1e6),
     "roto.edge_gate": _num(0, 1000),
     "roto.velocity_trust": _bool(),
+    "roto.snap": _num(0, 100),
+    "roto.snap_to": _choice(SNAP_TARGETS),
     "roto.init": _choice(TRACK_INITS),
     "roto.lk_end": _choice(LK_ENDS),
     "roto.eval_clips": _int(1, 1000),

@@ -72,6 +72,7 @@ roto:
   w_slide: 10.0
   edge_gate: 1.0
   velocity_trust: false
+  snap: 0.0
   window: 3
   samples: 8
   levels: 1

@@ -27,6 +27,7 @@ OPTIONAL_PARAMS: dict[str, tuple[str, str, float]] = {
     "w_slide": ("slide", "num", 0.0),
     "edge_gate": ("edge_gate", "num", 0.0),
     "velocity_trust": ("velocity_trust", "bool", 0.0),
+    "snap": ("snap", "num", 0.0),
 }
 
 
@@ -41,6 +42,7 @@ def track_options(params: dict) -> dict:
     out["lk_end"] = require(params, "roto.lk_end")
     for key, (name, kind, _) in OPTIONAL_PARAMS.items():     # absent in older params files: off
         out[name] = checked(params, f"roto.{key}", False if kind == "bool" else 0.0)
+    out["snap_to"] = checked(params, "roto.snap_to", "profile")
     return out
 
 

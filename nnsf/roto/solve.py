@@ -35,10 +35,11 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
-from nnsf.params import LK_ENDS, TRACK_INITS, TRACKERS
+from nnsf.params import LK_ENDS, SNAP_TARGETS, TRACK_INITS, TRACKERS
 from nnsf.roto.energy import LevelImages, SpaceTimeProblem, Weights, build_pyramid
 from nnsf.roto.lm import levenberg_marquardt
 from nnsf.roto.limbs import limb_init, limb_parents, side_pairs
+from nnsf.roto.snap import edge_snap, gradient_strength, profile_snap
 
 METHODS = TRACKERS
 INITS = TRACK_INITS
@@ -70,7 +71,10 @@ class TrackOptions:
     the limb start, times the start's confidence (see
     :class:`nnsf.roto.energy.SpaceTimeProblem`).  ``velocity_trust`` (off by
     default) weighs the velocity term against the start's motion by the
-    start's confidence too.
+    start's confidence too.  ``snap`` (px; 0 = off) ends "ours" by moving
+    each free control point across its curve, at most that far: to where the
+    colours across the curve match the keyframes' (``snap_to="profile"``) or
+    onto the strongest colour edge (``"edge"``; :mod:`nnsf.roto.snap`).
     """
 
     # The energy weights and their defaults are :class:`Weights`' (one source).
@@ -99,10 +103,12 @@ class TrackOptions:
     edge_gate: float = 0.0
     slide: float = 0.0
     velocity_trust: bool = False
+    snap: float = 0.0
+    snap_to: str = "profile"
 
     def __post_init__(self):
         for name in ("velocity", "length", "curvature", "edge", "sketch", "colour", "length_anchor",
-                     "colour_sigma", "edge_sigma", "edge_cap", "max_step", "edge_gate", "slide"):
+                     "colour_sigma", "edge_sigma", "edge_cap", "max_step", "edge_gate", "slide", "snap"):
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0:
                 raise ValueError(f"track option {name} must be a finite number >= 0, got {v!r}")
@@ -119,6 +125,8 @@ class TrackOptions:
             raise ValueError(f"track option ftol must be in (0, 1), got {self.ftol!r}")
         if not isinstance(self.velocity_trust, (bool, np.bool_)):
             raise ValueError(f"track option velocity_trust must be true or false, got {self.velocity_trust!r}")
+        if self.snap_to not in SNAP_TARGETS:
+            raise ValueError(f"track option snap_to must be one of {SNAP_TARGETS}, got {self.snap_to!r}")
         if self.lk_end not in LK_ENDS:
             raise ValueError(f"track option lk_end must be one of {LK_ENDS}, got {self.lk_end!r}")
 
@@ -443,6 +451,7 @@ class ClipTracker:
         self.method, self.opts = method, opts
         self.gray = None
         self.pyramid = None
+        self.strength = None     # the edge snap's gradient magnitude, built on first use
         if method == "lk" or opts.init in ("lk", "flow", "limb"):
             self.gray = np.stack([cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in frames])
         self.flows = dense_flows(self.gray) if method != "lk" and opts.init in ("flow", "limb") \
@@ -451,6 +460,15 @@ class ClipTracker:
             self.pyramid = build_pyramid(frames, opts.levels, opts.colour_sigma, opts.edge_sigma,
                                          opts.edge_cap, edge_close=edge_close(opts.edge_close,
                                                                               frames.shape[1:3]))
+
+    def snap(self, P: np.ndarray, fixed: np.ndarray, frame0: np.ndarray) -> np.ndarray:
+        """The last step of "ours": every free control point snapped across its curve (:mod:`nnsf.roto.snap`)."""
+        colour = self.pyramid[0].colour
+        if self.opts.snap_to == "profile":
+            return profile_snap(colour, P, fixed, frame0, self.opts.snap, self.opts.K)
+        if self.strength is None:
+            self.strength = gradient_strength(colour)
+        return edge_snap(self.strength, P, fixed, frame0, self.opts.snap)
 
     def lk(self, P, fixed, frame0, end):
         Tn = P.shape[1]
@@ -491,11 +509,14 @@ class ClipTracker:
                 P = prior = flow_init(*self.flows, P, fixed, frame0)
             else:
                 P = linear_init(P, fixed)
-        return solve_interval(self.pyramid, P, fixed, opts, use_image_terms=ours,
-                              levels=1 if warm else None, frame0=frame0, motion_prior=prior,
-                              prior_confidence=conf, edge_gate=opts.edge_gate if ours else 0.0,
-                              slide=opts.slide if conf is not None else 0.0,
-                              velocity_trust=opts.velocity_trust)
+        P = solve_interval(self.pyramid, P, fixed, opts, use_image_terms=ours,
+                           levels=1 if warm else None, frame0=frame0, motion_prior=prior,
+                           prior_confidence=conf, edge_gate=opts.edge_gate if ours else 0.0,
+                           slide=opts.slide if conf is not None else 0.0,
+                           velocity_trust=opts.velocity_trust)
+        if ours and opts.snap > 0:
+            P = self.snap(P, fixed, frame0)
+        return P
 
 
 def assemble(T: int, names: list[str], kfs: dict, batches: list[Batch],
