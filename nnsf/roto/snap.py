@@ -46,6 +46,12 @@ TIE = 1e-6
 STEP = 0.25
 
 
+def offsets(radius: float) -> np.ndarray:
+    """The search grid along the normal: multiples of :data:`STEP` in [-radius, radius] px, 0 in the middle."""
+    n = int(np.floor(radius / STEP))
+    return np.arange(-n, n + 1) * STEP
+
+
 def gradient_strength(colour: np.ndarray) -> np.ndarray:
     """Colour-gradient magnitude (T, H, W) float32 of frames (T, H, W, 3) float in [0, 1].
 
@@ -86,7 +92,7 @@ def edge_snap(strength: np.ndarray, P: np.ndarray, fixed: np.ndarray, frame0: np
     if radius <= 0 or P.size == 0:
         return P.copy()
     T = P.shape[1]
-    offs = np.arange(-np.floor(radius / STEP), np.floor(radius / STEP) + 1) * STEP   # (S,)
+    offs = offsets(radius)                                                          # (S,)
     nrm = control_normals(P)
     q = P[..., None, :] + offs[:, None] * nrm[..., None, :]                         # (G, T, C, S, 2)
     frame = np.asarray(frame0)[:, None] + np.arange(T)[None, :]                     # (G, T)
@@ -95,7 +101,6 @@ def edge_snap(strength: np.ndarray, P: np.ndarray, fixed: np.ndarray, frame0: np
     best = v.argmax(-1)                                                             # (G, T, C)
     out = np.take_along_axis(q, best[..., None, None], axis=-2)[..., 0, :]
     return np.where(np.asarray(fixed, bool)[..., None], P, out)
-
 
 
 def profile_snap(colour: np.ndarray, P: np.ndarray, fixed: np.ndarray, frame0: np.ndarray,
@@ -114,14 +119,14 @@ def profile_snap(colour: np.ndarray, P: np.ndarray, fixed: np.ndarray, frame0: n
     if radius <= 0 or P.size == 0:
         return P.copy()
     T = P.shape[1]
-    offs = np.arange(-np.floor(radius / STEP), np.floor(radius / STEP) + 1) * STEP   # (S,)
+    offs = offsets(radius)                                                          # (S,)
     a = np.concatenate([np.arange(-K, 0), np.arange(1, K + 1)]).astype(np.float64)   # (A,)
     nrm = control_normals(P)                                                       # (G, T, C, 2)
     f0 = np.asarray(frame0)[:, None]
     kf0 = bilinear(colour, f0[:, :, None], P[:, 0, :, None] + a[:, None] * nrm[:, 0, :, None], grad=False)
     kf1 = bilinear(colour, f0[:, :, None] + T - 1, P[:, -1, :, None] + a[:, None] * nrm[:, -1, :, None],
                    grad=False)                                                     # (G, C, A, 3)
-    lam = (np.arange(T) / (T - 1))[None, :, None, None, None]
+    lam = (np.arange(T) / max(T - 1, 1))[None, :, None, None, None]
     target = (1 - lam) * kf0[:, None] + lam * kf1[:, None]                          # (G, T, C, A, 3)
     shift = offs[:, None] + a[None, :]                                              # (S, A)
     q = P[:, :, :, None, None, :] + shift[..., None] * nrm[:, :, :, None, None, :]  # (G, T, C, S, A, 2)
