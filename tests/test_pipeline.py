@@ -73,6 +73,7 @@ roto:
   edge_gate: 1.0
   velocity_trust: false
   snap: 0.0
+  snap_to: profile
   window: 3
   samples: 8
   levels: 1

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from nnsf.roto.energy import build_pyramid
-from nnsf.roto.snap import STEP, control_normals, edge_snap, gradient_strength, profile_snap
+from nnsf.roto.snap import STEP, edge_snap, gradient_strength, profile_snap
 from nnsf.roto.solve import TrackOptions, track_clip
 
 RED, BLUE = (220, 40, 40), (40, 40, 220)
@@ -27,14 +27,16 @@ def _vertical(x, T, C=4):
     return P
 
 
-def test_control_normals_are_the_spline_normals_at_the_control_points():
+def test_spline_normals_at_the_control_points_are_the_central_differences():
+    # the snap searches along curves.normals(P, C): with C samples of a C-point spline they sit
+    # on the control points, where the tangent is (P_{i+1} - P_{i-1}) / 2 (P_1 - P_0 at the ends)
     from nnsf.roto import curves
     rng = np.random.default_rng(3)
     P = np.cumsum(rng.normal(0, 3, (5, 2)), 0)
-    # with n = 3 (C - 1) + 1 samples, every third sample sits on a control point
-    n = 13
-    want = curves.normals(P, n)[::3]
-    np.testing.assert_allclose(control_normals(P), want, atol=1e-12)
+    t = np.gradient(P, axis=0)
+    want = curves.rot90(t / np.linalg.norm(t, axis=1, keepdims=True))
+    np.testing.assert_allclose(curves.normals(P, 5), want, atol=1e-12)
+    np.testing.assert_allclose(curves.sample(P, 5), P, atol=1e-12)
 
 
 def test_profile_snap_finds_the_edge_where_the_keyframes_put_it():

@@ -32,7 +32,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from nnsf.roto.curves import rot90
+from nnsf.roto.curves import normals
 from nnsf.roto.energy import bilinear
 
 #: edge target: strength lost per px of offset (the colour gradient's units: RGB in [0, 1]
@@ -66,18 +66,6 @@ def gradient_strength(colour: np.ndarray) -> np.ndarray:
     return out
 
 
-def control_normals(P: np.ndarray) -> np.ndarray:
-    """Unit normals (..., C, 2) of Catmull-Rom curves at their control points (..., C, 2).
-
-    The spline's tangent at P_i is (P_{i+1} - P_{i-1}) / 2, with the reflected
-    end neighbours of :mod:`nnsf.roto.curves` (so P_1 - P_0 at the ends):
-    exactly ``np.gradient`` along the control axis.  Same side convention as
-    :func:`nnsf.roto.curves.normals`.
-    """
-    t = np.gradient(P, axis=-2)
-    return rot90(t / np.maximum(np.linalg.norm(t, axis=-1, keepdims=True), 1e-9))
-
-
 def edge_snap(strength: np.ndarray, P: np.ndarray, fixed: np.ndarray, frame0: np.ndarray,
               radius: float) -> np.ndarray:
     """Move every free control point along its normal onto the strongest edge within ``radius`` px.
@@ -93,14 +81,11 @@ def edge_snap(strength: np.ndarray, P: np.ndarray, fixed: np.ndarray, frame0: np
         return P.copy()
     T = P.shape[1]
     offs = offsets(radius)                                                          # (S,)
-    nrm = control_normals(P)
+    nrm = normals(P, P.shape[-2])              # C samples of a C-point spline: at the points
     q = P[..., None, :] + offs[:, None] * nrm[..., None, :]                         # (G, T, C, S, 2)
     frame = np.asarray(frame0)[:, None] + np.arange(T)[None, :]                     # (G, T)
     v = bilinear(strength[..., None], frame[:, :, None, None], q, grad=False)[..., 0]
-    v = v - PULL * np.abs(offs)
-    best = v.argmax(-1)                                                             # (G, T, C)
-    out = np.take_along_axis(q, best[..., None, None], axis=-2)[..., 0, :]
-    return np.where(np.asarray(fixed, bool)[..., None], P, out)
+    return _moved(P, fixed, offs, (v - PULL * np.abs(offs)).argmax(-1), nrm)
 
 
 def profile_snap(colour: np.ndarray, P: np.ndarray, fixed: np.ndarray, frame0: np.ndarray,
@@ -121,7 +106,7 @@ def profile_snap(colour: np.ndarray, P: np.ndarray, fixed: np.ndarray, frame0: n
     T = P.shape[1]
     offs = offsets(radius)                                                          # (S,)
     a = np.concatenate([np.arange(-K, 0), np.arange(1, K + 1)]).astype(np.float64)   # (A,)
-    nrm = control_normals(P)                                                       # (G, T, C, 2)
+    nrm = normals(P, P.shape[-2])                                                  # (G, T, C, 2)
     f0 = np.asarray(frame0)[:, None]
     kf0 = bilinear(colour, f0[:, :, None], P[:, 0, :, None] + a[:, None] * nrm[:, 0, :, None], grad=False)
     kf1 = bilinear(colour, f0[:, :, None] + T - 1, P[:, -1, :, None] + a[:, None] * nrm[:, -1, :, None],
@@ -133,6 +118,9 @@ def profile_snap(colour: np.ndarray, P: np.ndarray, fixed: np.ndarray, frame0: n
     frame = (f0 + np.arange(T)[None, :])[:, :, None, None, None]
     col = bilinear(colour, frame, q, grad=False)                                    # (G, T, C, S, A, 3)
     cost = ((col - target[:, :, :, None]) ** 2).sum((-1, -2)) + TIE * np.abs(offs)
-    best = cost.argmin(-1)
-    out = P + (offs[best])[..., None] * nrm
-    return np.where(np.asarray(fixed, bool)[..., None], P, out)
+    return _moved(P, fixed, offs, cost.argmin(-1), nrm)
+
+
+def _moved(P, fixed, offs, best, nrm) -> np.ndarray:
+    """Control points (G, T, C, 2) moved by ``offs[best]`` px along ``nrm``; ``fixed`` ones kept."""
+    return np.where(np.asarray(fixed, bool)[..., None], P, P + offs[best][..., None] * nrm)
