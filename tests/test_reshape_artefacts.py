@@ -325,6 +325,10 @@ def test_layered_mesh_has_no_holes_on_a_kenney_character():
     # At 128 px the drawn gaps between arm and body are within 3 px of both parts: the tear
     # measure counts them in the rest pose too; deformed frames have no more than the drawing.
     assert sealed["tear_px"] <= sealed["tear_px_rest"]
+    # The arm hangs from the head's shoulder pads, beside a body that does not reach its shoulder:
+    # without the body's bridge under the pads (piece_regions.shoulder_bridges) the arm lay apart
+    # from the body in 15 frames, where the turned head took the pads away.
+    assert sealed["frames_with_detached"] == 0
 
 
 # --------------------------------------------------------------------------- depth overrides

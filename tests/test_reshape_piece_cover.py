@@ -80,6 +80,75 @@ def test_an_orphan_component_beyond_a_cut_goes_to_the_cuts_child():
     assert not owners[2].any()
 
 
+
+def test_a_shoulder_off_the_body_gets_a_bridge_under_the_head():
+    """A wide head whose lower corners (pads) reach down beside the body's top, the left arm hung
+    under its pad 8 px from the body, the right shoulder on the body.  The bridge is the pad's
+    pixels between the left shoulder and the body: with it the body reaches the arm, without it
+    only the head joins them.  The right side gets none, nor does the head's top."""
+    from nnsf.reshape.cuts import HEAD
+    from nnsf.reshape.piece_regions import shoulder_bridges
+    from nnsf.skeleton import JOINT_INDEX as J
+
+    label = np.full((100, 100), -1, np.int64)
+    label[15:50, 25:76] = HEAD
+    label[50:59, 25:36] = HEAD                       # the pads
+    label[50:59, 65:76] = HEAD
+    label[50:81, 36:65] = 0                          # the body, its top between the pads
+    label[59:76, 68:77] = 1                          # the left upper arm, under its pad
+    kp = np.zeros((17, 2))
+    kp[J["neck"]], kp[J["head_top"]] = (50, 48), (50, 18)
+    kp[J["l_shoulder"]], kp[J["l_elbow"]] = (72, 61), (72, 73)
+    kp[J["r_shoulder"]], kp[J["r_elbow"]] = (40, 55), (40, 70)
+    bridge = shoulder_bridges(label, kp, label >= 0)
+    assert bridge.any() and (label[bridge] == HEAD).all()
+    assert not bridge[:, :50].any() and not bridge[:48].any()
+
+    def joined(extra):
+        n, comp = cv2.connectedComponents(((label == 0) | (label == 1) | extra).astype(np.uint8))
+        return comp[70, 50] == comp[70, 72]
+
+    assert joined(bridge) and not joined(np.zeros_like(bridge))
+    # A shoulder on the body (the right one here, or both) needs no bridge.
+    kp[J["l_shoulder"]] = (62, 55)
+    assert not shoulder_bridges(label, kp, label >= 0).any()
+
+
+
+def test_the_body_s_colour_above_the_neck_line_beside_an_off_body_shoulder_is_the_body_s():
+    """A head (colour 200) labelled down to its shoulders; beside the left shoulder, off the body,
+    a patch of the shirt's colour (60, shaded in steps of 5) that the head's label took, joined to
+    the shirt below.  It goes to the body; the head's own colour, a shirt-coloured patch that
+    does not touch the shirt, and the side of a shoulder on the body stay the head's."""
+    from nnsf.reshape.cuts import HEAD
+    from nnsf.reshape.piece_regions import shoulder_fill
+    from nnsf.skeleton import JOINT_INDEX as J
+
+    label = np.full((100, 100), -1, np.int64)
+    label[15:50, 25:76] = HEAD
+    label[50:59, 25:36] = HEAD
+    label[50:59, 65:76] = HEAD
+    label[50:81, 36:65] = 0
+    label[59:76, 68:77] = 1
+    tex = np.zeros((100, 100, 4), np.uint8)
+    tex[..., 3] = 255 * (label >= 0)
+    tex[label >= 0, :3] = 200
+    tex[50:81, 36:65, :3] = 60                          # the shirt
+    tex[44:59, 58:76, :3] = (60 + 5 * (np.arange(44, 59) % 3))[:, None, None]   # its left shoulder
+    tex[20:24, 60:64, :3] = 60                          # a patch apart from it
+    tex[44:59, 25:42, :3] = 60                          # the right shoulder's
+    kp = np.zeros((17, 2))
+    kp[J["neck"]], kp[J["head_top"]] = (50, 48), (50, 18)
+    kp[J["l_shoulder"]], kp[J["l_elbow"]] = (72, 61), (72, 73)
+    kp[J["r_shoulder"]], kp[J["r_elbow"]] = (40, 55), (40, 70)
+    fill = shoulder_fill(label, kp, label >= 0, tex)
+    assert fill[52:59, 66:76].all() and (label[fill] == HEAD).all()
+    assert not fill[tex[..., 0] == 200].any() and not fill[20:24].any() and not fill[:, :50].any()
+    # No shoulder off the body: nothing moves.
+    kp[J["l_shoulder"]] = (62, 55)
+    assert not shoulder_fill(label, kp, label >= 0, tex).any()
+
+
 # --------------------------------------------------------------------------- the real drawings
 
 _CHARS = Path(__file__).resolve().parents[2] / "shared" / "data" / "animated-drawings" / "characters"

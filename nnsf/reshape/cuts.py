@@ -172,7 +172,7 @@ def find_cuts(mask: np.ndarray, keypoints: np.ndarray, whole_limbs: bool = False
         if whole_limbs and parent != 0:
             continue
         if child == HEAD:
-            cuts.append(_neck_cut(m, kp, dist, contour))
+            cuts.append(_neck_cut(m, kp, dist))
             continue
         a, b = LIMBS[names[child - 1]]
         u = kp[b] - kp[a]
@@ -340,22 +340,10 @@ def _shortest_chord(m, contour, i, k, win, a, b, lam_max, max_len=np.inf):
     return P[best].copy(), Q[best].copy()
 
 
-def _neck_cut(m: np.ndarray, kp: np.ndarray, dist: np.ndarray, contour=None) -> Cut:
-    """The neck: the shortest chord joining the ends of the head's outline (the outline points
-    nearest the head's bone), else the narrowest cross-section from the thorax to a little
-    above the neck key point."""
+def _neck_cut(m: np.ndarray, kp: np.ndarray, dist: np.ndarray) -> Cut:
+    """The neck: the narrowest cross-section from the thorax to a little above the neck key
+    point, when clearly narrower than the head, else the cross-section through the neck key point."""
     th, nk, top = kp[J["thorax"]], kp[J["neck"]], kp[J["head_top"]]
-    if contour is not None and False:
-        who, _ = _nearest_piece(contour, kp)
-        run = _run_around(who == HEAD, contour, top)
-        if run is not None:
-            i, k = run
-            span = np.linalg.norm(contour[i % len(contour)] - contour[k % len(contour)])
-            chord = _shortest_chord(m, contour, i, k, max(int(round(0.4 * span)), 3), top, th, 1.2)
-            if chord is not None:
-                p, q = chord
-                n = _normal_of(p, q, top - th)
-                return Cut(J["neck"], 0, HEAD, p, q, nk.copy(), n, max(0.5 * float(np.linalg.norm(p - q)), 1.0))
     axis = top - th
     L = float(np.linalg.norm(axis))
     n = axis / max(L, 1e-9)

@@ -37,7 +37,8 @@ def label_pieces(mask: np.ndarray, keypoints: np.ndarray, cuts: list[Cut], whole
     With ``texture``, a region of the drawing bounded by its lines that holds
     the body's spine and no limb's bone (:func:`nnsf.reshape.mesh.body_region_triangles`)
     stays the body's, even inside a limb's reach: a chest drawn in front of an
-    arm's root is the chest's.
+    arm's root is the chest's; and beside a shoulder off the body, the body's
+    colour above the neck cut's line is the body's (:func:`shoulder_fill`).
     """
     m = np.asarray(mask, dtype=bool)
     kp = np.asarray(keypoints, dtype=np.float64)
@@ -127,6 +128,10 @@ def label_pieces(mask: np.ndarray, keypoints: np.ndarray, cuts: list[Cut], whole
         for seg, region in limb_regions(texture, m, kp).items():
             label = np.where(region & (label == 0), seg, label)
     label = _open_big_pieces(label, m)
+    if texture is not None:
+        fill = shoulder_fill(label, kp, m, texture)
+        if fill.any():  # what the head keeps of a shirt's shoulder may be a sliver now
+            label = _open_big_pieces(np.where(fill, 0, label), m)
     return _one_component_each(label, m)
 
 
@@ -288,3 +293,101 @@ def _fill_unlabelled_excluding(label, m):
             break
         out[fill] = grown[fill]
     return out
+
+
+def shoulder_bridges(label: np.ndarray, keypoints: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """The head's pixels that join an arm to the body, ``(H, W)`` bool, for the body to hold too.
+
+    Some drawings hang an arm from the head's outline, not from the body's: a
+    wide head's lower corners (the Kenney robot's shoulder pads) reach down
+    past the body's top corners, and the shoulder key point lies
+    farther from the body's own pixels than the upper arm's half-width (the
+    arm's drawing does not reach the body).  The head turns about the neck,
+    so when it does those corners leave, and the arm hangs apart from the body.
+    The bridge is the head's pixels in the capsule from such a shoulder to
+    the nearest body pixel, of the upper arm's half-width, that lie nearer
+    to the shoulder than to the head's bone.  They stay the head's as well:
+    given to the body as a layer under the head, the head keeps its outline,
+    and a turned head uncovers them, not the paper.  ``label``: the pieces
+    (:func:`label_pieces`), ``mask``: the drawing's solid pixels.
+    """
+    kp = np.asarray(keypoints, dtype=np.float64)
+    lab = np.asarray(label)
+    out = np.zeros(lab.shape, bool)
+    hy, hx = np.nonzero(lab == HEAD)
+    head = np.c_[hx, hy].astype(np.float64)
+    to_head_bone = _seg_dist(head, kp[J["neck"]], kp[J["head_top"]])
+    for s, b, w in _off_body_shoulders(lab, kp, mask):
+        near = (_seg_dist(head, s, b) <= w) & (np.linalg.norm(head - s, axis=1) < to_head_bone)
+        out[hy[near], hx[near]] = True
+    return out
+
+
+#: Largest step in any colour channel (0-255) between neighbouring pixels of one drawn area
+#: (:func:`shoulder_fill`): flat-colour art changes by a few levels inside an area (shading,
+#: anti-aliasing) and by tens across its edge.
+COLOUR_STEP = 12
+
+
+def _off_body_shoulders(label: np.ndarray, kp: np.ndarray, mask: np.ndarray):
+    """``[(shoulder, nearest body pixel, upper arm half-width)]`` for each shoulder key point
+    farther from the body's pixels than its upper arm's half-width (:func:`shoulder_bridges`)."""
+    by, bx = np.nonzero(label == 0)
+    if not len(by):
+        return []
+    body = np.c_[bx, by].astype(np.float64)
+    dist = _dist(np.asarray(mask, dtype=bool))
+    out = []
+    for side in ("l", "r"):
+        s, e = J[f"{side}_shoulder"], J[f"{side}_elbow"]
+        w = half_width(dist, kp, s, e)
+        d = np.linalg.norm(body - kp[s], axis=1)
+        k = int(np.argmin(d))
+        if d[k] > w:
+            out.append((kp[s], body[k], w))
+    return out
+
+
+def shoulder_fill(label: np.ndarray, keypoints: np.ndarray, mask: np.ndarray, texture: np.ndarray) -> np.ndarray:
+    """The head's pixels that are the body's drawing beside an off-body shoulder, ``(H, W)`` bool.
+
+    The head takes everything on its side of the neck cut's line (:func:`label_pieces`),
+    and on the Kenney women that is the shirt's shoulders: the head turned and
+    carried a flap of shirt away.  Beside a shoulder that lies off the body
+    (:func:`shoulder_bridges`), the head's pixels nearer that shoulder than
+    the head's bone that the body's own colour area reaches (4-neighbour steps
+    of at most :data:`COLOUR_STEP` in each channel, from the body's pixels)
+    are the body's.  The colour area is the components of a sparse graph
+    (SciPy's ``connected_components``): OpenCV's flood fill takes one seed,
+    and the body's pixels are many.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    kp = np.asarray(keypoints, dtype=np.float64)
+    lab = np.asarray(label)
+    sides = _off_body_shoulders(lab, kp, mask)
+    if not sides:
+        return np.zeros(lab.shape, bool)
+    yy, xx = np.mgrid[:lab.shape[0], :lab.shape[1]]
+    pts = np.stack([xx, yy], -1).astype(np.float64)
+    to_head = _seg_dist(pts, kp[J["neck"]], kp[J["head_top"]])
+    near = np.zeros(lab.shape, bool)
+    for s, _, _ in sides:
+        near |= np.linalg.norm(pts - s, axis=-1) < to_head
+    cand = (lab == 0) | ((lab == HEAD) & near)
+    rgb = np.asarray(texture)[..., :3].astype(np.int16)
+    idx = np.full(lab.shape, -1, np.int64)
+    idx[cand] = np.arange(int(cand.sum()))
+    rows, cols = [], []
+    for a, b in ((np.s_[:, :-1], np.s_[:, 1:]), (np.s_[:-1, :], np.s_[1:, :])):
+        ok = cand[a] & cand[b] & (np.abs(rgb[a] - rgb[b]).max(axis=-1) <= COLOUR_STEP)
+        rows.append(idx[a][ok])
+        cols.append(idx[b][ok])
+    r, c = np.concatenate(rows), np.concatenate(cols)
+    n = int(cand.sum())
+    _, comp = connected_components(coo_matrix((np.ones(len(r)), (r, c)), shape=(n, n)), directed=False)
+    body_comps = np.unique(comp[(lab == 0)[cand]])
+    reached = np.zeros(lab.shape, bool)
+    reached[cand] = np.isin(comp, body_comps)
+    return reached & (lab == HEAD)

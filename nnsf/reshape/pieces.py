@@ -36,7 +36,7 @@ from nnsf.reshape import parts
 from nnsf.reshape.drive import TORSO
 from nnsf.reshape.cuts import Cut, HEAD, J, OVERLAP, PIECE_BONES, SEGMENT_NAMES, _dist, _lookup, _normal_of, _outline, _root_chord, _seg_dist, find_cuts, half_width, limb_reach, w_distal
 from nnsf.reshape.piece_mesh import COVER, covered_share, triangulate_region  # noqa: F401  (covered_share: re-exported)
-from nnsf.reshape.piece_regions import label_pieces
+from nnsf.reshape.piece_regions import label_pieces, shoulder_bridges
 
 PIECE_BONES.update({1 + i: (ab,) for i, ab in enumerate(LIMBS.values())})
 
@@ -389,6 +389,7 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
     all_cuts = find_cuts(solid, kp)
     label = _fill_soft(label_pieces(solid, kp, all_cuts, texture=texture), m)
     overlay = np.zeros(m.shape, bool)
+    bridge = shoulder_bridges(label, kp, solid)
     if texture is not None:
         # Limbs drawn over the body as shapes of their own: the body goes on under them, painted in.
         geo = _fill_soft(label_pieces(solid, kp, all_cuts), m)
@@ -430,7 +431,7 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
     near_seg = _filled(label)
     regions_core = []
     for pc in np.unique(piece_label[piece_label >= 0]):
-        region = (piece_label == pc) | (overlay if pc == 0 else False)
+        region = (piece_label == pc) | ((overlay | bridge) if pc == 0 else False)
         # Pieces grow ``ov`` px (:data:`OVERLAP`) into each other near the cuts (where seams open as the joints
         # turn), and a pixel elsewhere into the body and the body into them: a limb drawn over the
         # body that swings away leaves at most a pixel of its drawing behind.
