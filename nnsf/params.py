@@ -36,6 +36,8 @@ STAGE_NAMES = ("frames", "roto", "roto_eval", "data", "features", "factorize", "
                "heldout", "translate", "reshape", "styles", "animate")
 #: Camera views of projected motion capture (nnsf.datasets.views).
 VIEW_CHOICES = ("front", "side", "three-quarter", "auto")
+#: How a drawn character's arms follow a motion (:func:`nnsf.reshape.drive.retarget`).
+ARM_CHOICES = ("motion", "drawing")
 TRANSLATION_METHODS = ("nnsf", "nnsf_smooth", "nnsf_nosmooth", "nnsf_restore", "nnsf_swapped", "nnsf_beta0",
                        "nnsf_refit", "api", "api_source", "bilinear", "mgpm", "cbgpm", "offset", "identity", "real")
 
@@ -250,6 +252,7 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "reshape.method": _choice(("ours", "keypoints")),
     "reshape.mesh": _choice(("layered", "limbs", "split", "connected")),
     "reshape.propagation": _choice(("limb-frame", "eq12")),
+    "reshape.arms": _choice(ARM_CHOICES),
     "reshape.fps": _num(1, 120),
     "reshape.max_frames": _size(1, 5000, 512 * 512 * 3, "rendered frames of 512x512 px"),
     "reshape.formats": _list(_choice(RESHAPE_FORMATS), 3),
@@ -265,10 +268,14 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "reshape_eval.azimuth": ((lambda v: isinstance(v, dict) and all(
         isinstance(k, str) and isinstance(x, numbers.Real) and not isinstance(x, bool) for k, x in v.items())),
         "a mapping of motion names to projection azimuths in degrees"),
+    "reshape_eval.arms": ((lambda v: isinstance(v, dict) and all(
+        isinstance(k, str) and x in ARM_CHOICES for k, x in v.items())),
+        "a mapping of character names to " + " or ".join(ARM_CHOICES)),
     "animate.character": _str(),
     "animate.motion": _str(),
     "animate.style": _str(),
     "animate.view": _choice(VIEW_CHOICES),
+    "animate.arms": _choice(ARM_CHOICES),
     "animate.fps": _num(1, 120),
     "animate.n_vertices": _int(100, 6000),
     "animate.max_frames": _int(1, 5000),

@@ -192,6 +192,15 @@ def test_bad_view_is_a_one_line_error(tmp_path, capsys):
     code, _, err = run_cli(["animate", "--character", "pip", "--motion", "synthetic:max/walk/8",
                             "--view", "diagonal", "--out", tmp_path / "a.mp4"], capsys)
     assert code == 2 and err.count("\n") == 1 and "--view" in err and not (tmp_path / "a.mp4").exists()
+    code, _, err = run_cli(["animate", "--character", "pip", "--motion", "synthetic:max/walk/8",
+                            "--arms", "sideways", "--out", tmp_path / "a.mp4"], capsys)
+    assert code == 2 and err.count("\n") == 1 and "--arms" in err and "motion, drawing" in err
+    assert not (tmp_path / "a.mp4").exists()
+    p["dataset"]["bvh"]["view"] = "side"
+    p["animate"]["arms"] = "sideways"
+    (tmp_path / "params.yaml").write_text(yaml.safe_dump(p))
+    code, _, err = run_cli(["check", "--params", tmp_path / "params.yaml"], capsys)
+    assert code == 2 and err.count("\n") == 1 and "animate.arms" in err and "drawing" in err
 
 
 # --------------------------------------------------------------------------- nnsf animate

@@ -141,6 +141,8 @@ def test_the_project_params_pass_and_every_key_is_in_the_schema(tmp_path):
     ("frames.motions", 0),                         # or a count >= 1
     ("frames.motions", ["walk", 3]),
     ("reshape_eval.characters", ["char1", 5]),     # names must be strings
+    ("reshape_eval.arms", {"char5": "sideways"}),  # motion or drawing per character
+    ("reshape.arms", "sideways"),
     ("reshape.formats", ["gif", "gif", "png", "mp4"]),
 ])
 def test_free_form_fields_are_still_validated(key, value):

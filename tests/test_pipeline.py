@@ -145,6 +145,7 @@ reshape:
   method: ours
   mesh: layered
   propagation: limb-frame
+  arms: motion
   fps: 12
   max_frames: 6
   formats: [png, gif, mp4]
@@ -154,6 +155,7 @@ animate:
   motion: synthetic:max/walk/6
   style: bruno
   view: auto
+  arms: drawing
   fps: 24
   n_vertices: 300
   max_frames: 6

@@ -167,6 +167,45 @@ def test_retarget_takes_lengths_from_the_drawing_and_directions_from_the_motion(
     assert np.allclose(retarget(np.repeat(rest[None], 3, 0), rest), rest[None], atol=1e-9)
 
 
+def _arm_angles(Q, p, c):
+    d = Q[..., c, :] - Q[..., p, :]
+    return np.degrees(np.arctan2(d[..., 1], d[..., 0]))
+
+
+def test_arms_from_the_drawing_swing_about_the_drawn_pose(figure):
+    """``arms="drawing"``: a drawing whose left arm is spread sideways keeps it spread and swings it
+    by exactly the motion's swing (±50° about the hanging arm, whose mean direction is the rest
+    direction by symmetry); bone lengths stay the drawing's; every other key point is the
+    ``arms="motion"`` one; a motion that holds its arms still gives the drawn arms exactly."""
+    P = _motion(frames=24)
+    rest = figure.keypoints.copy()
+    sh, el, wr = J["l_shoulder"], J["l_elbow"], J["l_wrist"]
+    rest[[el, wr]] = _rot(rest[[el, wr]], rest[sh], -80)           # the arm drawn spread
+    drawn = _arm_angles(rest, sh, el)
+    Q = retarget(P, rest, arms="drawing")
+    Qm = retarget(P, rest)
+    swing = 50 * np.sin(2 * np.pi * np.arange(24) / 24)
+    got = (_arm_angles(Q, sh, el) - drawn + 180) % 360 - 180
+    assert np.allclose(got, swing, atol=1e-6)
+    # the elbow bend is the drawing's: the motion's forearm turns with its upper arm
+    bend = lambda K: (_arm_angles(K, el, wr) - _arm_angles(K, sh, el) + 180) % 360 - 180
+    assert np.allclose(bend(Q), bend(rest[None]), atol=1e-6)
+    for p, c in ((sh, el), (el, wr)):
+        assert np.allclose(np.linalg.norm(Q[:, c] - Q[:, p], axis=1), np.linalg.norm(rest[c] - rest[p]))
+    arms = (el, wr, J["r_elbow"], J["r_wrist"])
+    others = [j for j in range(len(JOINTS)) if j not in arms]
+    assert np.allclose(Q[:, others], Qm[:, others], atol=1e-9)
+    # the right arm does not swing in this motion: it stays as drawn, relative to its shoulder
+    r = [J["r_shoulder"], J["r_elbow"], J["r_wrist"]]
+    assert np.allclose(Q[:, r] - Q[:, r[:1]], (rest[r] - rest[r[:1]])[None], atol=1e-9)
+    # under "motion" the same drawing's arm hangs and swings as the motion's does
+    assert np.allclose(_arm_angles(Qm, sh, el), _arm_angles(P, sh, el), atol=1e-6)
+    still = retarget(np.repeat(figure.keypoints[None], 4, 0), rest, arms="drawing")
+    assert np.allclose(still, rest[None], atol=1e-9)
+    with pytest.raises(InputError, match="arms.*motion, drawing"):
+        retarget(P, rest, source="clip.csv", arms="sideways")
+
+
 def test_nan_frames_are_refused_naming_the_frame(figure, tmp_path):
     P = _motion()
     P[5, J["r_knee"], 1] = np.nan

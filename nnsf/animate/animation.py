@@ -33,7 +33,7 @@ from nnsf.factor.timewarp import resample_clip
 from nnsf.io import atomic_path, check_writable
 from nnsf.reshape import depth as depth_mod
 from nnsf.reshape.character import Character
-from nnsf.reshape.drive import read_motion, retarget
+from nnsf.reshape.drive import ARM_MODES, read_motion, retarget
 from nnsf.reshape.render import MeshRenderer
 from nnsf.reshape.video import contact_sheet, write_gif, write_mp4, write_png_frames
 from nnsf.reshape.stage import BACKGROUND, build_rig, canvas
@@ -134,7 +134,7 @@ def output_targets(out) -> dict[str, Path]:
 
 def animate_files(character, motion, style="none", model=None, view="auto", out="animation.mp4",
                   fps=None, joints=None, source_style=None, n_vertices=800, max_frames=5000,
-                  outputs=None, progress=True, size=512, clip=None) -> AnimateResult:
+                  outputs=None, progress=True, size=512, clip=None, arms="motion") -> AnimateResult:
     """Run the whole job (module docstring) and write the outputs; returns what was written and the times.
 
     Parameters
@@ -148,9 +148,13 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
     out : ``FILE.mp4``, ``FILE.gif`` or a folder for PNG frames; a contact
         sheet ``<stem>_sheet.png`` is written beside.  Ignored when
         ``outputs`` (``{kind: path}``, kinds of :data:`OUTPUT_KINDS`) is given.
+    arms : ``motion`` (the arms point as the motion's) or ``drawing`` (they
+        swing about the pose they are drawn in), :func:`nnsf.reshape.drive.retarget`.
     fps : output frame rate (default: the motion's).
     """
     views.check_view(view)
+    if arms not in ARM_MODES:
+        raise InputError("--arms", "arms", f"one of {', '.join(ARM_MODES)}", arms)
     targets = dict(outputs) if outputs is not None else output_targets(out)
     # Every output folder is checked before any work (a file in the way, a read-only
     # disk): one line naming the folder, and nothing rendered in vain.
@@ -198,7 +202,7 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
     seconds["translate"], cpu["translate"] = time.perf_counter() - t, time.process_time() - c
     # ---- retarget
     t, c = time.perf_counter(), time.process_time()
-    kp = retarget(moved, ch.keypoints, source=mo.source or mo.name)
+    kp = retarget(moved, ch.keypoints, source=mo.source or mo.name, arms=arms)
     seconds["retarget"], cpu["retarget"] = time.perf_counter() - t, time.process_time() - c
     # ---- deform
     t, c = time.perf_counter(), time.process_time()

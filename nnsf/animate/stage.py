@@ -7,7 +7,7 @@ from nnsf.animate.animation import animate_files
 from nnsf.datasets.views import check_view
 from nnsf.errors import InputError
 from nnsf.io import atomic_dir, write_json
-from nnsf.params import require, source_of
+from nnsf.params import checked, require, source_of
 from nnsf.pipeline import ANIMATE_DIR, STYLES_MODEL, StageResult
 
 
@@ -22,6 +22,7 @@ def animate(params: dict, model=STYLES_MODEL, out_dir=ANIMATE_DIR) -> StageResul
     src = source_of(params)
     spec = {k: require(params, f"animate.{k}") for k in
             ("character", "motion", "style", "view", "fps", "n_vertices", "max_frames", "output")}
+    spec["arms"] = checked(params, "animate.arms", "motion")     # absent in older params files
     for key in ("character", "motion"):
         text = str(spec[key])
         if not text.startswith("synthetic:") and ("/" in text or "." in text):
@@ -36,7 +37,8 @@ def animate(params: dict, model=STYLES_MODEL, out_dir=ANIMATE_DIR) -> StageResul
                    if kind in spec["output"]}
         res = animate_files(spec["character"], spec["motion"], style=spec["style"], model=model,
                             view=spec["view"], fps=spec["fps"], n_vertices=int(spec["n_vertices"]),
-                            max_frames=int(spec["max_frames"]), outputs=outputs, progress=False)
+                            max_frames=int(spec["max_frames"]), outputs=outputs, progress=False,
+                            arms=spec["arms"])
         write_json(tmp / "animate.json", {
             "character": res.character, "motion": res.motion, "style": res.style, "view": res.view,
             "frames": res.frames, "fps": res.fps, "files": sorted(p.name for p in res.files.values())})

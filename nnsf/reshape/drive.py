@@ -4,7 +4,9 @@ A motion is any 17-point clip ``(T, 17, 2)``: unified template features
 (``data/features/features.csv``), pixel key points, a translated clip, or a
 projected BVH clip.  :func:`retarget` puts it on a character:
 
-* bone directions come from the motion, frame by frame;
+* bone directions come from the motion, frame by frame (with
+  ``arms="drawing"`` the arms keep their drawn directions, turned by the
+  motion's swing);
 * bone lengths come from the drawing: bone b of frame t becomes
   ``v_b(t) · L_b(drawing) / median_t L_b(motion)``, so a bone the motion
   foreshortens stays foreshortened by the same ratio, while the drawn
@@ -29,6 +31,7 @@ import pandas as pd
 
 from nnsf.datasets import contract
 from nnsf.errors import InputError
+from nnsf.params import ARM_CHOICES
 from nnsf.skeleton import BONES, JOINT_INDEX, JOINTS, N_JOINTS, character_scale, to_points
 from nnsf.skeleton.layout import FEATURE_COLUMNS
 
@@ -60,10 +63,17 @@ def check_finite(points: np.ndarray, source="motion", frames=None) -> np.ndarray
 TORSO = tuple(JOINT_INDEX[j] for j in (
     "pelvis", "r_hip", "l_hip", "spine", "thorax", "neck", "l_shoulder", "r_shoulder"))
 
+#: How :func:`retarget` turns the arms: ``motion`` (the motion's bone directions, the
+#: paper's) or ``drawing`` (the drawn arm pose, turned by the motion's swing about its mean).
+ARM_MODES = ARM_CHOICES
+#: The arm bones (parent, child) that ``arms="drawing"`` turns about their drawn direction.
+ARM_BONES = tuple((JOINT_INDEX[p], JOINT_INDEX[c]) for p, c in (
+    ("l_shoulder", "l_elbow"), ("l_elbow", "l_wrist"), ("r_shoulder", "r_elbow"), ("r_elbow", "r_wrist")))
+
 
 def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", frames=None,
              foreshortening=(1.0, 1.0), rigid_torso: bool = True,
-             torso_stretch=(1.0, 1.0)) -> np.ndarray:
+             torso_stretch=(1.0, 1.0), arms: str = "motion") -> np.ndarray:
     """Map a motion ``(T, 17, 2)`` (any units) onto a character: ``(T, 17, 2)`` pixels.
 
     ``rest_keypoints`` ``(17, 2)``: the drawing's key points.
@@ -88,10 +98,21 @@ def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", fr
       a drawn limb cannot shrink without squashing, and with (0.6, 1.2) a
       foreshortened shin squeezed its handle triangles to σ1/σ2 ≈ 18.
 
+    * ``arms="drawing"``: each arm bone (:data:`ARM_BONES`) keeps its drawn
+      direction turned by the motion's swing, the angle ``θ_b(t) − θ̄_b``
+      between its direction in frame t and its mean direction over the clip
+      (the angle of the mean unit vector).  The arm moves as the motion's
+      arm does, about the pose it is drawn in: arms drawn spread (a
+      six-armed bug, a figure with its hands on its hips) stay spread and
+      swing, where ``"motion"`` hangs them as the performer's hang.  An
+      unchanged motion arm gives the drawn pose exactly.
+
     A NaN/Inf frame or a bone of zero median length raises
     :class:`InputError` naming ``source`` and the frame / bone.
     """
     P = check_finite(points, source, frames)
+    if arms not in ARM_MODES:
+        raise InputError(source, "arms", f"one of {', '.join(ARM_MODES)}", repr(arms))
     rest = np.asarray(rest_keypoints, dtype=np.float64)
     try:
         mot = character_scale(P)
@@ -107,6 +128,8 @@ def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", fr
     med = np.median(length, axis=0)
     ratio = np.clip(length / np.maximum(med, 1e-12), lo, hi)
     unit = vec / np.maximum(length, 1e-12)[..., None]
+    if arms == "drawing":
+        unit = _swing_about_drawing(unit, rest)
     drawn_len = mot.bone_ratio / drawn.bone_ratio * med  # = drawn bone lengths
     placed = np.zeros(N_JOINTS, dtype=bool)
     placed[0] = True
@@ -134,6 +157,25 @@ def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", fr
             continue
         out[:, c] = out[:, p] + unit[:, b] * (drawn_len[b] * ratio[:, b])[:, None]
         placed[c] = True
+    return out
+
+
+def _swing_about_drawing(unit: np.ndarray, rest: np.ndarray) -> np.ndarray:
+    """Bone unit vectors ``(T, 16, 2)`` with the arm bones' replaced by the drawn direction turned by the swing.
+
+    For each bone of :data:`ARM_BONES`: the motion's angle in each frame
+    minus the angle of its mean unit vector (a circular mean: it is
+    defined for any clip whose arm does not point every way equally),
+    added to the drawn bone's angle in ``rest`` ``(17, 2)``.
+    """
+    out = unit.copy()
+    bones = [BONES.index(b) for b in ARM_BONES]
+    u = unit[:, bones]                                           # (T, 4, 2)
+    mean = u.mean(0)                                             # (4, 2)
+    swing = np.arctan2(u[..., 1], u[..., 0]) - np.arctan2(mean[:, 1], mean[:, 0])
+    d = rest[[c for _, c in ARM_BONES]] - rest[[p for p, _ in ARM_BONES]]
+    ang = np.arctan2(d[:, 1], d[:, 0]) + swing                   # (T, 4)
+    out[:, bones] = np.stack([np.cos(ang), np.sin(ang)], -1)
     return out
 
 

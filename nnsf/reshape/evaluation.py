@@ -91,6 +91,10 @@ VARIANTS = (("connected", "keypoints"), ("connected", "ours"), ("limbs", "keypoi
 #: (from the front, mocap walking toward the camera hides the swing).  Overridden by
 #: ``reshape_eval.azimuth`` in params.yaml.
 AZIMUTH = {"walk_normal_001": 90.0}
+#: ``arms`` of :func:`nnsf.reshape.drive.retarget` per character (others: ``motion``): char5's six
+#: arms are drawn spread, and driven by direction they hang behind its body.  Overridden by
+#: ``reshape_eval.arms`` in params.yaml.
+ARMS = {"char5": "drawing"}
 #: Every how many frames the rendered-frame artefacts (:mod:`nnsf.reshape.artefacts`) are measured:
 #: every frame, so the width jitter is frame to frame.
 ARTEFACT_EVERY = 1
@@ -146,7 +150,8 @@ def evaluate_item(item: dict) -> dict:
 
     ``item`` keys: ``character`` (folder) or ``kenney`` (a Kenney character
     name, with ``kenney_root`` and ``kenney_annotations``), ``motion`` (BVH
-    path), ``azimuth`` (projection, degrees), ``n_vertices``,
+    path), ``azimuth`` (projection, degrees), ``arms`` (``motion`` or
+    ``drawing``, default ``motion``), ``n_vertices``,
     ``max_frames``, ``subkeys_per_limb``, ``figure`` (bool), ``gif_dir``
     (or None).  Module-level and picklable for a task-runner map.
     """
@@ -167,7 +172,7 @@ def evaluate_item(item: dict) -> dict:
             anim = results[f"{mesh}/{base}"]  # the same animation, rendered without the seal
         else:
             rig = build_rig(ch, base, mesh, item["n_vertices"], item["subkeys_per_limb"], base_mesh=meshes[mesh])
-            anim = animate(rig, motion, depth, source=str(item["motion"]))
+            anim = animate(rig, motion, depth, source=str(item["motion"]), arms=item.get("arms", "motion"))
         results[key] = anim
     allV = np.concatenate([a.frames.reshape(-1, 2) for a in results.values()])
     offset, size = canvas(ch, allV)
@@ -177,7 +182,7 @@ def evaluate_item(item: dict) -> dict:
                                                seal=False if method.endswith("_unsealed") else None)
         row = {"character": ch.name, "motion": Path(item["motion"]).stem.replace("dataset-1_", ""),
                "mesh": mesh, "method": method, "azimuth": float(item.get("azimuth", 0.0)),
-               "sealed": bool(renderers[key].seal)}
+               "arms": item.get("arms", "motion"), "sealed": bool(renderers[key].seal)}
         row.update(report(anim, depth_margin=0.02 * height))
         row["subkey_slide"] = subkey_slide(anim.rig, anim.keypoints)
         # A variant whose frames equal an already measured one's (on the layered mesh subkeys pin
@@ -322,10 +327,11 @@ def figure_widths(table: pd.DataFrame, path: Path) -> None:
 
 def run(data_root, out_dir=Path("reports"), characters=CHARACTERS, motions=MOTIONS,
         n_vertices: int = 800, max_frames: int = 240, subkeys_per_limb: int = 4, kenney_annotations=None,
-        mapper=None, azimuth=None, kenney_characters=None, kenney_vertices: int = 300) -> dict:
+        mapper=None, azimuth=None, kenney_characters=None, kenney_vertices: int = 300, arms=None) -> dict:
     """Evaluate and write the report files (module docstring); returns the summary dict.
 
     ``azimuth``: projection per motion (degrees; default :data:`AZIMUTH`).
+    ``arms``: ``{character: "motion" | "drawing"}`` (default :data:`ARMS`).
     ``kenney_characters``: Kenney sprites driven by the same motions (default
     all six of :mod:`nnsf.reshape.kenney` when their images and
     ``kenney_annotations`` exist), meshed with ``kenney_vertices``.
@@ -336,9 +342,11 @@ def run(data_root, out_dir=Path("reports"), characters=CHARACTERS, motions=MOTIO
     if not chars.is_dir() or not mots.is_dir():
         raise InputError(data_root, "folder", "animated-drawings/characters and bandai-namco-1/data inside")
     az = dict(AZIMUTH if azimuth is None else azimuth)
+    arm_mode = dict(ARMS if arms is None else arms)
     gif_dir = out_dir / "reshape_eval"
     items = [{"character": str(chars / c), "motion": str(mots / f"dataset-1_{m}.bvh"), "n_vertices": n_vertices,
               "max_frames": max_frames, "subkeys_per_limb": subkeys_per_limb, "azimuth": float(az.get(m, 0.0)),
+              "arms": arm_mode.get(c, "motion"),
               "figure": (c, m) in FIGURE_ITEMS or c == characters[0], "sheet": True,
               "gif_dir": str(gif_dir) if (c, m) in FIGURE_ITEMS else None}
              for c in characters for m in motions]
@@ -458,6 +466,7 @@ def reshape_eval(params: dict, data_root, out_dir=Path("reports"),
     max_frames = get("max_frames", 240)
     per_limb = get("subkeys_per_limb", 4)
     azimuth = get("azimuth", dict(AZIMUTH))
+    arms = get("arms", dict(ARMS))
     if not (isinstance(azimuth, dict) and all(isinstance(k, str) and isinstance(v, (int, float))
                                               and not isinstance(v, bool) for k, v in azimuth.items())):
         raise InputError("params.yaml", "reshape_eval.azimuth", "a mapping motion -> degrees", azimuth)
@@ -470,7 +479,7 @@ def reshape_eval(params: dict, data_root, out_dir=Path("reports"),
         if not ok:
             raise InputError(source_of(params), f"reshape_eval.{key}", what, val)
     s = run(data_root, out_dir, chars, motions, n_vertices, max_frames, per_limb, kenney_annotations, mapper,
-            azimuth=azimuth)
+            azimuth=azimuth, arms=arms)
     metrics = {}
     for v, m in s["means"].items():
         for k in ("driving_failure_ratio", "arap_energy_mean", "stretch_ratio_max", "flipped_triangles",

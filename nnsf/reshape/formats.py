@@ -195,7 +195,7 @@ def _load_ad(cfg_path: Path):
     if chest is None:
         return chmod.load_character(cfg_path)
     joints, notes, extra = {}, [], []
-    for side, by_k in sets.items():
+    for side, by_k in sorted(sets.items()):     # sorted: the order of a set of names varies by run
         k = min(by_k, key=lambda q: (float(np.linalg.norm(loc[by_k[q][0]] - chest)), q))
         for j, n in zip(_ARM, by_k[k]):
             joints[f"{side}_{j}"] = loc[n]
