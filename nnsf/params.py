@@ -25,7 +25,7 @@ LABELS = ("motion", "character")
 TRACKERS = ("ours", "agarwala", "lk")
 TRACK_INITS = ("linear", "lk", "flow", "limb")
 LK_ENDS = ("blend", "none")
-SNAP_TARGETS = ("profile", "edge")
+SNAP_TARGETS = ("profile", "edge", "auto")
 #: StyleTranslator settings (nnsf.factor.translate).
 BASES = ("aligned", "refit", "separate")
 SYNTHESES = ("consensus", "source")

@@ -72,8 +72,8 @@ roto:
   w_slide: 10.0
   edge_gate: 1.0
   velocity_trust: false
-  snap: 0.0
-  snap_to: profile
+  snap: 3.0
+  snap_to: auto
   window: 3
   samples: 8
   levels: 1

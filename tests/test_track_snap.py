@@ -100,3 +100,50 @@ def test_snap_through_track_clip_and_off_by_default():
 def test_bad_snap_options_raise(bad):
     with pytest.raises(ValueError, match="track option snap"):
         TrackOptions.from_kwargs(**bad)
+
+
+def _stroke(xs, size=(40, 48), width=2):
+    """Frames (T, H, W, 3) uint8: a dark vertical stroke ``width`` px wide centred at x + 0.5 on white."""
+    H, W = size
+    x = np.arange(W)
+    out = np.full((len(xs), H, W, 3), 255, np.uint8)
+    for t, c in enumerate(xs):
+        on = np.abs(x - (c + 0.5)) < width / 2 + 1e-9
+        out[t][:, on] = (30, 30, 60)
+    return out
+
+
+def test_stroke_share_tells_flat_colour_from_line_art():
+    from nnsf.roto.snap import STROKED, auto_target, stroke_share
+    curve = lambda x: {"s": np.stack([np.full(4, x), np.linspace(8.0, 32.0, 4)], -1)}
+    flat = _two_colours([20, 24])                       # a boundary between two flat colours
+    assert stroke_share(flat, {0: curve(20.5), 1: curve(24.5)}) == 0.0
+    assert auto_target(flat, {0: curve(20.5)}) == ("edge", 0.0)
+    lines = _stroke([20, 24])                           # a 2-px ink line, annotated on its centre
+    assert stroke_share(lines, {0: curve(20.5), 1: curve(24.5)}) == 1.0
+    assert auto_target(lines, {0: curve(20.5)}) == (None, 1.0)
+    # half the points on the line, half beside it on white paper: not on a stroke there
+    mixed = {0: {"s": np.array([[20.5, 8.0], [20.5, 16.0], [35.0, 24.0], [35.0, 32.0]])}}
+    assert stroke_share(lines, mixed) == 0.5 >= STROKED
+    assert stroke_share(lines, {}) == 0.0
+
+
+def test_auto_snap_is_the_edge_snap_on_flat_colour_and_no_snap_on_line_art():
+    edges = [16, 17, 20, 25, 29, 31]
+    T = len(edges)
+    curve = lambda x: np.stack([np.full(4, x), np.linspace(8.0, 32.0, 4)], -1)
+    ann = {"keyframes": [{"frame": 0, "curves": {"edge.a": curve(edges[0] + 0.5)}},
+                         {"frame": T - 1, "curves": {"edge.a": curve(edges[-1] + 0.5)}}]}
+    opts = dict(init="linear", max_nfev=3, levels=1, colour=0.0, sketch=0.0, edge=0.0, snap=3.0)
+    flat = _two_colours(edges)
+    np.testing.assert_array_equal(track_clip(flat, ann, "ours", snap_to="auto", **opts),
+                                  track_clip(flat, ann, "ours", snap_to="edge", **opts))
+    lines = _stroke(edges)
+    plain = track_clip(lines, ann, "ours", **{**opts, "snap": 0.0})
+    np.testing.assert_array_equal(track_clip(lines, ann, "ours", snap_to="auto", **opts), plain)
+    # the edge snap would have moved the line's points onto a side of the stroke
+    assert not np.array_equal(track_clip(lines, ann, "ours", snap_to="edge", **opts), plain)
+    from nnsf.roto.solve import ClipTracker
+    with pytest.raises(ValueError, match="auto.*keyframes"):
+        ClipTracker(flat, "ours", TrackOptions.from_kwargs(snap=3.0, snap_to="auto"))
+    assert ClipTracker(flat, "lk", TrackOptions.from_kwargs(snap=3.0, snap_to="auto")).snap_target is None

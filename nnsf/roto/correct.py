@@ -398,7 +398,7 @@ def apply_corrections(params: dict, xml_path, frames_dir, tracks_dir, clip: str 
     method = _method(params)
     opts = TrackOptions.from_kwargs(**track_options(params))
     if fixes:
-        tracker = ClipTracker(read_clip(frames_dir / rows[0].folder, ann), method, opts)
+        tracker = ClipTracker(read_clip(frames_dir / rows[0].folder, ann), method, opts, keyframes=kfs)
         control, kfs, todo = retrack(tracker, names, kfs, control, fixes)
     else:
         todo = []

@@ -166,8 +166,8 @@ def edit_ratio(frames: np.ndarray, annotation, truth: np.ndarray, names_truth: l
     the curves with control points still off when the cap stopped the loop.
     """
     opts = TrackOptions.from_kwargs(**options)
-    tracker = ClipTracker(frames, method, opts)
     names, kfs, batches = plan(annotation)
+    tracker = ClipTracker(frames, method, opts, keyframes=kfs)
     slots = sum(b.P.shape[0] * b.P.shape[2] * (b.P.shape[1] - 2) for b in batches)
     n_points = [max(len(kf[n]) for kf in kfs.values() if n in kf) for n in names]
     tru = np.asarray(truth)[:, [names_truth.index(n) for n in names]]

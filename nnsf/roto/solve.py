@@ -39,7 +39,7 @@ from nnsf.params import LK_ENDS, SNAP_TARGETS, TRACK_INITS, TRACKERS
 from nnsf.roto.energy import LevelImages, SpaceTimeProblem, Weights, build_pyramid
 from nnsf.roto.lm import levenberg_marquardt
 from nnsf.roto.limbs import limb_init, limb_parents, side_pairs
-from nnsf.roto.snap import edge_snap, gradient_strength, profile_snap
+from nnsf.roto.snap import auto_target, edge_snap, gradient_strength, profile_snap
 
 METHODS = TRACKERS
 INITS = TRACK_INITS
@@ -73,8 +73,10 @@ class TrackOptions:
     default) weighs the velocity term against the start's motion by the
     start's confidence too.  ``snap`` (px; 0 = off) ends "ours" by moving
     each free control point across its curve, at most that far: to where the
-    colours across the curve match the keyframes' (``snap_to="profile"``) or
-    onto the strongest colour edge (``"edge"``; :mod:`nnsf.roto.snap`).
+    colours across the curve match the keyframes' (``snap_to="profile"``),
+    onto the strongest colour edge (``"edge"``), or ``"auto"``: onto the
+    edge on flat-colour art, not at all on stroked art, as the clip's
+    keyframes show (:mod:`nnsf.roto.snap`).
     """
 
     # The energy weights and their defaults are :class:`Weights`' (one source).
@@ -440,9 +442,12 @@ class ClipTracker:
     """Pre-processed clip (pyramid and/or gray frames) that solves batches by one method.
 
     frames : (T, H, W, 3) uint8 RGB; method : "ours" | "agarwala" | "lk".
+    keyframes : ``{frame: {curve: (C, 2)}}``, needed by ``snap_to="auto"``,
+    which decides once per clip from them: ``snap_target`` is then "edge"
+    or None (no snap) and ``stroke_share`` the share it was decided by.
     """
 
-    def __init__(self, frames: np.ndarray, method: str, opts: TrackOptions):
+    def __init__(self, frames: np.ndarray, method: str, opts: TrackOptions, keyframes: dict | None = None):
         if method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {method!r}")
         frames = np.asarray(frames)
@@ -452,6 +457,13 @@ class ClipTracker:
         self.gray = None
         self.pyramid = None
         self.strength = None     # the edge snap's gradient magnitude, built on first use
+        # only "ours" snaps (Agarwala's tracker and LK are compared as published)
+        self.snap_target = opts.snap_to if opts.snap > 0 and method == "ours" else None
+        self.stroke_share = None
+        if opts.snap_to == "auto" and opts.snap > 0 and method == "ours":
+            if keyframes is None:
+                raise ValueError("track option snap_to='auto' needs the clip's keyframes")
+            self.snap_target, self.stroke_share = auto_target(frames, keyframes)
         if method == "lk" or opts.init in ("lk", "flow", "limb"):
             self.gray = np.stack([cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in frames])
         self.flows = dense_flows(self.gray) if method != "lk" and opts.init in ("flow", "limb") \
@@ -464,7 +476,7 @@ class ClipTracker:
     def snap(self, P: np.ndarray, fixed: np.ndarray, frame0: np.ndarray) -> np.ndarray:
         """The last step of "ours": every free control point snapped across its curve (:mod:`nnsf.roto.snap`)."""
         colour = self.pyramid[0].colour
-        if self.opts.snap_to == "profile":
+        if self.snap_target == "profile":
             return profile_snap(colour, P, fixed, frame0, self.opts.snap, self.opts.K)
         if self.strength is None:
             self.strength = gradient_strength(colour)
@@ -514,7 +526,7 @@ class ClipTracker:
                            prior_confidence=conf, edge_gate=opts.edge_gate if ours else 0.0,
                            slide=opts.slide if conf is not None else 0.0,
                            velocity_trust=opts.velocity_trust)
-        if ours and opts.snap > 0:
+        if ours and self.snap_target is not None:
             P = self.snap(P, fixed, frame0)
         return P
 
@@ -548,8 +560,8 @@ def track_clip(frames: np.ndarray, annotation, method: str = "ours", **options) 
     Keyframe rows equal the annotation.
     """
     opts = TrackOptions.from_kwargs(**options)
-    tracker = ClipTracker(frames, method, opts)
     names, kfs, batches = plan(annotation)
+    tracker = ClipTracker(frames, method, opts, keyframes=kfs)
     solved = [tracker.solve(b.P, b.fixed, b.frame0, names=[n for _, _, n in b.jobs])
               for b in batches]
     return assemble(len(frames), names, kfs, batches, solved)
