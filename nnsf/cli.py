@@ -274,6 +274,9 @@ def main(argv: list[str] | None = None) -> int:
                              f"{summary['length_ratio'][tracker]:.3f}")
                 print(f"roto-real: {tracker} = {score:.3f} of outline samples within {args.tol:g} px "
                       f"of the silhouette{extra}")
+            if summary.get("snap"):
+                print("roto-real: ours ended with snap " + ", ".join(
+                    f"{c} {t}" for c, t in sorted(summary["snap"].items())))
             name = "roto_lpc.json" if args.lpc is not None else "roto_kenney.json"
             print(f"roto-real: keyframe ceiling = {summary['ceiling']:.3f}; "
                   f"wrote {args.out / name}")

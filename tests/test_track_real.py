@@ -66,6 +66,7 @@ def test_kenney_target_with_the_project_options():
     assert opts["snap"] > 0 and opts["snap_to"] == "auto"
     table, _ = track_kenney(KENNEY, ANNOTATIONS, methods=("ours",), **opts)
     assert len(table) == 6
+    assert set(table["snap"]) == {"edge"} and (table["stroke_share"] < 0.1).all()   # flat colour
     s = silhouette_summary(table, 1.5)
     assert s["trackers"]["ours"] >= 0.70
     assert s["length_ratio"]["ours"] == pytest.approx(1.0, abs=0.1)

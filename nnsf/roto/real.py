@@ -34,7 +34,8 @@ from nnsf.io import write_csv, write_json
 from nnsf.params import TRACKERS
 from nnsf.roto.figures import roto_overlay
 from nnsf.roto.metrics import _project, length_ratio
-from nnsf.roto.solve import interpolate_clip, track_clip
+from nnsf.roto.snap import auto_target
+from nnsf.roto.solve import interpolate_clip, keyframe_curves, track_clip
 
 #: the rows of the real-frame reports: the three trackers and the do-nothing floor
 REPORTED = ("ours", "agarwala", "lk", "linear")
@@ -182,10 +183,16 @@ def score_trackers(name, ann, frames, alpha, methods, tol: float, options: dict,
 
     Appends one row per method to ``rows`` (see :func:`track_kenney`) and the
     control points to ``tracked[(name, method)]``.  ``"linear"`` is the
-    keyframes interpolated linearly, the floor a tracker must beat.
+    keyframes interpolated linearly, the floor a tracker must beat.  The
+    ``snap`` column says what snap "ours" ended with (``none`` for the
+    others): ``snap_to: auto`` resolved from the keyframes, with the
+    ``stroke_share`` it was decided by.
     """
     inb = np.ones(len(frames), bool)
     inb[ann.keyframe_indices] = False
+    snap, share = (options.get("snap_to", "profile") if options.get("snap", 0.0) > 0 else None), float("nan")
+    if snap == "auto":
+        snap, share = auto_target(frames, keyframe_curves(ann)[1])
     for m in methods:
         control = interpolate_clip(ann, len(frames)) if m == "linear" else \
             track_clip(frames, ann, m, **options)
@@ -195,7 +202,8 @@ def score_trackers(name, ann, frames, alpha, methods, tol: float, options: dict,
                      "keyframe_score": score_silhouette(control[~inb], alpha[~inb], tol),
                      "coverage": coverage(control, alpha, ann.keyframe_indices, tol),
                      "length_ratio": length_ratio(control, ann.keyframe_indices),
-                     "frames": int(inb.sum())})
+                     "frames": int(inb.sum()), "snap": (snap or "none") if m == "ours" else "none",
+                     "stroke_share": share if m == "ours" else float("nan")})
 
 
 def silhouette_summary(table, tol: float) -> dict:
@@ -214,6 +222,9 @@ def silhouette_summary(table, tol: float) -> dict:
         "coverage": {m: float(g["coverage"].mean()) for m, g in by},
         "length_ratio": {m: float(g["length_ratio"].mean()) for m, g in by},
         "ceiling": float(table.groupby("character")["keyframe_score"].first().mean()),
+        # what "ours" ended with per character (snap_to: auto decides from the keyframes)
+        "snap": ({r.character: r.snap for r in table[table["tracker"] == "ours"].itertuples()}
+                 if "snap" in table else {}),
     }
 
 
