@@ -33,7 +33,8 @@ from nnsf.factor.timewarp import resample_clip
 from nnsf.io import atomic_path, check_writable
 from nnsf.reshape import depth as depth_mod
 from nnsf.reshape.character import Character
-from nnsf.reshape.drive import ARM_MODES, read_motion, retarget
+from nnsf.params import ARM_CHOICES
+from nnsf.reshape.drive import read_motion, retarget
 from nnsf.reshape.render import MeshRenderer
 from nnsf.reshape.video import contact_sheet, write_gif, write_mp4, write_png_frames
 from nnsf.reshape.stage import BACKGROUND, build_rig, canvas
@@ -153,8 +154,8 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
     fps : output frame rate (default: the motion's).
     """
     views.check_view(view)
-    if arms not in ARM_MODES:
-        raise InputError("--arms", "arms", f"one of {', '.join(ARM_MODES)}", arms)
+    if arms not in ARM_CHOICES:
+        raise InputError("--arms", "arms", f"one of {', '.join(ARM_CHOICES)}", arms)
     targets = dict(outputs) if outputs is not None else output_targets(out)
     # Every output folder is checked before any work (a file in the way, a read-only
     # disk): one line naming the folder, and nothing rendered in vain.

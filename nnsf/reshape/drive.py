@@ -63,9 +63,6 @@ def check_finite(points: np.ndarray, source="motion", frames=None) -> np.ndarray
 TORSO = tuple(JOINT_INDEX[j] for j in (
     "pelvis", "r_hip", "l_hip", "spine", "thorax", "neck", "l_shoulder", "r_shoulder"))
 
-#: How :func:`retarget` turns the arms: ``motion`` (the motion's bone directions, the
-#: paper's) or ``drawing`` (the drawn arm pose, turned by the motion's swing about its mean).
-ARM_MODES = ARM_CHOICES
 #: The arm bones (parent, child) that ``arms="drawing"`` turns about their drawn direction.
 ARM_BONES = tuple((JOINT_INDEX[p], JOINT_INDEX[c]) for p, c in (
     ("l_shoulder", "l_elbow"), ("l_elbow", "l_wrist"), ("r_shoulder", "r_elbow"), ("r_elbow", "r_wrist")))
@@ -111,8 +108,8 @@ def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", fr
     :class:`InputError` naming ``source`` and the frame / bone.
     """
     P = check_finite(points, source, frames)
-    if arms not in ARM_MODES:
-        raise InputError(source, "arms", f"one of {', '.join(ARM_MODES)}", repr(arms))
+    if arms not in ARM_CHOICES:
+        raise InputError(source, "arms", f"one of {', '.join(ARM_CHOICES)}", repr(arms))
     rest = np.asarray(rest_keypoints, dtype=np.float64)
     try:
         mot = character_scale(P)

@@ -34,7 +34,7 @@ from nnsf.io import write_csv, write_json
 from nnsf.params import TRACKERS
 from nnsf.roto.figures import roto_overlay
 from nnsf.roto.metrics import _project, length_ratio
-from nnsf.roto.snap import auto_target
+from nnsf.roto.snap import resolve_target
 from nnsf.roto.solve import interpolate_clip, keyframe_curves, track_clip
 
 #: the rows of the real-frame reports: the three trackers and the do-nothing floor
@@ -190,9 +190,8 @@ def score_trackers(name, ann, frames, alpha, methods, tol: float, options: dict,
     """
     inb = np.ones(len(frames), bool)
     inb[ann.keyframe_indices] = False
-    snap, share = (options.get("snap_to", "profile") if options.get("snap", 0.0) > 0 else None), float("nan")
-    if snap == "auto":
-        snap, share = auto_target(frames, keyframe_curves(ann)[1])
+    snap, share = resolve_target(options.get("snap", 0.0), options.get("snap_to", "profile"), frames,
+                                 keyframe_curves(ann)[1])
     for m in methods:
         control = interpolate_clip(ann, len(frames)) if m == "linear" else \
             track_clip(frames, ann, m, **options)
@@ -203,7 +202,7 @@ def score_trackers(name, ann, frames, alpha, methods, tol: float, options: dict,
                      "coverage": coverage(control, alpha, ann.keyframe_indices, tol),
                      "length_ratio": length_ratio(control, ann.keyframe_indices),
                      "frames": int(inb.sum()), "snap": (snap or "none") if m == "ours" else "none",
-                     "stroke_share": share if m == "ours" else float("nan")})
+                     "stroke_share": share if m == "ours" and share is not None else float("nan")})
 
 
 def silhouette_summary(table, tol: float) -> dict:

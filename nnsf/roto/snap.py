@@ -104,6 +104,23 @@ def stroke_share(frames: np.ndarray, keyframes: dict) -> float:
     return hits / total if total else 0.0
 
 
+def resolve_target(snap: float, snap_to: str, frames: np.ndarray, keyframes: dict | None
+                   ) -> tuple[str | None, float | None]:
+    """What "ours" ends with: (``"profile"``, ``"edge"`` or None for no snap, the stroke share or None).
+
+    ``snap`` (px) 0 is no snap; ``snap_to="auto"`` is :func:`auto_target` on
+    ``frames`` (T, H, W, 3) uint8 and ``keyframes`` ``{frame: {curve: (C, 2)}}``,
+    which it then needs; the other targets are taken as they are.
+    """
+    if snap <= 0:
+        return None, None
+    if snap_to != "auto":
+        return snap_to, None
+    if keyframes is None:
+        raise ValueError("track option snap_to='auto' needs the clip's keyframes")
+    return auto_target(frames, keyframes)
+
+
 def auto_target(frames: np.ndarray, keyframes: dict) -> tuple[str | None, float]:
     """``snap_to: auto`` for one clip: (``"edge"`` or None for no snap, the :func:`stroke_share`).
 

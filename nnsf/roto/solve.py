@@ -39,7 +39,7 @@ from nnsf.params import LK_ENDS, SNAP_TARGETS, TRACK_INITS, TRACKERS
 from nnsf.roto.energy import LevelImages, SpaceTimeProblem, Weights, build_pyramid
 from nnsf.roto.lm import levenberg_marquardt
 from nnsf.roto.limbs import limb_init, limb_parents, side_pairs
-from nnsf.roto.snap import auto_target, edge_snap, gradient_strength, profile_snap
+from nnsf.roto.snap import edge_snap, gradient_strength, profile_snap, resolve_target
 
 METHODS = TRACKERS
 INITS = TRACK_INITS
@@ -458,12 +458,8 @@ class ClipTracker:
         self.pyramid = None
         self.strength = None     # the edge snap's gradient magnitude, built on first use
         # only "ours" snaps (Agarwala's tracker and LK are compared as published)
-        self.snap_target = opts.snap_to if opts.snap > 0 and method == "ours" else None
-        self.stroke_share = None
-        if opts.snap_to == "auto" and opts.snap > 0 and method == "ours":
-            if keyframes is None:
-                raise ValueError("track option snap_to='auto' needs the clip's keyframes")
-            self.snap_target, self.stroke_share = auto_target(frames, keyframes)
+        self.snap_target, self.stroke_share = (resolve_target(opts.snap, opts.snap_to, frames, keyframes)
+                                               if method == "ours" else (None, None))
         if method == "lk" or opts.init in ("lk", "flow", "limb"):
             self.gray = np.stack([cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in frames])
         self.flows = dense_flows(self.gray) if method != "lk" and opts.init in ("flow", "limb") \
