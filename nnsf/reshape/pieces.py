@@ -21,6 +21,11 @@ paper puppet (docs/method.md §13.1):
    from the limb's non-ink pixels), so a limb swung away from the body takes
    no torso fill or torso ink with it.
 
+4. **Caps** (:func:`nnsf.reshape.tab_regions.cap_region`).  At an elbow or a
+   knee the upper segment continues past the cut under the lower one, drawn
+   just before it: where the joint folds far, the outer side of the bend
+   shows the upper segment's round end.
+
 Everything here runs once per character.
 """
 from __future__ import annotations
@@ -37,74 +42,9 @@ from nnsf.reshape.drive import TORSO
 from nnsf.reshape.cuts import Cut, HEAD, J, OVERLAP, PIECE_BONES, SEGMENT_NAMES, _dist, _lookup, _normal_of, _outline, _root_chord, _seg_dist, find_cuts, half_width, limb_reach, w_distal
 from nnsf.reshape.piece_mesh import COVER, covered_share, triangulate_region  # noqa: F401  (covered_share: re-exported)
 from nnsf.reshape.piece_regions import label_pieces, shoulder_bridges
+from nnsf.reshape.tab_regions import cap_region, tab_region  # noqa: F401  (tab_region: re-exported)
 
 PIECE_BONES.update({1 + i: (ab,) for i, ab in enumerate(LIMBS.values())})
-
-
-# --------------------------------------------------------------------------- tabs
-
-def tab_region(label: np.ndarray, cut: Cut, margin: float = 0.0, band: float | None = None,
-               under: np.ndarray | None = None) -> np.ndarray:
-    """The child's tab under its parent ``(H, W)`` bool (module docstring).
-
-    ``margin``: away from the cut (farther than ``band``, default a quarter
-    of the cut's length, at least 3 px), the tab keeps this far (pixels) inside the
-    parent's outline, so a small turn of the joint does not slide a sliver of
-    it out along the parent's edge.  ``under`` ``(H, W)`` bool: pixels the
-    tab may also cover (the parent's own tab: a parent segment may be drawn
-    shorter than the tab).
-    """
-    if band is None:
-        band = max(0.25 * float(np.linalg.norm(cut.p - cut.q)), 3.0)
-    H, W = label.shape
-    rho = max(0.5 * float(np.linalg.norm(cut.p - cut.q)), 1.0)
-    m = cut.mid
-    piv = cut.pivot
-    reach = max(float(np.linalg.norm(cut.p - piv)), float(np.linalg.norm(cut.q - piv)))
-    rho_piv = rho if float(np.linalg.norm(m - piv)) >= rho else max(rho, reach)
-    lo = np.floor(np.minimum(m, piv) - max(rho, rho_piv) - 2).astype(int)
-    hi = np.ceil(np.maximum(m, piv) + max(rho, rho_piv) + 2).astype(int)
-    lo = np.maximum(lo, 0)
-    hi = np.minimum(hi, [W - 1, H - 1])
-    out = np.zeros((H, W), bool)
-    if np.any(hi < lo):
-        return out
-    yy, xx = np.mgrid[lo[1]:hi[1] + 1, lo[0]:hi[0] + 1]
-    pts = np.stack([xx, yy], -1).astype(np.float64)
-    inside = (_seg_dist(pts, m, piv) <= rho) | (np.linalg.norm(pts - piv, axis=-1) <= rho_piv)
-    depth_ = (pts - m) @ cut.normal
-    parent_side = depth_ <= 0.5
-    parent = label[lo[1]:hi[1] + 1, lo[0]:hi[0] + 1] == cut.parent
-    if under is not None:  # a parent drawn too short to hold the tab: what lies under it as well
-        parent |= under[lo[1]:hi[1] + 1, lo[0]:hi[0] + 1]
-    # Within the drawing: at rest a tab must hide entirely under the pieces drawn over it.
-    grow = cv2.dilate(parent.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
-    inner = cv2.distanceTransform(np.pad((label >= 0).astype(np.uint8), 1), cv2.DIST_L2, 3)[1:-1, 1:-1]
-    depth_in = inner[lo[1]:hi[1] + 1, lo[0]:hi[0] + 1]
-    keep = depth_in >= 2.0
-    if margin <= 0 and SEGMENT_NAMES[cut.child].endswith("forearm"):
-        # An elbow's tab (no margin): in the band along the cut, where a bend opens its wedge, it
-        # reaches the outline's second pixel (distance transform 1 and more: 1.91 straight, 1.37
-        # diagonal); kept 2 inside, the outer corner of a bent elbow kept a notch as deep as the
-        # rings left out (char4's thin arms).  The outermost (0.96) stays out: a tab there shows
-        # at rest along the parent's rendered edge.  Not at the knees: there the Kenney
-        # walk's silhouette IoU against the drawn frames fell (0.9016 -> 0.9014).
-        keep |= (depth_in >= 1.0) & (depth_ >= -band)
-    grow &= keep
-    if margin > 0:
-        # Inside the parent's outline by ``margin``, except in the band along the cut, where the
-        # tab fills the wedge a turning joint opens.
-        grow &= (inner[lo[1]:hi[1] + 1, lo[0]:hi[0] + 1] > margin) | (depth_ >= -band)
-    # The parent's own pixels beyond the cut's line as well (a body's rim that curves below a hip
-    # cut, AnimatedDrawings' char3): they stay when the child turns, and the child's turned
-    # tab must cover where they would have turned to, or a wedge of page opens at the joint.
-    # Only within the drawing's thickness at the pivot (its distance to the outline), where a
-    # drawn joint is solid; farther out the turned rim would widen the silhouette.
-    own = label[lo[1]:hi[1] + 1, lo[0]:hi[0] + 1] == cut.parent
-    ij = np.clip(np.rint(piv).astype(int), 0, [W - 1, H - 1])
-    own &= np.linalg.norm(pts - piv, axis=-1) <= float(inner[ij[1], ij[0]])
-    out[lo[1]:hi[1] + 1, lo[0]:hi[0] + 1] = inside & (parent_side | own) & grow
-    return out
 
 
 # --------------------------------------------------------------------------- the mesh
@@ -378,8 +318,9 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
     Every piece's region is triangulated on its own (grown by one pixel into
     its neighbours, so neighbouring pieces overlap by a pixel at rest and
     leave no crack), with one spacing for all; tabs follow, their vertices
-    after all the pieces' (``Mesh.n_core``).  Returns a
-    :class:`nnsf.reshape.mesh.Mesh`.
+    after all the pieces' (``Mesh.n_core``).  ``caps=False`` (keyword) leaves
+    out the elbow and knee caps (``benchmarks/joint_caps.py`` compares).
+    Returns a :class:`nnsf.reshape.mesh.Mesh`.
     """
     m = np.asarray(mask, dtype=bool)
     kp = np.asarray(keypoints, dtype=np.float64)
@@ -495,8 +436,11 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
             # An elbow's or knee's cut ends on the outline: the wedge a bend opens reaches the
             # outline, so this tab keeps no margin.
             regions[cut.child] = tab_region(label, cut, 0.0, under=under)
-    for k, cut in enumerate(cuts):
-        region = regions[cut.child]
+    # Elbow and knee caps: the upper segment's end rounded past its cut, under the lower one.
+    caps = [] if whole_limbs or not kwargs.get("caps", True) else [(cut, cap_region(label, cut)) for cut in cuts
+                                   if cut.parent != 0 and cut.parent in drawn and cut.child in drawn]
+    for k, (cut, region) in enumerate([(c, regions[c.child]) for c in cuts] + caps):
+        cap = k >= len(cuts)
         # A tab is retried only when it gets no triangle at all: it hides under its parent, and a
         # finer one changes what a turning joint shows.
         vt = triangulate_region(region, max(h, 2.0), args, cover=0.0)
@@ -507,16 +451,17 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
         V.append(v)
         T.append(t + count)
         count += len(v)
-        pc = piece_of[cut.child]
+        own, hides = (cut.parent, cut.child) if cap else (cut.child, shown_parent(cut.parent))
+        pc = piece_of[own]
         # A whole limb's tab follows its upper bone; a segment's, its own.
         PC.append(np.full(len(t), pc))
-        part = int(parts.SEGMENT_PART[cut.child])
+        part = int(parts.SEGMENT_PART[own])
         PT.append(np.full(len(t), part))
         layer.append(np.full(len(t), 3 + len(tabs), np.int64))
-        under = int(parts.SEGMENT_PART[shown_parent(cut.parent)])
+        under = int(parts.SEGMENT_PART[hides])
         collar.append(np.full(len(t), under))
-        tabs.append(Tab(idx, _child_bone(cut.child), region, pc, part, under, cut=cut,
-                        parent_piece=piece_of[shown_parent(cut.parent)]))
+        tabs.append(Tab(idx, _child_bone(own), region, pc, part, under, cut=None if cap else cut,
+                        parent_piece=None if cap else piece_of[hides]))
     for f in followers:
         # The extra arm (the part of the driven arm of its side) and its tab.
         cut = f["cut"]

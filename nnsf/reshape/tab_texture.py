@@ -1,6 +1,6 @@
 """What a joint tab shows: the limb's fill continued under its parent, and the drawn outline's band.
 
-A tab (:func:`nnsf.reshape.pieces.tab_region`) is seen only where a joint
+A tab (:func:`nnsf.reshape.tab_regions.tab_region`) is seen only where a joint
 turns: in the wedge the bend opens.  It shows the limb's own fill continued
 (OpenCV's Telea inpainting from the limb's pixels away from its lines), so a
 limb swung away from the body takes no torso fill or torso ink with it,
