@@ -7,7 +7,9 @@ For char1-char5 it runs the real command line three times: an AnimatedDrawings B
 (``fair1/wave_hello``, front view) in a Bandai-Namco style, a Bandai-Namco walk (auto view: the
 side) in another Bandai-Namco style, and a synthetic jump in the synthetic ``rex`` style of the
 pipeline's ``models/styles.npz``.  char5, whose six arms are drawn spread, runs with
-``--arms drawing`` (they swing about the drawn pose; with ``motion`` they hang behind the body).  Each MP4 is decoded back with OpenCV (so every run must give a
+``--arms drawing`` (they swing about the drawn pose; with ``motion`` they hang behind the body).
+char6, a pig drawn from the side, is read as a quadruped and sees both BVH motions from the side
+(``--view side``).  Each MP4 is decoded back with OpenCV (so every run must give a
 file that plays), and three of its frames go into one row of the figure.  The Bandai-Namco style
 model is learned first with ``nnsf styles`` into the work folder.
 """
@@ -22,9 +24,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-CHARACTERS = ("char1", "char2", "char3", "char4", "char5")
+CHARACTERS = ("char1", "char2", "char3", "char4", "char5", "char6")
 #: ``--arms`` per character (default ``motion``)
 ARMS = {"char5": "drawing"}
+#: ``--view`` per character for the BVH motions (default: the motion's own): a quadruped drawn from
+#: the side walks in the plane a side view shows.
+VIEWS = {"char6": "side"}
 
 
 def motions(data: Path, work: Path):
@@ -68,14 +73,15 @@ def main(argv=None) -> int:
             cmd = nnsf + ["animate", "--character", str(a.data / "animated-drawings/characters" / char),
                           "--motion", str(motion), "--style", style, "--model", str(model), "--out", str(out)]
             if view:
-                cmd += ["--view", view]
+                cmd += ["--view", VIEWS.get(char, view)]
             if char in ARMS:
                 cmd += ["--arms", ARMS[char]]
             t0 = time.perf_counter()
             subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
             picked, n = frames_of(out)
             print(f"{char} {label}: {n} frames decoded, {time.perf_counter() - t0:.1f} s", flush=True)
-            rows.append((f"{char}: {label}" + (f" (arms: {ARMS[char]})" if char in ARMS else ""), picked))
+            note = f" (arms: {ARMS[char]})" if char in ARMS else (f" (view: {VIEWS[char]})" if view and char in VIEWS else "")
+            rows.append((f"{char}: {label}" + note, picked))
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -353,15 +353,15 @@ def test_every_animated_drawings_character_loads(name):
 
 
 @needs_shared
-def test_char6_is_refused_naming_its_joints():
-    """char6 has four legs and no arms: refused, the joints named, one line."""
+def test_char6_is_read_as_a_quadruped():
+    """char6 has four legs and no arms: read as a quadruped (nnsf.reshape.quadruped), its hind legs
+    our legs and its front legs our arms, and said in a note."""
     from nnsf.animate.animation import read_character
+    from nnsf.skeleton import JOINT_INDEX as J
 
-    with pytest.raises(InputError) as exc:
-        read_character(AD / "characters" / "char6")
-    text = str(exc.value)
-    assert "char_cfg.yaml: skeleton" in text and "right_hip_b" in text and "left_foot_f" in text
-    assert "missing joints: right_shoulder" in text and "\n" not in text
+    ch = read_character(AD / "characters" / "char6")
+    assert ch.body == "quadruped" and any("quadruped" in n for n in ch.notes)
+    assert np.allclose(ch.keypoints[J["r_hip"]], (139, 266)) and np.allclose(ch.keypoints[J["l_wrist"]], (360, 336))
 
 
 @needs_shared

@@ -35,6 +35,7 @@ from nnsf.reshape import depth as depth_mod
 from nnsf.reshape.character import Character
 from nnsf.params import ARM_CHOICES
 from nnsf.reshape.drive import read_motion, retarget
+from nnsf.reshape.quadruped import quadruped_orders
 from nnsf.reshape.render import MeshRenderer
 from nnsf.reshape.video import contact_sheet, write_gif, write_mp4, write_png_frames
 from nnsf.reshape.stage import BACKGROUND, build_rig, canvas
@@ -203,7 +204,7 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
     seconds["translate"], cpu["translate"] = time.perf_counter() - t, time.process_time() - c
     # ---- retarget
     t, c = time.perf_counter(), time.process_time()
-    kp = retarget(moved, ch.keypoints, source=mo.source or mo.name, arms=arms)
+    kp = retarget(moved, ch.keypoints, source=mo.source or mo.name, arms=arms, body=ch.body)
     seconds["retarget"], cpu["retarget"] = time.perf_counter() - t, time.process_time() - c
     # ---- deform
     t, c = time.perf_counter(), time.process_time()
@@ -216,6 +217,8 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
         height = float(np.median(np.ptp(moved[..., 1], axis=1)))
         pairs = depth_mod.part_overlaps(V, rig.mesh.triangles, rig.mesh.parts)
         orders = depth_mod.depth_orders(z, 0.015 * height, pairs=pairs)
+    if ch.body == "quadruped":
+        orders = quadruped_orders(orders, ch.keypoints)
     seconds["deform"], cpu["deform"] = time.perf_counter() - t, time.process_time() - c
     _say(progress, f"animate: deformed {len(V)} frames ({rig.mesh.n_vertices} vertices) in "
                    f"{seconds['deform']:.2f} s")

@@ -12,6 +12,8 @@ Two formats are read:
        "texture": "char1.texture.png", "mask": "char1.mask.png",
        "keypoints": {"pelvis": [264.0, 397.0], ..., "r_wrist": [46.0, 311.0]}}
 
+  with ``"body": "quadruped"`` for a four-legged character (default ``"biped"``).
+
   Image paths are relative to the JSON file and must stay inside its folder;
   key points are ``[x, y]`` in pixels of the texture (x right, y down), one
   per name in :data:`nnsf.skeleton.JOINTS`.
@@ -63,6 +65,9 @@ AD_TO_H36M: dict[str, str] = {
 #: torso→neck ray leaves the mask: inside the silhouette, below stray hair tips.
 HEAD_TOP_FRACTION = 0.9
 
+#: What a character's skeleton stands on (:attr:`Character.body`).
+BODIES = ("biped", "quadruped")
+
 FORMAT = "nnsf.character"
 VERSION = 1
 
@@ -96,6 +101,9 @@ class Character:
     keypoints: np.ndarray
     source: str = "<memory>"
     notes: list[str] = field(default_factory=list)
+    #: ``"biped"``, or ``"quadruped"``: four legs, the hind ones our legs and the front ones our
+    #: arms, driven about the drawn pose (:mod:`nnsf.reshape.quadruped`).
+    body: str = "biped"
     #: Arms beyond the two the skeleton drives (AnimatedDrawings' char5 has three a side):
     #: ``[{"side": "l" | "r", "joints": (3, 2) shoulder, elbow, hand}]``.  A layered mesh moves
     #: each as the driven arm of its side turns (:mod:`nnsf.reshape.pieces`, followers).
@@ -118,6 +126,8 @@ class Character:
 def validate(ch: Character) -> None:
     """Raise :class:`InputError` naming ``ch.source`` and the field if ``ch`` is unusable."""
     src = ch.source
+    if ch.body not in BODIES:
+        raise InputError(src, "body", " or ".join(BODIES), ch.body)
     if ch.texture.ndim != 3 or ch.texture.shape[2] != 4 or ch.texture.dtype != np.uint8:
         raise InputError(src, "texture", "an (H, W, 4) uint8 RGBA image",
                          f"{ch.texture.dtype} array of shape {ch.texture.shape}")
@@ -287,13 +297,18 @@ def _ad_to_keypoints(joints: dict[str, np.ndarray], mask: np.ndarray, source) ->
         raise InputError(source, "skeleton.neck", "a point distinct from torso", neck.tolist())
     if not points_in_mask(mask, neck):
         raise InputError(source, "skeleton.neck", "a point inside the mask", neck.tolist())
-    up = up / np.linalg.norm(up)
+    kp[JOINT_INDEX["head_top"]] = head_top_along(mask, neck, up / np.linalg.norm(up))
+    return kp
+
+
+def head_top_along(mask: np.ndarray, neck: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """The head's top ``(2,)`` px: :data:`HEAD_TOP_FRACTION` of the way from ``neck`` along the unit
+    direction ``up`` to where that ray leaves the mask."""
     # March half a pixel at a time; the first step outside the mask ends the head.
     steps = np.arange(0.0, float(np.hypot(*mask.shape)), 0.5)
     inside = points_in_mask(mask, neck + steps[:, None] * up)
     exit_at = steps[np.argmin(inside)] if not inside.all() else steps[-1]
-    kp[JOINT_INDEX["head_top"]] = neck + HEAD_TOP_FRACTION * exit_at * up
-    return kp
+    return neck + HEAD_TOP_FRACTION * exit_at * up
 
 
 # --------------------------------------------------------------------------- our JSON format
@@ -340,8 +355,11 @@ def read_character(path) -> Character:
     folder = path.parent
     texture, mask, note = _load_images(_inside(folder, obj.get("texture"), path, "texture"),
                                        _inside(folder, obj.get("mask"), path, "mask"), path)
+    body = obj.get("body", "biped")
+    if body not in BODIES:
+        raise InputError(path, "body", " or ".join(BODIES), body)
     return Character(name=name, texture=texture, mask=mask, keypoints=keypoints, source=str(path),
-                     notes=[note] if note else [])
+                     notes=[note] if note else [], body=body)
 
 
 def write_character(character: Character, path) -> Path:
@@ -363,6 +381,7 @@ def write_character(character: Character, path) -> Path:
         "format": FORMAT, "version": VERSION, "name": character.name,
         "texture": tex_name, "mask": mask_name,
         "keypoints": {j: [float(x), float(y)] for j, (x, y) in zip(JOINTS, character.keypoints)},
+        **({"body": character.body} if character.body != "biped" else {}),
     })
     return path
 

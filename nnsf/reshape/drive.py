@@ -32,6 +32,7 @@ import pandas as pd
 from nnsf.datasets import contract
 from nnsf.errors import InputError
 from nnsf.params import ARM_CHOICES
+from nnsf.reshape.quadruped import retarget_quadruped
 from nnsf.skeleton import BONES, JOINT_INDEX, JOINTS, N_JOINTS, character_scale, to_points
 from nnsf.skeleton.layout import FEATURE_COLUMNS
 
@@ -70,7 +71,7 @@ ARM_BONES = tuple((JOINT_INDEX[p], JOINT_INDEX[c]) for p, c in (
 
 def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", frames=None,
              foreshortening=(1.0, 1.0), rigid_torso: bool = True,
-             torso_stretch=(1.0, 1.0), arms: str = "motion") -> np.ndarray:
+             torso_stretch=(1.0, 1.0), arms: str = "motion", body: str = "biped") -> np.ndarray:
     """Map a motion ``(T, 17, 2)`` (any units) onto a character: ``(T, 17, 2)`` pixels.
 
     ``rest_keypoints`` ``(17, 2)``: the drawing's key points.
@@ -104,6 +105,10 @@ def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", fr
       swing, where ``"motion"`` hangs them as the performer's hang.  An
       unchanged motion arm gives the drawn pose exactly.
 
+    * ``body="quadruped"``: a four-legged drawing, every leg about its drawn
+      pose and the body rigid (:func:`nnsf.reshape.quadruped.retarget_quadruped`;
+      ``arms``, ``foreshortening`` and the torso options do not apply).
+
     A NaN/Inf frame or a bone of zero median length raises
     :class:`InputError` naming ``source`` and the frame / bone.
     """
@@ -111,6 +116,8 @@ def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", fr
     if arms not in ARM_CHOICES:
         raise InputError(source, "arms", f"one of {', '.join(ARM_CHOICES)}", repr(arms))
     rest = np.asarray(rest_keypoints, dtype=np.float64)
+    if body == "quadruped":
+        return retarget_quadruped(P, rest)
     try:
         mot = character_scale(P)
         drawn = character_scale(rest[None])
@@ -207,4 +214,5 @@ def read_motion(path, clip: str | None = None) -> tuple[str, np.ndarray, np.ndar
 
 def drive(character, points: np.ndarray, source="motion", frames=None) -> np.ndarray:
     """Key points ``(T, 17, 2)`` in ``character``'s pixels for a motion ``(T, 17, 2)``."""
-    return retarget(points, character.keypoints, source=source, frames=frames)
+    return retarget(points, character.keypoints, source=source, frames=frames,
+                    body=getattr(character, "body", "biped"))

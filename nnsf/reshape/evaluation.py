@@ -1,7 +1,8 @@
 """Evaluation of the reshaping (docs/method.md §15.7): subkey driving vs key-points-only ARAP.
 
-Every supported AnimatedDrawings character (char5, with several shoulders
-per side, and the quadruped char6 are refused by the loader) is driven by several Bandai-Namco motions
+Every AnimatedDrawings character (char5's extra arms follow its driven ones;
+char6, a quadruped, is driven about its drawn pose, :mod:`nnsf.reshape.quadruped`,
+and sees every motion from the side) is driven by several Bandai-Namco motions
 (projected front view, 30 fps, :func:`nnsf.datasets.bvh_source.load_clip`)
 with four rigs on the same character:
 
@@ -26,8 +27,8 @@ seal fixes.  Walks are projected from the side (:data:`AZIMUTH`,
 ``reshape_eval.azimuth``).  The six Kenney sprites (:mod:`nnsf.reshape.kenney`,
 their ``idle`` drawing and hand key points) are driven by the same motions
 when their images and annotations exist; their rows are in the CSV, the
-per-variant means of the JSON's ``means`` are the AnimatedDrawings rows'
-(``means_by_source`` has both).
+per-variant means of the JSON's ``means`` are the AnimatedDrawings bipeds'
+(``means_by_source`` has ``animated_drawings``, ``quadruped`` and ``kenney``).
 
 Besides the deformation numbers, every row has the rendered-frame artefacts
 of :func:`nnsf.reshape.artefacts.clip_artefacts` (holes, tears, outline
@@ -81,9 +82,12 @@ from nnsf.reshape.stage import animate, build_rig, canvas, report
 
 #: The AnimatedDrawings examples evaluated: the bipeds, and char5, whose three arms a side are
 #: mapped by :func:`nnsf.reshape.formats.read_character` (the arm nearest the chest drives each side).
-CHARACTERS = ("char1", "char2", "char3", "char4", "char5")
-#: Examples the loader refuses, reported with its reason (char6: a quadruped, four legs, no arms).
-REFUSED = ("char6",)
+CHARACTERS = ("char1", "char2", "char3", "char4", "char5", "char6")
+#: Examples the loader refuses, reported with its reason (none since char6, the quadruped, is read).
+REFUSED: tuple[str, ...] = ()
+#: The projection (degrees) every motion gets on a quadruped: drawn from the side, it walks in the
+#: plane a side view shows (from the front a leg's swing is towards the camera, out of the picture).
+QUADRUPED_AZIMUTH = 90.0
 MOTIONS = ("walk_normal_001", "run_active_001", "kick_normal_001", "punch_normal_001")
 VARIANTS = (("connected", "keypoints"), ("connected", "ours"), ("limbs", "keypoints"), ("limbs", "ours"),
             ("layered", "keypoints"), ("layered", "ours"), ("layered", "ours_unsealed"))
@@ -156,7 +160,8 @@ def evaluate_item(item: dict) -> dict:
     (or None).  Module-level and picklable for a task-runner map.
     """
     ch = _character(item)
-    clip = load_clip(item["motion"], fps=30, azimuth=float(item.get("azimuth", 0.0)))
+    azimuth = QUADRUPED_AZIMUTH if ch.body == "quadruped" else float(item.get("azimuth", 0.0))
+    clip = load_clip(item["motion"], fps=30, azimuth=azimuth)
     T = min(len(clip.points), item["max_frames"])
     motion, depth = clip.points[:T], clip.depth[:T]
     height = float(np.median(np.ptp(motion[..., 1], axis=1)))
@@ -181,7 +186,7 @@ def evaluate_item(item: dict) -> dict:
         renderers[key] = MeshRenderer.for_mesh(anim.rig.mesh, ch, size=size,
                                                seal=False if method.endswith("_unsealed") else None)
         row = {"character": ch.name, "motion": Path(item["motion"]).stem.replace("dataset-1_", ""),
-               "mesh": mesh, "method": method, "azimuth": float(item.get("azimuth", 0.0)),
+               "mesh": mesh, "method": method, "azimuth": azimuth, "body": ch.body,
                "arms": item.get("arms", "motion"), "sealed": bool(renderers[key].seal)}
         row.update(report(anim, depth_margin=0.02 * height))
         row["subkey_slide"] = subkey_slide(anim.rig, anim.keypoints)
@@ -272,10 +277,13 @@ def summarise(df: pd.DataFrame) -> dict:
     num = df.select_dtypes("number").columns
     df = df.assign(variant=df["mesh"] + "/" + df["method"])
     kenney = ~df["character"].str.startswith("char")
+    quad = (df["body"] == "quadruped") if "body" in df else pd.Series(False, index=df.index)
     by_source = {src: {v: {k: (None if not np.isfinite(x) else float(x)) for k, x in r.items()}
                        for v, r in d.groupby("variant")[list(num)].mean().iterrows()}
-                 for src, d in (("animated_drawings", df[~kenney]), ("kenney", df[kenney])) if len(d)}
-    df = df[~kenney] if (~kenney).any() else df  # the means (and the stage's metrics) stay AnimatedDrawings'
+                 for src, d in (("animated_drawings", df[~kenney & ~quad]), ("quadruped", df[quad]),
+                                ("kenney", df[kenney])) if len(d)}
+    # The means (and the stage's metrics) stay the AnimatedDrawings bipeds'.
+    df = df[~kenney & ~quad] if (~kenney & ~quad).any() else df
     means = df.groupby("variant")[list(num)].mean()
     fail = df.pivot_table(index="variant", columns="motion", values="driving_failure_ratio", aggfunc="mean")
     return {"means": {v: {k: (None if not np.isfinite(x) else float(x)) for k, x in r.items()}
@@ -295,6 +303,8 @@ KENNEY_SHEET = "robot"
 def width_table(df: pd.DataFrame) -> pd.DataFrame:
     """Fig. 8 claim: per (source, mesh), key points vs subkeys on the width measures (means over items)."""
     d = df[df["method"].isin(["keypoints", "ours"]) & df["mesh"].isin(["connected", "limbs"])]
+    if "body" in d:  # a quadruped's legs swing about their drawn pose: not the paper's comparison
+        d = d[d["body"] != "quadruped"]
     d = d.assign(source=np.where(d["character"].str.startswith("char"), "AnimatedDrawings", "Kenney"))
     cols = [k for k, _ in WIDTH_MEASURES] + ["arap_energy_mean"]
     return d.groupby(["source", "mesh", "method"])[cols].mean()

@@ -36,6 +36,7 @@ from nnsf.datasets.synthetic import CHARACTER_NAMES
 from nnsf.reshape import character as chmod
 from nnsf.reshape.character import Character, load_character
 from nnsf.reshape.kenney import read_keypoint_file, snap_inside
+from nnsf.reshape.quadruped import is_quadruped, quadruped_keypoints
 from nnsf.reshape.stage import synthetic_character
 from nnsf.skeleton import JOINTS
 
@@ -181,11 +182,14 @@ def _load_ad(cfg_path: Path):
     (AnimatedDrawings' ``torso`` joint) drives the arm, and the other arms
     are part of the body (they move rigidly with the torso; the layered mesh
     gives a limb only the triangles within its capsule).  The choice is
-    recorded in the character's notes.  Any other unsupported skeleton
-    (e.g. char6's four legs and no arms) is refused, naming the joints.
+    recorded in the character's notes.  A quadruped (char6: four legs, no
+    arms) is read by :func:`_load_quadruped`.  Any other unsupported skeleton
+    is refused, naming the joints.
     """
     cfg = _safe_yaml(cfg_path)
     names = [j.get("name") for j in cfg["skeleton"] if isinstance(j, dict)]
+    if is_quadruped(names):
+        return _load_quadruped(cfg_path, cfg)
     sets = _arm_sets(set(names))
     plain = all(f"{side}_{j}" in names for side in ("right", "left") for j in _ARM)
     if plain or set(sets) != {"right", "left"}:
@@ -215,6 +219,33 @@ def _load_ad(cfg_path: Path):
     kp = chmod._ad_to_keypoints(joints, mask, cfg_path)
     return chmod.Character(name=folder.name, texture=texture, mask=mask, keypoints=kp, source=str(cfg_path),
                            notes=([note] if note else []) + notes, extra_limbs=extra)
+
+
+def _load_quadruped(cfg_path: Path, cfg: dict):
+    """An AnimatedDrawings quadruped (:mod:`nnsf.reshape.quadruped`): its hind legs read as our legs,
+    its front legs as our arms; ``body="quadruped"``, said in a note."""
+    loc = {}
+    for j in cfg["skeleton"]:
+        if not isinstance(j, dict) or not isinstance(j.get("name"), str):
+            continue
+        try:
+            xy = np.asarray(j.get("loc"), dtype=np.float64)
+        except (TypeError, ValueError):
+            xy = np.empty(0)
+        if xy.shape != (2,) or not np.isfinite(xy).all():
+            raise InputError(cfg_path, f"skeleton.{j['name']}.loc", "[x, y] in pixels", j.get("loc"))
+        loc[j["name"]] = xy
+    folder = cfg_path.parent
+    texture, mask, note = chmod._load_images(folder / "texture.png", folder / "mask.png", cfg_path)
+    for key, size in (("width", mask.shape[1]), ("height", mask.shape[0])):
+        if key in cfg and cfg[key] != size:
+            raise InputError(cfg_path, key, f"the mask's {key} {size} px", cfg[key])
+    kp = quadruped_keypoints(loc, mask, cfg_path)
+    said = (f"{cfg_path}: skeleton: a quadruped: its hind legs are driven as legs and its front legs "
+            "as arms, each about its drawn pose (a front leg by the other side's leg, so diagonal "
+            "pairs step together); body and head move as one piece")
+    return chmod.Character(name=folder.name, texture=texture, mask=mask, keypoints=kp, source=str(cfg_path),
+                           notes=([note] if note else []) + [said], body="quadruped")
 
 
 def read_character(spec, joints=None, size: int = 512):

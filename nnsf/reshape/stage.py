@@ -41,6 +41,7 @@ from nnsf.datasets.synthetic import character as synthetic_character_spec
 from nnsf.frames.render import render_character
 from nnsf.reshape.character import Character, load_character, write_character
 from nnsf.reshape.drive import read_motion, retarget
+from nnsf.reshape.quadruped import quadruped_orders
 from nnsf.reshape.render import MeshRenderer
 from nnsf.reshape.video import contact_sheet, write_gif, write_mp4, write_png_frames
 from nnsf.reshape.rig import Rig
@@ -134,7 +135,7 @@ def animate(rig: Rig, motion: np.ndarray, joint_depth: np.ndarray | None = None,
     last, on their frames only.  ``arms``: ``motion`` or ``drawing``
     (:func:`nnsf.reshape.drive.retarget`).
     """
-    kp = retarget(motion, rig.character.keypoints, source=source, frames=frames, arms=arms)
+    kp = retarget(motion, rig.character.keypoints, source=source, frames=frames, arms=arms, body=rig.character.body)
     V = rig.animate(kp)
     if joint_depth is None:
         orders = np.tile(depth_mod.default_order(), (len(V), 1))
@@ -144,6 +145,8 @@ def animate(rig: Rig, motion: np.ndarray, joint_depth: np.ndarray | None = None,
         height = float(np.median(np.ptp(np.asarray(motion)[..., 1], axis=1)))
         pairs = depth_mod.part_overlaps(V, rig.mesh.triangles, rig.mesh.parts)
         orders = depth_mod.depth_orders(z, hysteresis * height, pairs=pairs)
+    if rig.character.body == "quadruped":
+        orders = quadruped_orders(orders, rig.character.keypoints)
     if overrides:
         orders = depth_mod.apply_overrides(orders, overrides)
     return Animation(rig, kp, V, orders, z)
