@@ -70,6 +70,18 @@ def test_a_quadruped_missing_a_leg_joint_is_refused_naming_it(tmp_path):
         quadruped_keypoints({n: np.zeros(2) for n in QUADRUPED_JOINTS[:-1]}, np.ones((4, 4), bool), "x")
 
 
+def test_a_quadruped_leg_joint_off_the_drawing_is_named_as_the_file_names_it(tmp_path):
+    folder = _pig(tmp_path)
+    cfg = yaml.safe_load((folder / "char_cfg.yaml").read_text())
+    for j in cfg["skeleton"]:
+        if j["name"] == "left_foot_f":
+            j["loc"] = [250, 5]       # inside the image, off the drawing
+    (folder / "char_cfg.yaml").write_text(yaml.safe_dump(cfg))
+    with pytest.raises(InputError) as exc:
+        read_character(folder)
+    assert "skeleton.left_foot_f.loc: expected a point inside the mask" in str(exc.value)
+
+
 def _walker(T: int = 40, amp: float = 30.0, forward: float = 1.0) -> np.ndarray:
     """A biped seen from the side in image coordinates (y down), facing ``forward`` (+1: +x): each
     thigh swings ±amp° about hanging straight down, in opposite phase, the shin trailing it by 15°

@@ -36,7 +36,7 @@ from nnsf.datasets.synthetic import CHARACTER_NAMES
 from nnsf.reshape import character as chmod
 from nnsf.reshape.character import Character, load_character
 from nnsf.reshape.kenney import read_keypoint_file, snap_inside
-from nnsf.reshape.quadruped import is_quadruped, quadruped_keypoints
+from nnsf.reshape.quadruped import QUADRUPED_JOINTS, is_quadruped, quadruped_keypoints
 from nnsf.reshape.stage import synthetic_character
 from nnsf.skeleton import JOINTS
 
@@ -240,6 +240,10 @@ def _load_quadruped(cfg_path: Path, cfg: dict):
     for key, size in (("width", mask.shape[1]), ("height", mask.shape[0])):
         if key in cfg and cfg[key] != size:
             raise InputError(cfg_path, key, f"the mask's {key} {size} px", cfg[key])
+    for name, xy in loc.items():
+        # Named as the file names it (validation after the mapping would name our key point).
+        if name in QUADRUPED_JOINTS[4:] and not chmod.points_in_mask(mask, xy):
+            raise InputError(cfg_path, f"skeleton.{name}.loc", "a point inside the mask", xy.tolist())
     kp = quadruped_keypoints(loc, mask, cfg_path)
     said = (f"{cfg_path}: skeleton: a quadruped: its hind legs are driven as legs and its front legs "
             "as arms, each about its drawn pose (a front leg by the other side's leg, so diagonal "

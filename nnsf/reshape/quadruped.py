@@ -31,6 +31,8 @@ from __future__ import annotations
 import numpy as np
 
 from nnsf.errors import InputError
+from nnsf.reshape.character import head_top_along, points_in_mask
+from nnsf.reshape.parts import PART_INDEX, PARTS
 from nnsf.skeleton import BONES, JOINT_INDEX as J
 
 #: The AnimatedDrawings joint names of a quadruped ``char_cfg.yaml``.
@@ -66,8 +68,6 @@ def is_quadruped(names) -> bool:
 
 def quadruped_keypoints(loc: dict, mask: np.ndarray, source) -> np.ndarray:
     """Our 17 key points ``(17, 2)`` of a quadruped's joints ``loc`` (name → ``[x, y]`` px)."""
-    from nnsf.reshape.character import head_top_along, points_in_mask
-
     missing = [n for n in QUADRUPED_JOINTS if n not in loc]
     if missing:
         raise InputError(source, "skeleton", "the quadruped joints " + ", ".join(QUADRUPED_JOINTS),
@@ -158,8 +158,6 @@ def quadruped_orders(orders: np.ndarray, rest_keypoints: np.ndarray) -> np.ndarr
     viewer), so its right legs are near; facing −x, its left.  Within the far
     and the near legs the motion's order is kept.
     """
-    from nnsf.reshape.parts import PART_INDEX, PARTS
-
     near = "r_" if drawn_facing(rest_keypoints) > 0 else "l_"
     front = [PART_INDEX["torso"], PART_INDEX["head"]]
     out = np.asarray(orders)
