@@ -218,3 +218,14 @@ def test_the_evaluation_keeps_the_quadruped_apart_from_the_bipeds_means():
     assert s["means_by_source"]["kenney"]["limbs/ours"]["tear_px"] == 7.0
     wt = width_table(pd.DataFrame(rows))
     assert wt.loc[("AnimatedDrawings", "limbs", "ours"), "width_error"] == 2.0
+
+
+def test_nnsf_animate_runs_a_quadruped_and_says_what_does_not_apply(tmp_path):
+    """The user's command on the hand-made pig: a GIF and a sheet are written,
+    and ``--arms drawing`` (which a quadruped ignores) is said in a note, not silently dropped."""
+    from nnsf.animate.animation import animate_files
+
+    res = animate_files(_pig(tmp_path), "synthetic:max/walk/12", arms="drawing",
+                        out=tmp_path / "pig.gif", progress=False)
+    assert (tmp_path / "pig.gif").is_file() and (tmp_path / "pig_sheet.png").is_file()
+    assert any("quadruped" in n and "--arms drawing" in n for n in res.notes)

@@ -183,6 +183,12 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
     if learned not in (None, "auto") and mo.view is not None and learned != mo.view:
         mo.notes.append(f"{sm.path}: the styles were learned in the {learned} view; this motion is seen "
                         f"in the {mo.view} view (--view {learned} matches the model)")
+    if ch.body == "quadruped" and arms != "motion":
+        mo.notes.append(f"--arms {arms}: {ch.name} is a quadruped; its front legs always swing about "
+                        "their drawn pose (docs/method.md §12)")
+    if ch.body == "quadruped" and mo.view == "front":
+        mo.notes.append(f"{ch.name} is a quadruped drawn from the side: a front view swings its legs "
+                        "towards the camera, out of the picture (--view side shows them)")
     out_fps = float(fps) if fps else mo.fps
     seconds["load"], cpu["load"] = time.perf_counter() - t0, time.process_time() - c0
     if mo.view is not None:
