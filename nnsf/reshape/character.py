@@ -268,7 +268,8 @@ def load_animated_drawings(path, name: str | None = None) -> Character:
         raise InputError(cfg_path, "skeleton",
                          "the 16 joints of the biped AnimatedDrawings skeleton, each once ("
                          + ", ".join(AD_JOINTS) + "); several shoulders or legs per side are not "
-                         "supported" + found)
+                         "supported by this reader (nnsf animate and the animate stage read extra arms "
+                         "and quadrupeds)" + found)
     texture, mask, note = _load_images(folder / "texture.png", folder / "mask.png", cfg_path)
     for key, size in (("width", mask.shape[1]), ("height", mask.shape[0])):
         if key in cfg and cfg[key] != size:
