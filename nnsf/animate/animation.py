@@ -31,14 +31,12 @@ from nnsf.datasets import synthetic, views
 from nnsf.factor.style_model import StyleModel, translate as style_translate
 from nnsf.factor.timewarp import resample_clip
 from nnsf.io import atomic_path, check_writable
-from nnsf.reshape import depth as depth_mod
 from nnsf.reshape.character import Character
 from nnsf.params import ARM_CHOICES
 from nnsf.reshape.drive import read_motion, retarget
-from nnsf.reshape.quadruped import quadruped_orders
 from nnsf.reshape.render import MeshRenderer
 from nnsf.reshape.video import contact_sheet, write_gif, write_mp4, write_png_frames
-from nnsf.reshape.stage import BACKGROUND, build_rig, canvas
+from nnsf.reshape.stage import BACKGROUND, build_rig, canvas, part_orders
 
 #: Frame rate of a built-in synthetic clip (nnsf.datasets.synthetic.FPS).
 SYNTHETIC_FPS = 24.0
@@ -216,15 +214,7 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
     t, c = time.perf_counter(), time.process_time()
     rig = build_rig(ch, n_vertices=n_vertices)
     V = rig.animate(kp)
-    if depth is None:
-        orders = np.tile(depth_mod.default_order(), (len(V), 1))
-    else:
-        z = depth_mod.part_depths(depth)
-        height = float(np.median(np.ptp(moved[..., 1], axis=1)))
-        pairs = depth_mod.part_overlaps(V, rig.mesh.triangles, rig.mesh.parts)
-        orders = depth_mod.depth_orders(z, 0.015 * height, pairs=pairs)
-    if ch.body == "quadruped":
-        orders = quadruped_orders(orders, ch.keypoints)
+    orders, _ = part_orders(rig, V, moved, depth)
     seconds["deform"], cpu["deform"] = time.perf_counter() - t, time.process_time() - c
     _say(progress, f"animate: deformed {len(V)} frames ({rig.mesh.n_vertices} vertices) in "
                    f"{seconds['deform']:.2f} s")

@@ -233,10 +233,32 @@ def load_animated_drawings(path, name: str | None = None) -> Character:
     """
     path = Path(path)
     cfg_path = path / "char_cfg.yaml" if path.is_dir() else path
-    folder = cfg_path.parent
+    cfg, joints = read_ad_joints(cfg_path)
+    extra = [n for n in joints if n not in AD_JOINTS]
+    missing = [n for n in AD_JOINTS if n not in joints]
+    if extra or missing:
+        # The diagnosis goes into ``expected``: InputError shortens ``got``.
+        found = "".join([f"; unsupported joints: {', '.join(extra)}" if extra else "",
+                         f"; missing joints: {', '.join(missing)}" if missing else ""])
+        raise InputError(cfg_path, "skeleton",
+                         "the 16 joints of the biped AnimatedDrawings skeleton, each once ("
+                         + ", ".join(AD_JOINTS) + "); several shoulders or legs per side are not "
+                         "supported by this reader (nnsf animate and the animate stage read extra arms "
+                         "and quadrupeds)" + found)
+    texture, mask, note = read_ad_images(cfg_path, cfg)
+    keypoints = _ad_to_keypoints(joints, mask, cfg_path)
+    return Character(name=name or cfg_path.parent.name, texture=texture, mask=mask, keypoints=keypoints,
+                     source=str(cfg_path), notes=[note] if note else [])
+
+
+def read_ad_joints(cfg_path: Path) -> tuple[dict, dict[str, np.ndarray]]:
+    """An AnimatedDrawings ``char_cfg.yaml``: the parsed file and its joints ``{name: (2,) px}``.
+
+    A missing file, invalid YAML, a malformed joint or a joint named twice
+    raises :class:`InputError` naming the file and the field.
+    """
     if not cfg_path.is_file():
         raise InputError(cfg_path, "file", "an AnimatedDrawings char_cfg.yaml")
-
     try:
         cfg = yaml.safe_load(read_text(cfg_path, 10_000_000, "an AnimatedDrawings char_cfg.yaml"))
     except yaml.YAMLError as exc:
@@ -259,24 +281,18 @@ def load_animated_drawings(path, name: str | None = None) -> Character:
         if j["name"] in joints:
             raise InputError(cfg_path, "skeleton", "each joint once", f"{j['name']} twice")
         joints[j["name"]] = xy
-    extra = [n for n in joints if n not in AD_JOINTS]
-    missing = [n for n in AD_JOINTS if n not in joints]
-    if extra or missing:
-        # The diagnosis goes into ``expected``: InputError shortens ``got``.
-        found = "".join([f"; unsupported joints: {', '.join(extra)}" if extra else "",
-                         f"; missing joints: {', '.join(missing)}" if missing else ""])
-        raise InputError(cfg_path, "skeleton",
-                         "the 16 joints of the biped AnimatedDrawings skeleton, each once ("
-                         + ", ".join(AD_JOINTS) + "); several shoulders or legs per side are not "
-                         "supported by this reader (nnsf animate and the animate stage read extra arms "
-                         "and quadrupeds)" + found)
+    return cfg, joints
+
+
+def read_ad_images(cfg_path: Path, cfg: dict):
+    """``texture.png`` and ``mask.png`` beside ``cfg_path`` (:func:`_load_images`), the mask's size
+    checked against the file's ``width`` / ``height``: ``(texture, mask, note or None)``."""
+    folder = cfg_path.parent
     texture, mask, note = _load_images(folder / "texture.png", folder / "mask.png", cfg_path)
     for key, size in (("width", mask.shape[1]), ("height", mask.shape[0])):
         if key in cfg and cfg[key] != size:
             raise InputError(cfg_path, key, f"the mask's {key} {size} px", cfg[key])
-    keypoints = _ad_to_keypoints(joints, mask, cfg_path)
-    return Character(name=name or folder.name, texture=texture, mask=mask, keypoints=keypoints,
-                     source=str(cfg_path), notes=[note] if note else [])
+    return texture, mask, note
 
 
 def _ad_to_keypoints(joints: dict[str, np.ndarray], mask: np.ndarray, source) -> np.ndarray:

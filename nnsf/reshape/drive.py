@@ -32,7 +32,7 @@ import pandas as pd
 from nnsf.datasets import contract
 from nnsf.errors import InputError
 from nnsf.params import ARM_CHOICES
-from nnsf.reshape.quadruped import retarget_quadruped
+from nnsf.reshape.quadruped import retarget_quadruped, swing
 from nnsf.skeleton import BONES, JOINT_INDEX, JOINTS, N_JOINTS, character_scale, to_points
 from nnsf.skeleton.layout import FEATURE_COLUMNS
 
@@ -175,10 +175,8 @@ def _swing_about_drawing(unit: np.ndarray, rest: np.ndarray) -> np.ndarray:
     out = unit.copy()
     bones = [BONES.index(b) for b in ARM_BONES]
     u = unit[:, bones]                                           # (T, 4, 2)
-    mean = u.mean(0)                                             # (4, 2)
-    swing = np.arctan2(u[..., 1], u[..., 0]) - np.arctan2(mean[:, 1], mean[:, 0])
     d = rest[[c for _, c in ARM_BONES]] - rest[[p for p, _ in ARM_BONES]]
-    ang = np.arctan2(d[:, 1], d[:, 0]) + swing                   # (T, 4)
+    ang = np.arctan2(d[:, 1], d[:, 0]) + swing(np.arctan2(u[..., 1], u[..., 0]))   # (T, 4)
     out[:, bones] = np.stack([np.cos(ang), np.sin(ang)], -1)
     return out
 

@@ -189,7 +189,7 @@ def _load_ad(cfg_path: Path):
     cfg = _safe_yaml(cfg_path)
     names = [j.get("name") for j in cfg["skeleton"] if isinstance(j, dict)]
     if is_quadruped(names):
-        return _load_quadruped(cfg_path, cfg)
+        return _load_quadruped(cfg_path)
     sets = _arm_sets(set(names))
     plain = all(f"{side}_{j}" in names for side in ("right", "left") for j in _ARM)
     if plain or set(sets) != {"right", "left"}:
@@ -221,25 +221,11 @@ def _load_ad(cfg_path: Path):
                            notes=([note] if note else []) + notes, extra_limbs=extra)
 
 
-def _load_quadruped(cfg_path: Path, cfg: dict):
+def _load_quadruped(cfg_path: Path):
     """An AnimatedDrawings quadruped (:mod:`nnsf.reshape.quadruped`): its hind legs read as our legs,
     its front legs as our arms; ``body="quadruped"``, said in a note."""
-    loc = {}
-    for j in cfg["skeleton"]:
-        if not isinstance(j, dict) or not isinstance(j.get("name"), str):
-            continue
-        try:
-            xy = np.asarray(j.get("loc"), dtype=np.float64)
-        except (TypeError, ValueError):
-            xy = np.empty(0)
-        if xy.shape != (2,) or not np.isfinite(xy).all():
-            raise InputError(cfg_path, f"skeleton.{j['name']}.loc", "[x, y] in pixels", j.get("loc"))
-        loc[j["name"]] = xy
-    folder = cfg_path.parent
-    texture, mask, note = chmod._load_images(folder / "texture.png", folder / "mask.png", cfg_path)
-    for key, size in (("width", mask.shape[1]), ("height", mask.shape[0])):
-        if key in cfg and cfg[key] != size:
-            raise InputError(cfg_path, key, f"the mask's {key} {size} px", cfg[key])
+    cfg, loc = chmod.read_ad_joints(cfg_path)
+    texture, mask, note = chmod.read_ad_images(cfg_path, cfg)
     for name, xy in loc.items():
         # Named as the file names it (validation after the mapping would name our key point).
         if name in QUADRUPED_JOINTS[4:] and not chmod.points_in_mask(mask, xy):
@@ -248,8 +234,8 @@ def _load_quadruped(cfg_path: Path, cfg: dict):
     said = (f"{cfg_path}: skeleton: a quadruped: its hind legs are driven as legs and its front legs "
             "as arms, each about its drawn pose (a front leg by the other side's leg, so diagonal "
             "pairs step together); body and head move as one piece")
-    return chmod.Character(name=folder.name, texture=texture, mask=mask, keypoints=kp, source=str(cfg_path),
-                           notes=([note] if note else []) + [said], body="quadruped")
+    return chmod.Character(name=cfg_path.parent.name, texture=texture, mask=mask, keypoints=kp,
+                           source=str(cfg_path), notes=([note] if note else []) + [said], body="quadruped")
 
 
 def read_character(spec, joints=None, size: int = 512):

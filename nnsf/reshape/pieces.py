@@ -437,7 +437,7 @@ def build_pieced_mesh(mask: np.ndarray, keypoints: np.ndarray, n_vertices: int =
             # outline, so this tab keeps no margin.
             regions[cut.child] = tab_region(label, cut, 0.0, under=under)
     # Elbow and knee caps: the upper segment's end rounded past its cut, under the lower one.
-    caps = [] if whole_limbs or not kwargs.get("caps", True) else [(cut, cap_region(label, cut)) for cut in cuts
+    caps = [] if not kwargs.get("caps", True) else [(cut, cap_region(label, cut)) for cut in cuts
                                    if cut.parent != 0 and cut.parent in drawn and cut.child in drawn]
     for k, (cut, region) in enumerate([(c, regions[c.child]) for c in cuts] + caps):
         cap = k >= len(cuts)

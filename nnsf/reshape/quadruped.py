@@ -108,9 +108,10 @@ def _angles(vec: np.ndarray) -> np.ndarray:
     return np.arctan2(vec[..., 1], vec[..., 0])
 
 
-def _swing(theta: np.ndarray) -> np.ndarray:
-    """Angle ``(T,)`` of each frame from the circular mean of ``theta`` ``(T,)``, wrapped to ±π."""
-    mean = np.arctan2(np.sin(theta).mean(), np.cos(theta).mean())
+def swing(theta: np.ndarray) -> np.ndarray:
+    """Each frame's angle ``(T, ...)`` from the circular mean over the frames of ``theta``
+    ``(T, ...)`` (radians; the angle of the mean unit vector), wrapped to ±π."""
+    mean = np.arctan2(np.sin(theta).mean(axis=0), np.cos(theta).mean(axis=0))
     return np.angle(np.exp(1j * (theta - mean)))
 
 
@@ -137,7 +138,7 @@ def retarget_quadruped(points: np.ndarray, rest_keypoints: np.ndarray) -> np.nda
                                for h, k, a in (("r_hip", "r_knee", "r_ankle"), ("l_hip", "l_knee", "l_ankle"))]))
     scale = drawn_leg / max(motion_leg, 1e-12)
     root = rest[J["pelvis"]] + scale * (P[:, J["pelvis"]] - np.median(P[:, J["pelvis"]], axis=0))
-    spine = _swing(_angles(P[:, J["thorax"]] - P[:, J["pelvis"]]))
+    spine = swing(_angles(P[:, J["thorax"]] - P[:, J["pelvis"]]))
     c, s = np.cos(spine)[:, None], np.sin(spine)[:, None]
     rel = rest[list(BODY)] - rest[J["pelvis"]]                                # (k, 2)
     out[:, list(BODY)] = root[:, None] + np.stack([c * rel[:, 0] - s * rel[:, 1], s * rel[:, 0] + c * rel[:, 1]], -1)
@@ -145,7 +146,7 @@ def retarget_quadruped(points: np.ndarray, rest_keypoints: np.ndarray) -> np.nda
     for bone, driver in _DRIVERS:
         p, q = BONES[bone]
         d = rest[q] - rest[p]
-        a = _angles(d) + spine + _swing(theta[:, driver])
+        a = _angles(d) + spine + swing(theta[:, driver])
         out[:, q] = out[:, p] + np.linalg.norm(d) * np.stack([np.cos(a), np.sin(a)], -1)
     return out
 

@@ -137,6 +137,22 @@ def animate(rig: Rig, motion: np.ndarray, joint_depth: np.ndarray | None = None,
     """
     kp = retarget(motion, rig.character.keypoints, source=source, frames=frames, arms=arms, body=rig.character.body)
     V = rig.animate(kp)
+    orders, z = part_orders(rig, V, motion, joint_depth, hysteresis)
+    if overrides:
+        orders = depth_mod.apply_overrides(orders, overrides)
+    return Animation(rig, kp, V, orders, z)
+
+
+def part_orders(rig: Rig, V: np.ndarray, motion: np.ndarray, joint_depth: np.ndarray | None = None,
+                hysteresis: float = 0.015):
+    """Back-to-front part orders ``(T, 10)`` of ``rig``'s frames ``V`` ``(T, n, 2)``, and the part
+    depths ``(T, 10)`` (None without ``joint_depth``), docs/method.md §14.
+
+    From the motion's joint depths ``(T, 17)`` (tie band ``hysteresis`` × the
+    motion's body height, ``motion`` ``(T, 17, 2)``), or one static order
+    without them; a quadruped's near legs go in front and its far legs behind
+    (:func:`nnsf.reshape.quadruped.quadruped_orders`).
+    """
     if joint_depth is None:
         orders = np.tile(depth_mod.default_order(), (len(V), 1))
         z = None
@@ -147,9 +163,7 @@ def animate(rig: Rig, motion: np.ndarray, joint_depth: np.ndarray | None = None,
         orders = depth_mod.depth_orders(z, hysteresis * height, pairs=pairs)
     if rig.character.body == "quadruped":
         orders = quadruped_orders(orders, rig.character.keypoints)
-    if overrides:
-        orders = depth_mod.apply_overrides(orders, overrides)
-    return Animation(rig, kp, V, orders, z)
+    return orders, z
 
 
 def report(anim: Animation, depth_margin: float | None = None) -> dict:
