@@ -76,8 +76,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="a feature-matrix CSV (any 17-point clip: synthetic, BVH, tracked, translated)")
     p.add_argument("--clip", default=None, help="its clip (default: reshape.clip, else the first)")
     p.add_argument("--character", default=None,
-                   help="synthetic character name, character .json or AnimatedDrawings folder "
-                        "(default: reshape.character)")
+                   help="a built-in character name, or an AnimatedDrawings folder (extra arms and "
+                        "quadrupeds too), joints YAML beside its PNG or character JSON (default: reshape.character)")
     p.add_argument("--out", type=Path, default=Path("reports/reshape"))
 
     p = sub.add_parser("styles", help="fit the style model and save it")

@@ -123,6 +123,29 @@ def test_joint_outside_mask_and_missing_joints_are_refused(tmp_path, character_f
 
 # --------------------------------------------------------------------------- real data
 
+@pytest.mark.skipif(not (SHARED / "animated-drawings" / "characters" / "char6").is_dir(),
+                    reason="needs ../shared/data/animated-drawings/characters (char5, char6)")
+@pytest.mark.parametrize("name, body", [("char5", "biped"), ("char6", "quadruped")])
+def test_the_stage_reads_every_character_nnsf_animate_reads(tmp_path, monkeypatch, name, body):
+    """``reshape.character`` names an AnimatedDrawings folder inside the project with six arms
+    (char5) or four legs (char6): the stage reads it as ``nnsf animate`` does (the strict biped
+    reader refused both) and renders the clip, its metrics naming the character."""
+    import shutil
+
+    from nnsf.reshape.stage import resolve_character
+
+    shutil.copytree(SHARED / "animated-drawings" / "characters" / name, tmp_path / "chars" / name)
+    monkeypatch.chdir(tmp_path)
+    ch = resolve_character(f"chars/{name}")
+    assert ch.body == body and (len(ch.extra_limbs) > 0) == (name == "char5")
+    csv = _csv(tmp_path / "motion.csv", frames=4)
+    out = tmp_path / "out"
+    reshape(_params(character=f"chars/{name}", max_frames=4, formats=["gif"]), csv, None, out)
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["character"] == name and m["metrics"]["frames"] == 4
+    assert m["metrics"]["flipped_triangles"] == 0
+
+
 def test_evaluation_on_one_character_and_motion(tmp_path):
     chars = SHARED / "animated-drawings" / "characters"
     bvh = SHARED / "bandai-namco-1" / "data" / "dataset-1_walk_normal_001.bvh"
@@ -156,7 +179,7 @@ def test_evaluation_on_one_character_and_motion(tmp_path):
 
 
 def test_kenney_idle_deformed_to_walk_beats_the_identity_baseline():
-    from nnsf.reshape.kenney import check_character
+    from nnsf.reshape.kenney_check import check_character
 
     images = SHARED / "kenney-toon"
     name = "male_person"

@@ -243,8 +243,8 @@ def load_animated_drawings(path, name: str | None = None) -> Character:
         raise InputError(cfg_path, "skeleton",
                          "the 16 joints of the biped AnimatedDrawings skeleton, each once ("
                          + ", ".join(AD_JOINTS) + "); several shoulders or legs per side are not "
-                         "supported by this reader (nnsf animate and the animate stage read extra arms "
-                         "and quadrupeds)" + found)
+                         "supported by this reader (nnsf.reshape.formats.read_character, which nnsf reshape, "
+                         "nnsf animate and their stages use, reads extra arms and quadrupeds)" + found)
     texture, mask, note = read_ad_images(cfg_path, cfg)
     keypoints = _ad_to_keypoints(joints, mask, cfg_path)
     return Character(name=name or cfg_path.parent.name, texture=texture, mask=mask, keypoints=keypoints,

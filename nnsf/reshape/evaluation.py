@@ -73,7 +73,8 @@ from nnsf.params import checked, source_of
 from nnsf.pipeline import StageResult
 from nnsf.reshape.artefacts import clip_artefacts
 from nnsf.reshape.formats import read_character
-from nnsf.reshape.kenney import CHARACTERS as KC, check_character, kenney_character
+from nnsf.reshape.kenney import CHARACTERS as KC, kenney_character
+from nnsf.reshape.kenney_check import check_character
 from nnsf.reshape.limbs import LIMB_PAIRS
 from nnsf.reshape.layers import build_mesh
 from nnsf.reshape.render import MeshRenderer

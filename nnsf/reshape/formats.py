@@ -37,7 +37,7 @@ from nnsf.reshape import character as chmod
 from nnsf.reshape.character import Character, load_character
 from nnsf.reshape.kenney import read_keypoint_file, snap_inside
 from nnsf.reshape.quadruped import QUADRUPED_JOINTS, is_quadruped, quadruped_keypoints
-from nnsf.reshape.stage import synthetic_character
+from nnsf.reshape.builtin import synthetic_character
 from nnsf.skeleton import JOINTS
 
 

@@ -1,13 +1,10 @@
-"""Real-frame check on Kenney's "Toon Characters": deform ``idle`` to the poses of ``walk0..7``.
+"""Kenney's "Toon Characters" as drawings: key-point files and the ``idle`` frame.
 
 For each character the ``idle`` frame is the drawing (texture = its RGBA
 image, mask = alpha > 0, key points from the hand annotation
 ``tests/data/kenney/<character>.keypoints.json``, format ``nnsf.keypoints``
-v1).  It is deformed so its key points go to each walk frame's annotated key
-points (same pixel grid, no retargeting), rendered, and its silhouette
-(alpha ≥ 128) is compared with the real walk frame's (alpha > 0) by IoU.
-The identity baseline is the IoU of the undeformed idle silhouette with the
-walk frame's: the number the deformation has to beat.
+v1, :func:`read_keypoint_file`).  :mod:`nnsf.reshape.kenney_check` deforms
+it to the annotated walk frames and scores the silhouettes.
 
 Annotated idle key points that fall just off the silhouette (a wrist on
 the outline) are moved to the nearest silhouette pixel, and the move is
@@ -24,8 +21,6 @@ from nnsf.errors import InputError
 from nnsf.io import read_json
 from nnsf.reshape.character import Character
 from nnsf.skeleton import JOINTS, N_JOINTS
-from nnsf.reshape.render import MeshRenderer
-from nnsf.reshape.stage import build_rig
 
 CHARACTERS = ("female_adventurer", "female_person", "male_adventurer", "male_person", "robot", "zombie")
 WALK = tuple(f"walk{i}" for i in range(8))
@@ -86,12 +81,6 @@ def snap_inside(mask: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.nd
     return pts, moves
 
 
-def iou(a: np.ndarray, b: np.ndarray) -> float:
-    """Intersection over union of two boolean masks."""
-    u = np.logical_or(a, b).sum()
-    return float(np.logical_and(a, b).sum() / u) if u else float("nan")
-
-
 def kenney_character(name: str, image_root, annotation_dir) -> tuple[Character, np.ndarray]:
     """The ``idle`` drawing of a Kenney character with its hand-annotated key points, and the snap moves (px)."""
     ann = Path(annotation_dir) / f"{name}.keypoints.json"
@@ -105,29 +94,3 @@ def kenney_character(name: str, image_root, annotation_dir) -> tuple[Character, 
     mask = idle[..., 3] > 0
     rest, moves = snap_inside(mask, kps[idle_name])
     return Character(name=name, texture=idle, mask=mask, keypoints=rest, source=str(folder / idle_name)), moves
-
-
-def check_character(name: str, image_root, annotation_dir, n_vertices: int = 300,
-                    variants=(("layered", "ours"), ("layered", "keypoints"), ("limbs", "ours"), ("limbs", "keypoints"),
-                              ("connected", "keypoints"))) -> list[dict]:
-    """IoU rows (one per walk frame and variant, plus the identity baseline) for one character."""
-    ch, moves = kenney_character(name, image_root, annotation_dir)
-    ann = Path(annotation_dir) / f"{name}.keypoints.json"
-    folder = Path(image_root) / name
-    kps = read_keypoint_file(ann)
-    walks = [_frame(folder, kps, w, ann) for w in WALK]
-    targets = np.stack([kps[n] for n, _ in walks])
-    truth = [img[..., 3] > 0 for _, img in walks]
-    mask = ch.mask
-    rows = [{"character": name, "frame": w, "variant": "identity", "iou": iou(mask, t)}
-            for w, t in zip(WALK, truth)]
-    for mesh, method in variants:
-        rig = build_rig(ch, method=method, mesh=mesh, n_vertices=n_vertices)
-        V = rig.animate(targets)
-        r = MeshRenderer.for_mesh(rig.mesh, ch)
-        for w, t, v in zip(WALK, truth, V):
-            sil = r.render(v)[..., 3] >= 128
-            rows.append({"character": name, "frame": w, "variant": f"{mesh}/{method}", "iou": iou(sil, t)})
-    for r_ in rows:
-        r_["snapped_px"] = float(moves.max())
-    return rows

@@ -5,8 +5,10 @@
     reshape:
       clip: null            # clip name in the motion CSV; null = the first clip
       character: bruno      # a built-in synthetic character name (rendered by
-                            # nnsf.frames.render), or a path inside the project to a
-                            # character .json / AnimatedDrawings folder
+                            # nnsf.frames.render), or a path inside the project to any
+                            # character nnsf animate reads (docs/formats.md §4): a
+                            # character .json, an AnimatedDrawings folder (extra arms
+                            # and quadrupeds too), a joints YAML beside its RGBA PNG
       character_size: 512   # px, for a synthetic character
       n_vertices: 800       # mesh size (100..6000)
       subkeys_per_limb: 4   # 0..12
@@ -37,9 +39,9 @@ from nnsf.io import atomic_dir, write_json
 from nnsf.params import RESHAPE_FORMATS
 from nnsf.reshape import depth as depth_mod
 from nnsf.reshape import metrics
-from nnsf.datasets.synthetic import character as synthetic_character_spec
-from nnsf.frames.render import render_character
-from nnsf.reshape.character import Character, load_character, write_character
+from nnsf.reshape.builtin import synthetic_character, write_rendered_character  # noqa: F401  (re-exported)
+from nnsf.reshape.character import Character
+from nnsf.reshape.formats import read_character
 from nnsf.reshape.drive import read_motion, retarget
 from nnsf.reshape.quadruped import quadruped_orders
 from nnsf.reshape.render import MeshRenderer
@@ -56,27 +58,10 @@ BACKGROUND = (255, 255, 255)
 
 # --------------------------------------------------------------------------- characters
 
-def synthetic_character(name: str, size: int = 512, source="params.yaml") -> Character:
-    """A built-in synthetic character drawn at rest (``nnsf.frames.render``); the stick figure if absent."""
-    try:
-        rgba, mask, kp = render_character(name, size)
-    except ValueError as exc:
-        raise InputError(source, "reshape.character", "a built-in character name or a character "
-                         "file/folder", reason=str(exc)) from None
-    return Character(name=name, texture=rgba, mask=mask, keypoints=kp, source=f"<rendered {name}>")
-
-
-def write_rendered_character(name: str, folder, size: int = 256) -> Path:
-    """Write ``<folder>/<name>.json`` (+ texture and mask PNGs) in the
-    :func:`nnsf.reshape.character.write_character` format; returns the JSON path."""
-    rgba, mask, kp = render_character(name, size)
-    ch = Character(name=synthetic_character_spec(name).name, texture=rgba, mask=mask, keypoints=kp,
-                   source=f"<rendered {name}>")
-    return write_character(ch, Path(folder) / f"{ch.name}.json")
-
-
 def resolve_character(spec, size: int = 512, root=Path("."), source="params.yaml") -> Character:
-    """A character from a path (``.json``, AnimatedDrawings folder or ``char_cfg.yaml``) or a built-in name.
+    """A character from a built-in name, or from a path in any format ``nnsf animate`` reads
+    (:func:`nnsf.reshape.formats.read_character`: our ``.json``, an AnimatedDrawings folder or
+    ``char_cfg.yaml``, biped, extra arms or quadruped, a joints YAML beside its RGBA PNG).
 
     A path given in a config file must be relative and stay inside ``root``.
     """
@@ -85,7 +70,7 @@ def resolve_character(spec, size: int = 512, root=Path("."), source="params.yaml
     if not isinstance(spec, (str, Path)) or not str(spec):
         raise InputError(source, "reshape.character", "a character name or path", spec)
     text = str(spec)
-    looks_like_path = ("/" in text or "\\" in text or text.endswith((".json", ".yaml", ".yml")))
+    looks_like_path = ("/" in text or "\\" in text or text.endswith((".json", ".yaml", ".yml", ".png")))
     if not looks_like_path:
         return synthetic_character(text, size, source=source)
     p = Path(text)
@@ -94,7 +79,7 @@ def resolve_character(spec, size: int = 512, root=Path("."), source="params.yaml
     full = Path(root) / p
     if not full.exists():
         raise InputError(source, "reshape.character", "an existing character file or folder", text)
-    return load_character(full)
+    return read_character(full)
 
 
 # --------------------------------------------------------------------------- the pipeline
@@ -230,13 +215,13 @@ def reshape(params: dict, motion_csv=TRANSLATION_DIR / "translated_features.csv"
     """Render a character performing one clip of ``motion_csv`` into ``out_dir`` (module docstring).
 
     By default the translate stage's output, on ``reshape.character``;
-    ``character_path`` (a character ``.json`` or AnimatedDrawings folder)
-    overrides ``reshape.character``.  Writes PNG frames, GIF, MP4, a contact
+    ``character_path`` (any file or folder :func:`nnsf.reshape.formats.read_character`
+    reads) overrides ``reshape.character``.  Writes PNG frames, GIF, MP4, a contact
     sheet and ``metrics.json`` (docs/method.md §10-§14).
     """
     p = _params(params)
     source = source_of(params)
-    character = (load_character(character_path) if character_path is not None
+    character = (read_character(character_path) if character_path is not None
                  else resolve_character(p["character"], p["character_size"], source=source))
     clip, frame_ids, points = read_motion(motion_csv, p["clip"])
     points, frame_ids = points[: p["max_frames"]], frame_ids[: p["max_frames"]]
