@@ -36,6 +36,7 @@ import sys
 from pathlib import Path
 
 from nnsf.errors import InputError, exception_line
+from nnsf.io import read_json
 from nnsf.params import STAGE_NAMES
 
 #: OS errors that mean "this output cannot be written here": reported like bad input (exit 2).
@@ -226,6 +227,8 @@ def main(argv: list[str] | None = None) -> int:
             result = stages.reshape(params, motion_csv=args.motion, out_dir=args.out,
                                     character_path=character_path)
             shown = [str(a) for a in result.artifacts if str(a).endswith(".gif")]
+            for note in read_json(Path(args.out) / "metrics.json").get("notes", []):
+                print(f"reshape: note: {note}", file=sys.stderr)
             print(f"reshape: wrote {args.out}/" + (f"; open {shown[0]}" if shown else ""))
         elif args.command == "styles":
             from nnsf.factor.stage import styles_by_hand

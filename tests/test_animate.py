@@ -380,6 +380,18 @@ def test_char5_maps_the_arm_nearest_the_chest_and_says_so():
 
 
 @needs_shared
+@pytest.mark.parametrize("arms", ["motion", "drawing"])
+def test_char5_with_arms_from_the_motion_gets_a_note_on_its_spread_arms(tmp_path, capsys, arms):
+    """With ``--arms motion`` char5's six arms point as the performer's and cross its body: a note
+    says that ``--arms drawing`` keeps them spread.  With ``--arms drawing`` there is no such note."""
+    out = tmp_path / "bug.gif"
+    code, _, err = run_cli(["animate", "--character", AD / "characters" / "char5", "--motion",
+                            "synthetic:max/walk/4", "--out", out, "--vertices", "200", "--arms", arms], capsys)
+    assert code == 0, err
+    assert ("--arms drawing swings them about their drawn pose" in err) == (arms == "motion")
+
+
+@needs_shared
 def test_kenney_frame_with_the_hand_made_joints(tmp_path, capsys):
     png = DATA / "kenney-toon" / "robot" / "robot_idle.png"
     joints = Path(__file__).resolve().parent / "data" / "kenney" / "robot.keypoints.json"

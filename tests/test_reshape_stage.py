@@ -129,7 +129,9 @@ def test_joint_outside_mask_and_missing_joints_are_refused(tmp_path, character_f
 def test_the_stage_reads_every_character_nnsf_animate_reads(tmp_path, monkeypatch, name, body):
     """``reshape.character`` names an AnimatedDrawings folder inside the project with six arms
     (char5) or four legs (char6): the stage reads it as ``nnsf animate`` does (the strict biped
-    reader refused both) and renders the clip, its metrics naming the character."""
+    reader refused both) and renders the clip, its metrics naming the character and carrying the
+    reader's notes; with ``reshape.arms: motion`` char5 gets a note that ``drawing`` keeps its arms
+    spread."""
     import shutil
 
     from nnsf.reshape.stage import resolve_character
@@ -144,6 +146,14 @@ def test_the_stage_reads_every_character_nnsf_animate_reads(tmp_path, monkeypatc
     m = json.loads((out / "metrics.json").read_text())
     assert m["character"] == name and m["metrics"]["frames"] == 4
     assert m["metrics"]["flipped_triangles"] == 0
+    # the reader's notes travel with the output, and the stage adds its own on arms that cross
+    notes = " | ".join(m["notes"])
+    if name == "char5":
+        assert "arm 3 drives the left arm" in notes and "reshape.arms: drawing" in notes
+    else:
+        assert "a quadruped" in notes and "reshape.arms" not in notes
+    reshape(_params(character=f"chars/{name}", max_frames=4, formats=["gif"], arms="drawing"), csv, None, out)
+    assert "reshape.arms" not in " | ".join(json.loads((out / "metrics.json").read_text())["notes"])
 
 
 def test_evaluation_on_one_character_and_motion(tmp_path):

@@ -184,6 +184,10 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
     if ch.body == "quadruped" and arms != "motion":
         mo.notes.append(f"--arms {arms}: {ch.name} is a quadruped; its front legs always swing about "
                         "their drawn pose (docs/method.md §12)")
+    if ch.extra_limbs and arms == "motion":
+        mo.notes.append(f"--arms motion: {ch.name}'s extra arms turn with its driven arms, which point as "
+                        "the performer's do and may cross its body; --arms drawing swings them about their "
+                        "drawn pose")
     if ch.body == "quadruped" and mo.view == "front":
         mo.notes.append(f"{ch.name} is a quadruped drawn from the side: a front view swings its legs "
                         "towards the camera, out of the picture (--view side shows them)")

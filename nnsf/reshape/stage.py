@@ -22,7 +22,8 @@
 
 and writes, atomically as one folder ``out_dir``: ``frames/frame_0000.png``…,
 ``<name>.gif``, ``<name>.mp4``, ``<name>_sheet.png`` (a contact sheet) and
-``metrics.json`` (docs/method.md §15.7; no wall times, so reruns are byte-identical).
+``metrics.json`` (docs/method.md §15.7, with the reader's notes on the character, e.g. how
+extra arms were mapped; no wall times, so reruns are byte-identical).
 
 :func:`animate` is the shared pipeline (also used by the evaluation):
 character + motion -> key points -> rig -> deformed vertices -> depth orders.
@@ -230,6 +231,11 @@ def reshape(params: dict, motion_csv=TRANSLATION_DIR / "translated_features.csv"
     overrides = depth_mod.parse_overrides(p["depth_overrides"], len(points), source=source)
     anim = animate(rig, points, source=f"{motion_csv} (clip {clip})", frames=frame_ids, overrides=overrides,
                    arms=p["arms"])
+    notes = list(character.notes)
+    if character.extra_limbs and p["arms"] == "motion":
+        notes.append(f"reshape.arms motion: {character.name}'s extra arms turn with its driven arms, which "
+                     "point as the motion's do and may cross its body; reshape.arms: drawing swings them "
+                     "about their drawn pose")
     offset, size = canvas(character, anim.frames)
     renderer = MeshRenderer.for_mesh(rig.mesh, character, size=size)
     images = renderer.render_clip(anim.frames + offset, anim.orders, background=BACKGROUND)
@@ -253,7 +259,7 @@ def reshape(params: dict, motion_csv=TRANSLATION_DIR / "translated_features.csv"
         cv2.imwrite(str(tmp / f"{name}_sheet.png"), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))
         artifacts.append(out_dir / f"{name}_sheet.png")
         write_json(tmp / "metrics.json", {"character": character.name, "clip": clip, "params": p,
-                                          "metrics": numbers})
+                                          "notes": notes, "metrics": numbers})
     scalar = {f"reshape_{k}": v for k, v in numbers.items() if isinstance(v, (int, float)) and np.isfinite(v)}
     return StageResult(params={f"reshape.{k}": (v if not isinstance(v, list) else ",".join(map(str, v)))
                                for k, v in p.items()},
