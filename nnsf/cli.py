@@ -7,7 +7,7 @@
     nnsf check [--params FILE]          validate params.yaml and exit
     nnsf translate --clip CLIP --style STYLE [--out DIR]
                                         one clip's motion performed in another style
-    nnsf reshape [--motion CSV] [--clip CLIP] [--character NAME|FILE|FOLDER] [--out DIR]
+    nnsf reshape [--motion CSV] [--clip CLIP] [--character NAME|FILE|FOLDER] [--joints FILE] [--out DIR]
                                         a drawn character performing a motion clip
     nnsf styles [--data FOLDER] [--out FILE]
                                         fit the style model and save it (default models/styles.npz)
@@ -79,6 +79,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--character", default=None,
                    help="a built-in character name, or an AnimatedDrawings folder (extra arms and "
                         "quadrupeds too), joints YAML beside its PNG or character JSON (default: reshape.character)")
+    p.add_argument("--joints", type=Path, default=None,
+                   help="joints YAML (or Kenney nnsf.keypoints JSON) for a PNG --character")
     p.add_argument("--out", type=Path, default=Path("reports/reshape"))
 
     p = sub.add_parser("styles", help="fit the style model and save it")
@@ -219,13 +221,16 @@ def main(argv: list[str] | None = None) -> int:
             if args.clip is not None:
                 params.setdefault("reshape", {})["clip"] = args.clip
             character_path = None
+            if args.joints is not None and (args.character is None or not Path(args.character).exists()):
+                raise InputError("--joints", "--character", "an existing PNG drawing the joints belong to",
+                                 args.character)
             if args.character is not None:
                 if Path(args.character).exists():
                     character_path = Path(args.character)
                 else:
                     params.setdefault("reshape", {})["character"] = args.character
             result = stages.reshape(params, motion_csv=args.motion, out_dir=args.out,
-                                    character_path=character_path)
+                                    character_path=character_path, joints=args.joints)
             shown = [str(a) for a in result.artifacts if str(a).endswith(".gif")]
             for note in read_json(Path(args.out) / "metrics.json").get("notes", []):
                 print(f"reshape: note: {note}", file=sys.stderr)

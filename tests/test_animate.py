@@ -403,6 +403,24 @@ def test_kenney_frame_with_the_hand_made_joints(tmp_path, capsys):
 
 
 @needs_shared
+def test_nnsf_reshape_takes_a_png_with_its_joints_like_nnsf_animate(tmp_path, capsys):
+    """``nnsf reshape --character robot_idle.png --joints robot.keypoints.json`` renders the clip;
+    ``--joints`` without a PNG character is one line naming both options, exit 2."""
+    from tests.test_reshape_stage import _csv
+
+    png = DATA / "kenney-toon" / "robot" / "robot_idle.png"
+    joints = Path(__file__).resolve().parent / "data" / "kenney" / "robot.keypoints.json"
+    csv = _csv(tmp_path / "motion.csv", frames=3)
+    out = tmp_path / "out"
+    code, _, err = run_cli(["reshape", "--motion", csv, "--character", png, "--joints", joints, "--out", out], capsys)
+    assert code == 0, err
+    assert json.loads((out / "metrics.json").read_text())["metrics"]["frames"] == 3
+    code, _, err = run_cli(["reshape", "--motion", csv, "--joints", joints, "--out", tmp_path / "no"], capsys)
+    assert code == 2 and "--joints: --character: expected an existing PNG" in err
+    assert "Traceback" not in err and not (tmp_path / "no").exists()
+
+
+@needs_shared
 def test_dataset_bvh_view_names_an_azimuth_and_auto_picks_one_for_the_folder(tmp_path):
     from nnsf import stages
 

@@ -212,17 +212,17 @@ def _params(params: dict) -> dict:
 
 
 def reshape(params: dict, motion_csv=TRANSLATION_DIR / "translated_features.csv", character_path=None,
-            out_dir=RESHAPE_DIR, mapper=None) -> StageResult:
+            out_dir=RESHAPE_DIR, mapper=None, joints=None) -> StageResult:
     """Render a character performing one clip of ``motion_csv`` into ``out_dir`` (module docstring).
 
     By default the translate stage's output, on ``reshape.character``;
     ``character_path`` (any file or folder :func:`nnsf.reshape.formats.read_character`
-    reads) overrides ``reshape.character``.  Writes PNG frames, GIF, MP4, a contact
+    reads; ``joints``: the joints file of a PNG) overrides ``reshape.character``.  Writes PNG frames, GIF, MP4, a contact
     sheet and ``metrics.json`` (docs/method.md §10-§14).
     """
     p = _params(params)
     source = source_of(params)
-    character = (read_character(character_path) if character_path is not None
+    character = (read_character(character_path, joints) if character_path is not None
                  else resolve_character(p["character"], p["character_size"], source=source))
     clip, frame_ids, points = read_motion(motion_csv, p["clip"])
     points, frame_ids = points[: p["max_frames"]], frame_ids[: p["max_frames"]]
