@@ -388,7 +388,23 @@ def test_char5_with_arms_from_the_motion_gets_a_note_on_its_spread_arms(tmp_path
     code, _, err = run_cli(["animate", "--character", AD / "characters" / "char5", "--motion",
                             "synthetic:max/walk/4", "--out", out, "--vertices", "200", "--arms", arms], capsys)
     assert code == 0, err
-    assert ("--arms drawing swings them about their drawn pose" in err) == (arms == "motion")
+    assert ("swings them about their drawn pose" in err) == (arms == "motion")
+
+
+@needs_shared
+def test_the_animate_stage_keeps_the_notes_in_animate_json(tmp_path, monkeypatch):
+    """The DVC stage on char5 (a folder inside the project) with ``animate.arms: motion``: the
+    reader's note on the arms and the note on arms from the motion are in ``animate.json``."""
+    from nnsf.animate.stage import animate
+
+    shutil.copytree(AD / "characters" / "char5", tmp_path / "chars" / "char5")
+    monkeypatch.chdir(tmp_path)
+    params = {"animate": {"character": "chars/char5", "motion": "synthetic:max/walk/4", "style": "none",
+                          "view": "auto", "fps": 12, "n_vertices": 200, "max_frames": 4, "output": ["gif"],
+                          "arms": "motion"}}
+    animate(params, model=tmp_path / "none.npz", out_dir=tmp_path / "out")
+    notes = " | ".join(json.loads((tmp_path / "out" / "animate.json").read_text())["notes"])
+    assert "arm 3 drives the left arm" in notes and "animate.arms in params.yaml" in notes
 
 
 @needs_shared

@@ -186,8 +186,8 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
                         "their drawn pose (docs/method.md §12)")
     if ch.extra_limbs and arms == "motion":
         mo.notes.append(f"--arms motion: {ch.name}'s extra arms turn with its driven arms, which point as "
-                        "the performer's do and may cross its body; --arms drawing swings them about their "
-                        "drawn pose")
+                        "the performer's do and may cross its body; --arms drawing (animate.arms in "
+                        "params.yaml) swings them about their drawn pose")
     if ch.body == "quadruped" and mo.view == "front":
         mo.notes.append(f"{ch.name} is a quadruped drawn from the side: a front view swings its legs "
                         "towards the camera, out of the picture (--view side shows them)")

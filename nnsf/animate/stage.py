@@ -16,7 +16,8 @@ def animate(params: dict, model=STYLES_MODEL, out_dir=ANIMATE_DIR) -> StageResul
 
     Writes, atomically as one folder ``out_dir``: ``animation.mp4``,
     ``animation.gif``, ``animation_sheet.png`` (as ``animate.output`` lists)
-    and ``animate.json`` (what was made; no wall times, those go to MLflow).
+    and ``animate.json`` (what was made, with the notes ``nnsf animate`` prints; no wall times,
+    those go to MLflow).
     Character and motion paths must be relative and stay inside the project.
     """
     src = source_of(params)
@@ -41,7 +42,8 @@ def animate(params: dict, model=STYLES_MODEL, out_dir=ANIMATE_DIR) -> StageResul
                             arms=spec["arms"])
         write_json(tmp / "animate.json", {
             "character": res.character, "motion": res.motion, "style": res.style, "view": res.view,
-            "frames": res.frames, "fps": res.fps, "files": sorted(p.name for p in res.files.values())})
+            "frames": res.frames, "fps": res.fps, "files": sorted(p.name for p in res.files.values()),
+            "notes": list(res.notes)})
     return StageResult(
         params={f"animate.{k}": (",".join(v) if isinstance(v, list) else v) for k, v in spec.items()},
         metrics={"frames": res.frames, **{f"seconds_{k}": round(v, 3) for k, v in res.seconds.items()}},
