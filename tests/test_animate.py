@@ -404,7 +404,7 @@ def test_the_animate_stage_keeps_the_notes_in_animate_json(tmp_path, monkeypatch
                           "arms": "motion"}}
     animate(params, model=tmp_path / "none.npz", out_dir=tmp_path / "out")
     notes = " | ".join(json.loads((tmp_path / "out" / "animate.json").read_text())["notes"])
-    assert "arm 3 drives the left arm" in notes and "animate.arms in params.yaml" in notes
+    assert "arm 3 drives the left arm" in notes and "--arms (animate.arms) drawing swings them" in notes
 
 
 @needs_shared

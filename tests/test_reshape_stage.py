@@ -149,7 +149,7 @@ def test_the_stage_reads_every_character_nnsf_animate_reads(tmp_path, monkeypatc
     # the reader's notes travel with the output, and the stage adds its own on arms that cross
     notes = " | ".join(m["notes"])
     if name == "char5":
-        assert "arm 3 drives the left arm" in notes and "reshape.arms: drawing" in notes
+        assert "arm 3 drives the left arm" in notes and "reshape.arms drawing swings them" in notes
     else:
         assert "a quadruped" in notes and "reshape.arms" not in notes
     reshape(_params(character=f"chars/{name}", max_frames=4, formats=["gif"], arms="drawing"), csv, None, out)

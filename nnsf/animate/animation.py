@@ -36,7 +36,7 @@ from nnsf.params import ARM_CHOICES
 from nnsf.reshape.drive import read_motion, retarget
 from nnsf.reshape.render import MeshRenderer
 from nnsf.reshape.video import contact_sheet, write_gif, write_mp4, write_png_frames
-from nnsf.reshape.stage import BACKGROUND, build_rig, canvas, part_orders
+from nnsf.reshape.stage import BACKGROUND, build_rig, canvas, extra_arms_notes, part_orders
 
 #: Frame rate of a built-in synthetic clip (nnsf.datasets.synthetic.FPS).
 SYNTHETIC_FPS = 24.0
@@ -184,10 +184,7 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
     if ch.body == "quadruped" and arms != "motion":
         mo.notes.append(f"--arms {arms}: {ch.name} is a quadruped; its front legs always swing about "
                         "their drawn pose (docs/method.md §12)")
-    if ch.extra_limbs and arms == "motion":
-        mo.notes.append(f"--arms motion: {ch.name}'s extra arms turn with its driven arms, which point as "
-                        "the performer's do and may cross its body; --arms drawing (animate.arms in "
-                        "params.yaml) swings them about their drawn pose")
+    mo.notes += extra_arms_notes(ch, arms, "--arms (animate.arms)")
     if ch.body == "quadruped" and mo.view == "front":
         mo.notes.append(f"{ch.name} is a quadruped drawn from the side: a front view swings its legs "
                         "towards the camera, out of the picture (--view side shows them)")

@@ -83,6 +83,16 @@ def resolve_character(spec, size: int = 512, root=Path("."), source="params.yaml
     return read_character(full)
 
 
+def extra_arms_notes(character: Character, arms: str, setting: str) -> list[str]:
+    """A note when ``character`` has extra arms and ``arms`` is ``motion`` (else none): they turn
+    with the driven arms, which point as the performer's and may cross the body.  ``setting``
+    names the option the user sets (``reshape.arms``, ``--arms``)."""
+    if not character.extra_limbs or arms != "motion":
+        return []
+    return [f"{setting} motion: {character.name}'s extra arms turn with its driven arms, which point as "
+            f"the motion's do and may cross its body; {setting} drawing swings them about their drawn pose"]
+
+
 # --------------------------------------------------------------------------- the pipeline
 
 @dataclass
@@ -231,11 +241,7 @@ def reshape(params: dict, motion_csv=TRANSLATION_DIR / "translated_features.csv"
     overrides = depth_mod.parse_overrides(p["depth_overrides"], len(points), source=source)
     anim = animate(rig, points, source=f"{motion_csv} (clip {clip})", frames=frame_ids, overrides=overrides,
                    arms=p["arms"])
-    notes = list(character.notes)
-    if character.extra_limbs and p["arms"] == "motion":
-        notes.append(f"reshape.arms motion: {character.name}'s extra arms turn with its driven arms, which "
-                     "point as the motion's do and may cross its body; reshape.arms: drawing swings them "
-                     "about their drawn pose")
+    notes = list(character.notes) + extra_arms_notes(character, p["arms"], "reshape.arms")
     offset, size = canvas(character, anim.frames)
     renderer = MeshRenderer.for_mesh(rig.mesh, character, size=size)
     images = renderer.render_clip(anim.frames + offset, anim.orders, background=BACKGROUND)
