@@ -54,6 +54,19 @@ def _small_clone(base: Path, name: str, mlflow_template: Path, prefect_api: str,
     return root, env
 
 
+def test_this_module_runs_on_the_worker_of_test_pipeline(request):
+    """Under ``--dist loadgroup`` (the README's test command) this module and test_pipeline are
+    one group (conftest.GROUPS), so one worker makes conftest.small_pipeline, once.
+
+    pytest-xdist 3.8 puts a test in its group by adding ``@group`` to its node id.  pytest 9.2
+    drops that suffix (pytest-xdist issue 1386): the tests were then handed out one by one and
+    both workers made the small pipeline, 100 s each.  pyproject.toml pins pytest 9.1.1.
+    """
+    if not getattr(request.config.option, "loadgroup", False):
+        pytest.skip("not run by pytest-xdist with --dist loadgroup")
+    assert request.node.nodeid.endswith("@small-pipeline"), request.node.nodeid
+
+
 @pytest.fixture(scope="module")
 def reference(small_pipeline):
     """dvc.lock output hashes of one uninterrupted cold repro of the small pipeline (one OpenBLAS
