@@ -19,6 +19,7 @@ from pathlib import Path
 from prefect import flow, get_run_logger, task
 from prefect.artifacts import create_markdown_artifact
 from prefect.cache_policies import NO_CACHE
+from prefect.context import refresh_global_settings_context
 
 from nnsf.errors import InputError
 
@@ -146,6 +147,10 @@ def main(args: list[str]) -> int:
 
     with prefect_server.running(Path(env["PREFECT_HOME"])) as api_url:
         os.environ["PREFECT_API_URL"] = api_url
+        # Prefect read the environment into its global settings at import, before this URL
+        # existed: without a refresh the flow below ran on a temporary server of its own, and
+        # its run and report were lost with it.
+        refresh_global_settings_context()
         return _run_once(root, args)
 
 

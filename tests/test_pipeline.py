@@ -249,6 +249,24 @@ def test_second_repro_is_a_noop_and_starts_no_server(pipeline):
     assert json.loads(status.stdout) == {}
 
 
+def test_pipeline_command_records_its_run_in_the_server_it_starts(pipeline):
+    """`python -m flows pipeline` without PREFECT_API_URL starts a server on the project's
+    PREFECT_HOME; its flow run (and report) goes there, not to a temporary server of Prefect's
+    own that vanishes with the command."""
+    import sqlite3
+
+    env = dict(pipeline.env)
+    env.pop("PREFECT_API_URL")
+    out = run(FLOWS + ["pipeline"], pipeline.root, env)
+    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
+    assert "temporary server" not in out.stdout + out.stderr
+    db = Path(env["PREFECT_HOME"]) / "prefect.db"
+    with sqlite3.connect(db) as con:
+        states = con.execute("SELECT flow_run.state_type FROM flow_run JOIN flow "
+                             "ON flow.id = flow_run.flow_id WHERE flow.name = 'nnsf-pipeline'").fetchall()
+    assert states == [("COMPLETED",)]
+
+
 def test_mlflow_has_stage_runs_and_nested_sweep_runs(pipeline):
     import mlflow
     from mlflow.tracking import MlflowClient
