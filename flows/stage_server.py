@@ -132,6 +132,11 @@ def _child(conn: socket.socket, fds: list[int], request: dict) -> None:
         os.chdir(request["cwd"])
         os.environ.clear()
         os.environ.update(request["env"])
+        # Prefect, imported before the fork, holds the server's environment in its global
+        # settings (PREFECT_API_URL among them): the command's environment must win.
+        from prefect.context import refresh_global_settings_context
+
+        refresh_global_settings_context()
         sys.argv = [sys.argv[0], *request["argv"]]
         import threading
 

@@ -158,7 +158,8 @@ def test_sweep_rank_larger_than_feature_count(make_project):
 @pytest.mark.slow  # runs `python -m flows factorize` twice and a stage server
 def test_a_stage_run_through_the_stage_server_is_the_same_stage(make_project, tmp_path):
     """flows/stage_server.py: the stage a server's child runs writes the same bytes as the
-    stage run on its own, and is still its own Prefect flow run and its own MLflow run."""
+    stage run on its own, is still its own Prefect flow run and its own MLflow run, and takes
+    its Prefect settings from its command's environment, not the server's."""
     import hashlib
     import shutil
 
@@ -180,8 +181,12 @@ def test_a_stage_run_through_the_stage_server_is_the_same_stage(make_project, tm
     shutil.rmtree(root / "models")
     shutil.rmtree(root / "reports")
 
-    with stage_server.running(env, root, tmp_path / "stage-server.log") as served:
+    # The server starts with a Prefect API where nothing listens: the stage must use its
+    # command's environment (the session's server), as it would on its own.
+    server_env = dict(env, PREFECT_API_URL="http://127.0.0.1:9/api")
+    with stage_server.running(server_env, root, tmp_path / "stage-server.log") as served:
         assert stage_server.ENV in served, (tmp_path / "stage-server.log").read_text()[-2000:]
+        served = dict(served, PREFECT_API_URL=env["PREFECT_API_URL"])
         # What `python -m flows factorize` does under repro, spelled out: delegate() returns
         # the stage's exit code when the server ran it, None when it would run locally.
         code = ("import sys; from flows import stage_server; "
