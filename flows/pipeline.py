@@ -20,6 +20,8 @@ from prefect import flow, get_run_logger, task
 from prefect.artifacts import create_markdown_artifact
 from prefect.cache_policies import NO_CACHE
 from prefect.context import refresh_global_settings_context
+from prefect.events.worker import EventsWorker
+from prefect.logging.handlers import APILogWorker
 
 from nnsf.errors import InputError
 
@@ -151,7 +153,20 @@ def main(args: list[str]) -> int:
         # existed: without a refresh the flow below ran on a temporary server of its own, and
         # its run and report were lost with it.
         refresh_global_settings_context()
-        return _run_once(root, args)
+        try:
+            return _run_once(root, args)
+        finally:
+            flush_to_server()
+
+
+def flush_to_server() -> None:
+    """Send Prefect's queued logs and events now, while the server started here still runs.
+
+    Left to the interpreter's exit, they would go after the server has stopped, and Prefect
+    would print "Error logging to API" as the command's last words.
+    """
+    EventsWorker.drain_all(at_exit=False)
+    APILogWorker.drain_all(at_exit=False)
 
 
 def _run_once(root: Path, args: list[str]) -> int:

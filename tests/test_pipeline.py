@@ -260,6 +260,7 @@ def test_pipeline_command_records_its_run_in_the_server_it_starts(pipeline):
     out = run(FLOWS + ["pipeline"], pipeline.root, env)
     assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
     assert "temporary server" not in out.stdout + out.stderr
+    assert "Error logging to API" not in out.stdout + out.stderr  # logs sent before the server stops
     db = Path(env["PREFECT_HOME"]) / "prefect.db"
     with sqlite3.connect(db) as con:
         states = con.execute("SELECT flow_run.state_type FROM flow_run JOIN flow "
