@@ -69,10 +69,8 @@ def main(argv=None) -> int:
               f"({sum(1 for _ in open(root / pipeline.FEATURES_DIR / 'features.csv')) - 1} frames), "
               f"max_iter {params['sweep']['max_iter']}", flush=True)
 
-        with prefect_server.running(work / "prefect", ui=False) as api:
-            os.environ["PREFECT_API_URL"] = api
+        with prefect_server.running(work / "prefect", ui=False) as api, prefect_server.in_use(api):
             from prefect.settings import PREFECT_API_URL, temporary_settings
-            from flows import pipeline as pipeline_flows
             from flows.sweep import sweep
 
             seconds, tables = {}, {}
@@ -102,7 +100,6 @@ def main(argv=None) -> int:
                 tables[kind] = (root / "reports" / "sweep.csv").read_bytes()
                 print(f"{kind:9} {seconds[kind]:8.1f} s  ({seconds[kind] / n_points:.2f} s per point)",
                       flush=True)
-            pipeline_flows.flush_to_server()  # while the server runs, not at exit
         if "threads" in seconds and "dask" in seconds:
             print(f"speed-up of Dask (2 workers) over threads ({opts.workers} workers): "
                   f"{seconds['threads'] / seconds['dask']:.2f}x")

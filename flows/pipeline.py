@@ -19,9 +19,6 @@ from pathlib import Path
 from prefect import flow, get_run_logger, task
 from prefect.artifacts import create_markdown_artifact
 from prefect.cache_policies import NO_CACHE
-from prefect.context import refresh_global_settings_context
-from prefect.events.worker import EventsWorker
-from prefect.logging.handlers import APILogWorker
 
 from nnsf.errors import InputError
 
@@ -147,26 +144,8 @@ def main(args: list[str]) -> int:
         return _run_once(root, args)
     from flows import prefect_server
 
-    with prefect_server.running(Path(env["PREFECT_HOME"])) as api_url:
-        os.environ["PREFECT_API_URL"] = api_url
-        # Prefect read the environment into its global settings at import, before this URL
-        # existed: without a refresh the flow below ran on a temporary server of its own, and
-        # its run and report were lost with it.
-        refresh_global_settings_context()
-        try:
-            return _run_once(root, args)
-        finally:
-            flush_to_server()
-
-
-def flush_to_server() -> None:
-    """Send Prefect's queued logs and events now, while the server started here still runs.
-
-    Left to the interpreter's exit, they would go after the server has stopped, and Prefect
-    would print "Error logging to API" as the command's last words.
-    """
-    EventsWorker.drain_all(at_exit=False)
-    APILogWorker.drain_all(at_exit=False)
+    with prefect_server.running(Path(env["PREFECT_HOME"])) as api_url, prefect_server.in_use(api_url):
+        return _run_once(root, args)
 
 
 def _run_once(root: Path, args: list[str]) -> int:

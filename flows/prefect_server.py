@@ -88,6 +88,37 @@ def running(home: Path, host: str = "127.0.0.1", port: int | None = None,
         stop(proc)
 
 
+@contextlib.contextmanager
+def in_use(api_url: str) -> Iterator[str]:
+    """This process, its threads and the processes it starts use the Prefect server at ``api_url``.
+
+    Prefect reads the environment into global settings once, at import: a URL set later in
+    ``os.environ`` alone reaches child processes but not this one, whose flows (and threads,
+    such as the process runner's event forwarder) then start a temporary server of their own
+    and lose their runs with it.  On leaving, Prefect's queued logs and events are sent while
+    the server still runs (left to the interpreter's exit, they end the output with "Error
+    logging to API"), and the environment is restored.
+    """
+    # Imported here: `python -m flows repro` uses this module without loading Prefect.
+    from prefect.context import refresh_global_settings_context
+    from prefect.events.worker import EventsWorker
+    from prefect.logging.handlers import APILogWorker
+
+    before = os.environ.get("PREFECT_API_URL")
+    os.environ["PREFECT_API_URL"] = api_url
+    refresh_global_settings_context()
+    try:
+        yield api_url
+    finally:
+        EventsWorker.drain_all(at_exit=False)
+        APILogWorker.drain_all(at_exit=False)
+        if before is None:
+            os.environ.pop("PREFECT_API_URL", None)
+        else:
+            os.environ["PREFECT_API_URL"] = before
+        refresh_global_settings_context()
+
+
 def _wait_until_healthy(proc: subprocess.Popen, api_url: str, log_file: Path) -> None:
     deadline = time.monotonic() + START_TIMEOUT_S
     while time.monotonic() < deadline:

@@ -89,30 +89,16 @@ def broken_point(job: dict):
 # -- fixtures -----------------------------------------------------------------------------
 
 @pytest.fixture
-def prefect_here(prefect_api, monkeypatch):
-    """This process, its threads and the processes it starts talk to the session's Prefect server.
-
-    Prefect reads the environment into a global settings context at import.  Threads without a
-    context of their own see that one: the process runner's thread that forwards its workers'
-    events found no API URL there and started a temporary server of its own, whose database then
-    refused the task runs of a flow run it never saw (IntegrityError in the log).  So the global
-    context is refreshed with the URL, and again once the environment is restored.
-    """
-    from prefect.context import refresh_global_settings_context
-    from prefect.events.worker import EventsWorker
-    from prefect.logging.handlers import APILogWorker
+def prefect_here(prefect_api):
+    """This process, its threads and the processes it starts talk to the session's Prefect server
+    (flows.prefect_server.in_use: without it, the process runner's event-forwarding thread
+    started a temporary server, whose database refused the task runs of a flow run it never saw)."""
     from prefect.settings import PREFECT_API_URL, temporary_settings
 
-    monkeypatch.setenv("PREFECT_API_URL", prefect_api)
-    refresh_global_settings_context()
-    try:
-        with temporary_settings(updates={PREFECT_API_URL: prefect_api}):
-            yield prefect_api
-            EventsWorker.drain_all(at_exit=False)   # sent now, while the URL is still set
-            APILogWorker.drain_all(at_exit=False)
-    finally:
-        monkeypatch.undo()
-        refresh_global_settings_context()
+    from flows import prefect_server
+
+    with prefect_server.in_use(prefect_api), temporary_settings(updates={PREFECT_API_URL: prefect_api}):
+        yield prefect_api
 
 
 @pytest.fixture
