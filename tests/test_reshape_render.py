@@ -166,6 +166,45 @@ def test_overlaps_from_boxes(rig):
 
 # --------------------------------------------------------------------------- files
 
+def _gif_frames(path) -> np.ndarray:
+    from PIL import Image
+
+    out = []
+    with Image.open(path) as im:
+        for t in range(im.n_frames):
+            im.seek(t)
+            out.append(np.asarray(im.convert("RGB")))
+    return np.array(out)
+
+
+def test_gif_of_few_colours_is_exact_and_its_page_stays_white(tmp_path):
+    imgs = np.full((6, 30, 50, 4), 0, np.uint8)  # transparent page: composited over white
+    for t in range(6):
+        imgs[t, 5:25, 4 * t: 4 * t + 10] = (200, 50, 20, 255)
+        imgs[t, 10:14, 30:34] = (10, 120 + 20 * t, 240, 255)
+    back = _gif_frames(write_gif(tmp_path / "a.gif", imgs, fps=12))
+    want = np.where(imgs[..., 3:] > 0, imgs[..., :3], 255)
+    assert back.shape == want.shape and np.array_equal(back, want)
+
+
+def test_gif_shares_one_palette_so_still_pixels_do_not_flicker(tmp_path):
+    # More colours than a GIF holds: a gradient patch sliding over a white page, its colours
+    # shifting from frame to frame.  A palette per frame rounds the still pixels differently
+    # from one frame to the next; one palette cannot.
+    T, yy, xx = 12, *np.mgrid[:40, :40]
+    imgs = np.full((T, 60, 90, 3), 255, np.uint8)
+    for t in range(T):
+        imgs[t, 10:50, 20 + 2 * t: 60 + 2 * t] = np.dstack([yy * 6, xx * 6, (yy + xx + 4 * t) * 3]).astype(np.uint8)
+    imgs[:, 52:58, 5:85] = np.linspace(0, 250, 80).astype(np.uint8)[None, None, :, None]  # a still grey ramp
+    back = _gif_frames(write_gif(tmp_path / "g.gif", imgs, fps=12))
+    page = (imgs == 255).all(-1)
+    assert np.array_equal(back[page], imgs[page])
+    still = (imgs[1:] == imgs[:-1]).all(-1)
+    assert not ((back[1:] != back[:-1]).any(-1) & still).any()
+    err = np.abs(back.astype(int) - imgs)[~page].mean()
+    assert err < 8.0, err
+
+
 def test_writers_round_trip_and_are_atomic(tmp_path):
     rng = np.random.default_rng(0)
     imgs = np.zeros((5, 31, 40, 3), np.uint8)
