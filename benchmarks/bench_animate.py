@@ -49,11 +49,50 @@ def _character(folder: Path):
                      source=str(src)), f"char1 scaled to {size[0]}x{size[1]} px on a 512x512 page"
 
 
+def _timed(args, n, fps, model, bvh, tmp, workers):
+    """Fastest of ``args.repeat`` runs per part: (wall, CPU, last result, MP4 frames, motion, character)."""
+    from nnsf.animate.animation import Motion, animate_files, read_motion_spec
+    from nnsf.datasets import synthetic
+
+    best: dict[str, float] = {}
+    best_cpu: dict[str, float] = {}
+    for _ in range(args.repeat):
+        t, c = time.perf_counter(), time.process_time()
+        if bvh.is_file():
+            motion = read_motion_spec(bvh, view="auto", fps=fps)
+            what = f"{bvh.name}, view {motion.view}"
+            if len(motion.points) < n:  # loop the clip to the requested length
+                k = -(-n // len(motion.points))
+                motion.points = np.concatenate([motion.points] * k)[:n]
+                motion.depth = np.concatenate([motion.depth] * k)[:n]
+        else:
+            motion = Motion("walk", synthetic.clip_points("max", "walk", n), fps)
+            what = "synthetic walk"
+        motion.points, motion.depth = motion.points[:n], None if motion.depth is None else motion.depth[:n]
+        ch, ch_what = _character(tmp)
+        load, load_cpu = time.perf_counter() - t, time.process_time() - c
+        res = animate_files(ch, motion, style="olga", model=model, out=tmp / "a.mp4", workers=workers,
+                            n_vertices=args.vertices, progress=False, outputs={"mp4": tmp / "a.mp4"})
+        res.seconds["load"] += load
+        res.seconds["total"] += load
+        res.cpu_seconds["load"] += load_cpu
+        res.cpu_seconds["total"] += load_cpu
+        for k, v in res.seconds.items():
+            best[k] = min(best.get(k, np.inf), v)
+            best_cpu[k] = min(best_cpu.get(k, np.inf), res.cpu_seconds[k])
+    cap = cv2.VideoCapture(str(tmp / "a.mp4"))
+    frames = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+    cap.release()
+    return best, best_cpu, res, frames, what, ch_what
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--vertices", type=int, default=800)
     ap.add_argument("--seconds", type=float, default=10.0)
+    ap.add_argument("--workers", type=int, nargs="+", default=[1, 2],
+                    help="render processes; each count is timed in the same run (the peer: 1)")
     args = ap.parse_args(argv)
 
     from nnsf.animate.animation import Motion, animate_files, read_motion_spec
@@ -69,42 +108,15 @@ def main(argv=None) -> int:
         fit_model(table, unifier, dict(n_components=8, max_iter=60, align_iter=40), tmp / "m.npz")
         model = StyleModel.load(tmp / "m.npz")
         bvh = DATA / "bandai-namco-1" / "data" / "dataset-1_walk_normal_001.bvh"
-        best: dict[str, float] = {}
-        best_cpu: dict[str, float] = {}
-        for _ in range(args.repeat):
-            t, c = time.perf_counter(), time.process_time()
-            if bvh.is_file():
-                motion = read_motion_spec(bvh, view="auto", fps=fps)
-                what = f"{bvh.name}, view {motion.view}"
-                if len(motion.points) < n:  # loop the clip to the requested length
-                    k = -(-n // len(motion.points))
-                    motion.points = np.concatenate([motion.points] * k)[:n]
-                    motion.depth = np.concatenate([motion.depth] * k)[:n]
-            else:
-                motion = Motion("walk", synthetic.clip_points("max", "walk", n), fps)
-                what = "synthetic walk"
-            motion.points, motion.depth = motion.points[:n], None if motion.depth is None else motion.depth[:n]
-            ch, ch_what = _character(tmp)
-            load, load_cpu = time.perf_counter() - t, time.process_time() - c
-            res = animate_files(ch, motion, style="olga", model=model, out=tmp / "a.mp4",
-                                n_vertices=args.vertices, progress=False, outputs={"mp4": tmp / "a.mp4"})
-            res.seconds["load"] += load
-            res.seconds["total"] += load
-            res.cpu_seconds["load"] += load_cpu
-            res.cpu_seconds["total"] += load_cpu
-            for k, v in res.seconds.items():
-                best[k] = min(best.get(k, np.inf), v)
-                best_cpu[k] = min(best_cpu.get(k, np.inf), res.cpu_seconds[k])
-        cap = cv2.VideoCapture(str(tmp / "a.mp4"))
-        frames = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
-        cap.release()
-    print(f"bench_animate: {res.frames} frames ({args.seconds:g} s at {fps:g} fps) of {what} onto {ch_what}, "
-          f"{args.vertices} vertices requested; {os.cpu_count()} cores, load average "
-          f"{os.getloadavg()[0]:.1f}; fastest of {args.repeat}")
-    print("  part       wall s  ms/frame   CPU s (this process; wall - CPU is time waiting for a core)")
-    for k in ("load", "translate", "retarget", "deform", "render", "encode", "total"):
-        print(f"  {k:9s} {best[k]:7.2f}  {1000 * best[k] / res.frames:7.1f}   {best_cpu[k]:7.2f}")
-    print(f"  target: 10 s wall for the {res.frames} frames; the MP4 holds {frames} frames")
+        for workers in args.workers:
+            best, best_cpu, res, frames, what, ch_what = _timed(args, n, fps, model, bvh, tmp, workers)
+            print(f"bench_animate: {res.frames} frames ({args.seconds:g} s at {fps:g} fps) of {what} onto {ch_what}, "
+                  f"{args.vertices} vertices requested, {workers} render process(es); {os.cpu_count()} cores, "
+                  f"load average {os.getloadavg()[0]:.1f}; fastest of {args.repeat}")
+            print("  part       wall s  ms/frame   CPU s (this process; wall - CPU is time waiting for a core)")
+            for k in ("load", "translate", "retarget", "deform", "render", "encode", "total"):
+                print(f"  {k:9s} {best[k]:7.2f}  {1000 * best[k] / res.frames:7.1f}   {best_cpu[k]:7.2f}")
+            print(f"  target: 10 s wall for the {res.frames} frames; the MP4 holds {frames} frames")
     return 0
 
 

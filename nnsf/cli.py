@@ -13,7 +13,7 @@
                                         fit the style model and save it (default models/styles.npz)
     nnsf animate --character C --motion M [--style NAME|none] [--model FILE]
                  [--view front|side|three-quarter|auto] [--arms motion|drawing]
-                 [--out FILE.mp4|FILE.gif|DIR] [--fps N]
+                 [--out FILE.mp4|FILE.gif|DIR] [--fps N] [--workers N]
                                         your character performing your motion in a learned style
     nnsf reshape-eval --data DIR [--out DIR] [--workers N]
                                         the reshaping evaluation on drawn characters (AnimatedDrawings,
@@ -112,6 +112,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="FILE.mp4, FILE.gif or a folder for PNG frames (a contact sheet is written beside)")
     p.add_argument("--fps", type=float, default=None, help="frames per second (default: the motion's)")
     p.add_argument("--vertices", type=int, default=800, help="mesh vertices (100..6000)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="processes that render the frames (default: the CPUs available, at most 8)")
 
     p = sub.add_parser("reshape-eval", help="reshaping evaluation on drawn characters (docs/method.md §15.7)")
     p.add_argument("--params", default="params.yaml")
@@ -158,7 +160,7 @@ def _animate(args) -> int:
         raise InputError("--vertices", "vertices", "an integer 100..6000", args.vertices)
     res = animate_files(args.character, args.motion, style=args.style, model=args.model, view=args.view,
                         out=args.out, fps=args.fps, joints=args.joints, source_style=args.source_style,
-                        n_vertices=args.vertices, clip=args.clip, arms=args.arms)
+                        n_vertices=args.vertices, clip=args.clip, arms=args.arms, workers=args.workers)
     for note in res.notes:
         print(f"animate: note: {note}", file=sys.stderr)
     parts = ", ".join(f"{k} {v:.2f} s" for k, v in res.seconds.items() if k != "total")

@@ -329,6 +329,38 @@ def test_bad_input_one_line_exit_2_nothing_written(model_file, tmp_path, capsys)
     _bad(capsys, base + ["--character", char, "--motion", "synthetic:max/moonwalk"], "moonwalk", out=out)
     _bad(capsys, ["animate", "--character", char, "--motion", "synthetic:max/walk/4", "--out", tmp_path / "x.avi"],
          "x.avi", "--out")
+    # no worker to render with
+    _bad(capsys, base + ["--character", char, "--workers", "0"], "--workers", ">= 1", out=out)
+
+
+@pytest.mark.slow
+def test_frames_rendered_by_two_processes_are_the_frames_of_one(monkeypatch):
+    from nnsf.reshape import render_pool
+    from nnsf.reshape.character import stick_figure
+    from nnsf.reshape.drive import retarget
+    from nnsf.reshape.render import MeshRenderer
+    from nnsf.reshape.stage import BACKGROUND, build_rig, canvas, part_orders
+
+    from nnsf.animate.animation import read_motion_spec
+
+    ch = stick_figure(height=160)
+    pts = read_motion_spec("synthetic:max/walk/24").points
+    kp = retarget(pts, ch.keypoints)
+    rig = build_rig(ch, n_vertices=200)
+    V = rig.animate(kp)
+    orders, _ = part_orders(rig, V, pts, None)
+    offset, size = canvas(ch, V)
+    r = MeshRenderer.for_mesh(rig.mesh, ch, size=size)
+    one = render_pool.render_frames(r, V, orders, offset, BACKGROUND, size, workers=1)
+    monkeypatch.setattr(render_pool, "MIN_FRAMES_PER_WORKER", 4)  # a pool for 24 frames
+    seen = []
+    two = render_pool.render_frames(r, V, orders, offset, BACKGROUND, size, workers=2,
+                                    progress=lambda done, total: seen.append((done, total)))
+    assert isinstance(two, np.memmap)  # drawn by the pool, not by this process
+    assert two.shape == one.shape == (len(V), size[0], size[1], 3)
+    assert np.array_equal(two, one)
+    assert seen[-1] == (len(V), len(V)) and len(seen) == 8  # 4 chunks per worker
+    assert not (one == one[:, :1, :1]).all()  # something was drawn
 
 
 def test_reshape_eval_and_tracking_real_need_data(capsys):

@@ -35,6 +35,7 @@ from nnsf.reshape.character import Character
 from nnsf.params import ARM_CHOICES
 from nnsf.reshape.drive import read_motion, retarget
 from nnsf.reshape.render import MeshRenderer
+from nnsf.reshape.render_pool import render_frames
 from nnsf.reshape.video import contact_sheet, write_gif, write_mp4, write_png_frames
 from nnsf.reshape.stage import BACKGROUND, build_rig, canvas, extra_arms_notes, part_orders
 
@@ -134,7 +135,7 @@ def output_targets(out) -> dict[str, Path]:
 
 def animate_files(character, motion, style="none", model=None, view="auto", out="animation.mp4",
                   fps=None, joints=None, source_style=None, n_vertices=800, max_frames=5000,
-                  outputs=None, progress=True, size=512, clip=None, arms="motion") -> AnimateResult:
+                  outputs=None, progress=True, size=512, clip=None, arms="motion", workers=None) -> AnimateResult:
     """Run the whole job (module docstring) and write the outputs; returns what was written and the times.
 
     Parameters
@@ -151,8 +152,13 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
     arms : ``motion`` (the arms point as the motion's) or ``drawing`` (they
         swing about the pose they are drawn in), :func:`nnsf.reshape.drive.retarget`.
     fps : output frame rate (default: the motion's).
+    workers : processes that render the frames (default: the CPUs this process may use, at most 8;
+        :func:`nnsf.reshape.render_pool.render_frames`); the frames are the same for any number.
     """
     views.check_view(view)
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, (int, np.integer))
+                                or workers < 1):
+        raise InputError("--workers", "workers", "an integer >= 1", workers)
     if arms not in ARM_CHOICES:
         raise InputError("--arms", "arms", f"one of {', '.join(ARM_CHOICES)}", arms)
     targets = dict(outputs) if outputs is not None else output_targets(out)
@@ -223,12 +229,15 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
     t, c = time.perf_counter(), time.process_time()
     offset, sz = canvas(ch, V)
     renderer = MeshRenderer.for_mesh(rig.mesh, ch, size=sz)
-    images = np.empty((len(V), sz[0], sz[1], 3), np.uint8)
     step = max(1, len(V) // 10)
-    for i in range(len(V)):
-        images[i] = renderer.render(V[i] + offset, orders[i], background=BACKGROUND)
-        if (i + 1) % step == 0 or i + 1 == len(V):
-            _say(progress, f"animate: rendered frame {i + 1}/{len(V)}")
+    said = [0]
+
+    def rendered(done, total):
+        if done - said[0] >= step or done == total:
+            said[0] = done
+            _say(progress, f"animate: rendered frame {done}/{total}")
+
+    images = render_frames(renderer, V, orders, offset, BACKGROUND, sz, workers=workers, progress=rendered)
     seconds["render"], cpu["render"] = time.perf_counter() - t, time.process_time() - c
     # ---- encode
     t, c = time.perf_counter(), time.process_time()

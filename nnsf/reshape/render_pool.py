@@ -1,0 +1,132 @@
+"""Rendering the frames of an animation on several processes.
+
+:func:`render_frames` draws frame ``t`` of a deformed mesh with one
+:class:`~nnsf.reshape.render.MeshRenderer` call, as a serial loop would, and
+so gives the same bytes whatever the number of workers.  With more than one
+worker, the frames are split into contiguous chunks, each drawn by a
+process of a ``spawn`` pool straight into one shared-memory image array:
+
+* spawn, not fork: the calling process may hold threads (OpenCV's pool,
+  Prefect's and MLflow's workers) whose locks a forked child would inherit;
+* the workers start without the caller's main script: a spawn child
+  otherwise re-imports it, and a script that calls ``animate_files`` at top
+  level (no ``if __name__ == "__main__"``) would run again in each worker.
+  The workers need only this module, which they import by name;
+* the renderer is pickled once per worker (its textures, ~25 MB for a
+  700 px drawing) and the frames cross no pipe: the workers write them into
+  one memory-mapped file (in ``/dev/shm`` where there is one, so in memory),
+  whose name is removed once they are done; the array returned maps it.
+
+Starting a spawn worker costs about a second (imports), so short clips are
+drawn in the calling process (:data:`MIN_FRAMES_PER_WORKER`).
+"""
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+import types
+from contextlib import contextmanager
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from multiprocessing import get_context
+
+import numpy as np
+
+#: Frames each extra worker must have before a pool is worth its start-up.
+MIN_FRAMES_PER_WORKER = 60
+
+_RENDERER = None
+
+
+def default_workers() -> int:
+    """Worker processes for rendering: the CPUs this process may use, at most 8."""
+    try:
+        n = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        n = os.cpu_count() or 1
+    return max(1, min(8, n))
+
+
+def _init(renderer) -> None:
+    global _RENDERER
+    _RENDERER = renderer
+
+
+def _draw(path: str, shape: tuple, start: int, frames: np.ndarray, orders: list, offset, background) -> int:
+    """Draw ``frames`` ``(k, n, 2)`` into rows ``start:start + k`` of the mapped file; returns k."""
+    out = np.memmap(path, np.uint8, mode="r+", shape=shape)
+    for i, (v, order) in enumerate(zip(frames, orders)):
+        out[start + i] = _RENDERER.render(v + offset, order, background=background)
+    out.flush()
+    del out
+    return len(frames)
+
+
+@contextmanager
+def _main_hidden():
+    """While spawn workers start, ``__main__`` is an empty module: multiprocessing then gives
+    them no main script to re-import (it reads ``__main__.__spec__`` / ``__file__`` at start)."""
+    main = sys.modules.get("__main__")
+    sys.modules["__main__"] = types.ModuleType("__main__")
+    try:
+        yield
+    finally:
+        if main is not None:
+            sys.modules["__main__"] = main
+
+
+def _memory_folder(nbytes: int) -> str | None:
+    """``/dev/shm`` when it is writable with room for ``nbytes`` and a margin (containers often
+    give it 64 MB, and a write beyond a full tmpfs kills the process); else None (the temp folder)."""
+    try:
+        st = os.statvfs("/dev/shm")
+    except OSError:
+        return None
+    room = st.f_bavail * st.f_frsize
+    return "/dev/shm" if os.access("/dev/shm", os.W_OK) and room > 2 * nbytes + (64 << 20) else None
+
+
+def render_frames(renderer, frames: np.ndarray, orders, offset, background, size,
+                  workers: int | None = None, progress=None) -> np.ndarray:
+    """RGB frames ``(T, H, W, 3)`` uint8 of a deformed mesh, ``frames`` ``(T, n, 2)`` px.
+
+    ``orders``: per frame, the part order :meth:`MeshRenderer.render` takes;
+    ``offset`` ``(2,)`` is added to every vertex; ``size`` ``(H, W)``;
+    ``background`` an RGB triple.  ``workers``: processes (default
+    :func:`default_workers`; 1 draws in this process, as does a clip shorter
+    than :data:`MIN_FRAMES_PER_WORKER` frames per worker).  ``progress(done,
+    total)`` is called after each chunk (each frame, when serial).
+    """
+    T = len(frames)
+    H, W = int(size[0]), int(size[1])
+    workers = default_workers() if workers is None else max(1, int(workers))
+    workers = min(workers, max(1, T // MIN_FRAMES_PER_WORKER))
+    if workers == 1:
+        images = np.empty((T, H, W, 3), np.uint8)
+        for t in range(T):
+            images[t] = renderer.render(frames[t] + offset, orders[t], background=background)
+            if progress is not None:
+                progress(t + 1, T)
+        return images
+    shape = (T, H, W, 3)
+    folder = _memory_folder(int(np.prod(shape)))
+    fd, path = tempfile.mkstemp(prefix="nnsf-frames-", suffix=".u8", dir=folder)
+    os.close(fd)
+    try:
+        images = np.memmap(path, np.uint8, mode="w+", shape=shape)
+        # Chunks of ~T / (4 · workers) frames: even load, progress now and then.
+        bounds = np.linspace(0, T, 4 * workers + 1).round().astype(int)
+        done = 0
+        with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_init,
+                                 initargs=(renderer,)) as pool:
+            with _main_hidden():  # the workers start at the first submits
+                jobs = [pool.submit(_draw, path, shape, int(a), np.asarray(frames[a:b]), list(orders[a:b]),
+                                    offset, background)
+                        for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+            for job in as_completed(jobs):
+                done += job.result()
+                if progress is not None:
+                    progress(done, T)
+    finally:
+        os.unlink(path)  # the mapping stays valid; the file goes when the array does
+    return images
