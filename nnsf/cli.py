@@ -12,7 +12,7 @@
     nnsf styles [--data FOLDER] [--out FILE]
                                         fit the style model and save it (default models/styles.npz)
     nnsf animate --character C --motion M [--style NAME|none] [--model FILE]
-                 [--view front|side|three-quarter|auto] [--arms motion|drawing]
+                 [--view front|side|three-quarter|auto] [--arms motion|drawing] [--head motion|torso]
                  [--out FILE.mp4|FILE.gif|DIR] [--fps N] [--workers N]
                                         your character performing your motion in a learned style
     nnsf reshape-eval --data DIR [--out DIR] [--workers N]
@@ -108,6 +108,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--arms", default="motion",
                    help="motion (the arms point as the motion's, default) or drawing (they swing about "
                         "the pose they are drawn in: arms drawn spread stay spread)")
+    p.add_argument("--head", default="motion",
+                   help="motion (the head turns as the motion's, default) or torso (it keeps its drawn angle "
+                        "to the body: for a drawing with no neck)")
     p.add_argument("--out", type=Path, default=Path("animation.mp4"),
                    help="FILE.mp4, FILE.gif or a folder for PNG frames (a contact sheet is written beside)")
     p.add_argument("--fps", type=float, default=None, help="frames per second (default: the motion's)")
@@ -160,7 +163,8 @@ def _animate(args) -> int:
         raise InputError("--vertices", "vertices", "an integer 100..6000", args.vertices)
     res = animate_files(args.character, args.motion, style=args.style, model=args.model, view=args.view,
                         out=args.out, fps=args.fps, joints=args.joints, source_style=args.source_style,
-                        n_vertices=args.vertices, clip=args.clip, arms=args.arms, workers=args.workers)
+                        n_vertices=args.vertices, clip=args.clip, arms=args.arms, workers=args.workers,
+                        head=args.head)
     for note in res.notes:
         print(f"animate: note: {note}", file=sys.stderr)
     parts = ", ".join(f"{k} {v:.2f} s" for k, v in res.seconds.items() if k != "total")

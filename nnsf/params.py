@@ -38,6 +38,8 @@ STAGE_NAMES = ("frames", "roto", "roto_eval", "data", "features", "factorize", "
 VIEW_CHOICES = ("front", "side", "three-quarter", "auto")
 #: How a drawn character's arms follow a motion (:func:`nnsf.reshape.drive.retarget`).
 ARM_CHOICES = ("motion", "drawing")
+#: How a drawn character's head follows a motion (:func:`nnsf.reshape.drive.retarget`).
+HEAD_CHOICES = ("motion", "torso")
 TRANSLATION_METHODS = ("nnsf", "nnsf_smooth", "nnsf_nosmooth", "nnsf_restore", "nnsf_swapped", "nnsf_beta0",
                        "nnsf_refit", "api", "api_source", "bilinear", "mgpm", "cbgpm", "offset", "identity", "real")
 
@@ -276,6 +278,7 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "animate.style": _str(),
     "animate.view": _choice(VIEW_CHOICES),
     "animate.arms": _choice(ARM_CHOICES),
+    "animate.head": _choice(HEAD_CHOICES),
     "animate.fps": _num(1, 120),
     "animate.n_vertices": _int(100, 6000),
     "animate.max_frames": _int(1, 5000),

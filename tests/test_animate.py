@@ -331,6 +331,8 @@ def test_bad_input_one_line_exit_2_nothing_written(model_file, tmp_path, capsys)
          "x.avi", "--out")
     # no worker to render with
     _bad(capsys, base + ["--character", char, "--workers", "0"], "--workers", ">= 1", out=out)
+    # a head choice that does not exist
+    _bad(capsys, base + ["--character", char, "--head", "nod"], "--head", "motion, torso", out=out)
 
 
 @pytest.mark.slow

@@ -156,6 +156,7 @@ animate:
   style: bruno
   view: auto
   arms: drawing
+  head: torso
   fps: 24
   n_vertices: 300
   max_frames: 6

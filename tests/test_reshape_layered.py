@@ -206,6 +206,30 @@ def test_arms_from_the_drawing_swing_about_the_drawn_pose(figure):
         retarget(P, rest, source="clip.csv", arms="sideways")
 
 
+def test_head_with_the_torso_keeps_its_drawn_angle_to_the_body(figure):
+    """``head="torso"``: the head leans with the spine and keeps its drawn angle and length to it,
+    whatever the motion's head does; every other key point is the ``head="motion"`` one."""
+    P = _motion(frames=12)
+    pel, tho, nk, top = J["pelvis"], J["thorax"], J["neck"], J["head_top"]
+    for t in range(12):  # the performer leans and nods against the lean
+        P[t] = _rot(P[t], P[t, pel], 20 * np.sin(2 * np.pi * t / 12))
+        P[t, top] = _rot(P[t, top], P[t, nk], -35 * np.sin(2 * np.pi * t / 12))
+    rest = figure.keypoints
+    Q, Qm = retarget(P, rest, head="torso"), retarget(P, rest)
+    wrap = lambda a: (a + 180) % 360 - 180
+    lean = wrap(_arm_angles(Q, pel, tho) - _arm_angles(rest, pel, tho))
+    assert np.abs(lean).max() > 15                       # the body does lean
+    assert np.allclose(wrap(_arm_angles(Q, nk, top) - _arm_angles(rest, nk, top)), lean, atol=1e-6)
+    assert np.allclose(np.linalg.norm(Q[:, top] - Q[:, nk], axis=1), np.linalg.norm(rest[top] - rest[nk]))
+    # under "motion" the head nods as the performer's: up to 35° - 20° against the body
+    nod = wrap(_arm_angles(Qm, nk, top) - _arm_angles(rest, nk, top)) - lean
+    assert np.abs(nod).max() > 10
+    others = [j for j in range(len(JOINTS)) if j != top]
+    assert np.allclose(Q[:, others], Qm[:, others], atol=1e-9)
+    with pytest.raises(InputError, match="head.*motion, torso"):
+        retarget(P, rest, source="clip.csv", head="nod")
+
+
 def test_nan_frames_are_refused_naming_the_frame(figure, tmp_path):
     P = _motion()
     P[5, J["r_knee"], 1] = np.nan

@@ -32,7 +32,7 @@ from nnsf.factor.style_model import StyleModel, translate as style_translate
 from nnsf.factor.timewarp import resample_clip
 from nnsf.io import atomic_path, check_writable
 from nnsf.reshape.character import Character
-from nnsf.params import ARM_CHOICES
+from nnsf.params import ARM_CHOICES, HEAD_CHOICES
 from nnsf.reshape.drive import read_motion, retarget
 from nnsf.reshape.render import MeshRenderer
 from nnsf.reshape.render_pool import render_frames
@@ -135,7 +135,8 @@ def output_targets(out) -> dict[str, Path]:
 
 def animate_files(character, motion, style="none", model=None, view="auto", out="animation.mp4",
                   fps=None, joints=None, source_style=None, n_vertices=800, max_frames=5000,
-                  outputs=None, progress=True, size=512, clip=None, arms="motion", workers=None) -> AnimateResult:
+                  outputs=None, progress=True, size=512, clip=None, arms="motion", workers=None,
+                  head="motion") -> AnimateResult:
     """Run the whole job (module docstring) and write the outputs; returns what was written and the times.
 
     Parameters
@@ -151,6 +152,8 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
         ``outputs`` (``{kind: path}``, kinds of :data:`OUTPUT_KINDS`) is given.
     arms : ``motion`` (the arms point as the motion's) or ``drawing`` (they
         swing about the pose they are drawn in), :func:`nnsf.reshape.drive.retarget`.
+    head : ``motion`` (the head turns as the performer's) or ``torso`` (it keeps its drawn angle to the
+        body: a drawing with no neck), :func:`nnsf.reshape.drive.retarget`.
     fps : output frame rate (default: the motion's).
     workers : processes that render the frames (default: the CPUs this process may use, at most 8;
         :func:`nnsf.reshape.render_pool.render_frames`); the frames are the same for any number.
@@ -161,6 +164,8 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
         raise InputError("--workers", "workers", "an integer >= 1", workers)
     if arms not in ARM_CHOICES:
         raise InputError("--arms", "arms", f"one of {', '.join(ARM_CHOICES)}", arms)
+    if head not in HEAD_CHOICES:
+        raise InputError("--head", "head", f"one of {', '.join(HEAD_CHOICES)}", head)
     targets = dict(outputs) if outputs is not None else output_targets(out)
     # Every output folder is checked before any work (a file in the way, a read-only
     # disk): one line naming the folder, and nothing rendered in vain.
@@ -215,7 +220,7 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
     seconds["translate"], cpu["translate"] = time.perf_counter() - t, time.process_time() - c
     # ---- retarget
     t, c = time.perf_counter(), time.process_time()
-    kp = retarget(moved, ch.keypoints, source=mo.source or mo.name, arms=arms, body=ch.body)
+    kp = retarget(moved, ch.keypoints, source=mo.source or mo.name, arms=arms, body=ch.body, head=head)
     seconds["retarget"], cpu["retarget"] = time.perf_counter() - t, time.process_time() - c
     # ---- deform
     t, c = time.perf_counter(), time.process_time()

@@ -24,6 +24,7 @@ def animate(params: dict, model=STYLES_MODEL, out_dir=ANIMATE_DIR) -> StageResul
     spec = {k: require(params, f"animate.{k}") for k in
             ("character", "motion", "style", "view", "fps", "n_vertices", "max_frames", "output")}
     spec["arms"] = checked(params, "animate.arms", "motion")     # absent in older params files
+    spec["head"] = checked(params, "animate.head", "motion")
     for key in ("character", "motion"):
         text = str(spec[key])
         if not text.startswith("synthetic:") and ("/" in text or "." in text):
@@ -39,7 +40,7 @@ def animate(params: dict, model=STYLES_MODEL, out_dir=ANIMATE_DIR) -> StageResul
         res = animate_files(spec["character"], spec["motion"], style=spec["style"], model=model,
                             view=spec["view"], fps=spec["fps"], n_vertices=int(spec["n_vertices"]),
                             max_frames=int(spec["max_frames"]), outputs=outputs, progress=False,
-                            arms=spec["arms"])
+                            arms=spec["arms"], head=spec["head"])
         write_json(tmp / "animate.json", {
             "character": res.character, "motion": res.motion, "style": res.style, "view": res.view,
             "frames": res.frames, "fps": res.fps, "files": sorted(p.name for p in res.files.values()),

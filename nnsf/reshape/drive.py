@@ -31,7 +31,7 @@ import pandas as pd
 
 from nnsf.datasets import contract
 from nnsf.errors import InputError
-from nnsf.params import ARM_CHOICES
+from nnsf.params import ARM_CHOICES, HEAD_CHOICES
 from nnsf.reshape.quadruped import retarget_quadruped, swing
 from nnsf.skeleton import BONES, JOINT_INDEX, JOINTS, N_JOINTS, character_scale, to_points
 from nnsf.skeleton.layout import FEATURE_COLUMNS
@@ -71,7 +71,8 @@ ARM_BONES = tuple((JOINT_INDEX[p], JOINT_INDEX[c]) for p, c in (
 
 def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", frames=None,
              foreshortening=(1.0, 1.0), rigid_torso: bool = True,
-             torso_stretch=(1.0, 1.0), arms: str = "motion", body: str = "biped") -> np.ndarray:
+             torso_stretch=(1.0, 1.0), arms: str = "motion", body: str = "biped",
+             head: str = "motion") -> np.ndarray:
     """Map a motion ``(T, 17, 2)`` (any units) onto a character: ``(T, 17, 2)`` pixels.
 
     ``rest_keypoints`` ``(17, 2)``: the drawing's key points.
@@ -105,6 +106,13 @@ def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", fr
       swing, where ``"motion"`` hangs them as the performer's hang.  An
       unchanged motion arm gives the drawn pose exactly.
 
+    * ``head="torso"`` (with ``rigid_torso``): head_top moves with the drawn
+      torso, so the head keeps its drawn angle to the body.  For a drawing
+      with no neck, whose head is the top of one shape (a candy corn, a
+      sprite's head sitting flat on its body): turned on its own, the head
+      part slides across the body and its drawn outline shows inside it.
+      ``"motion"`` (the default) turns the head as the performer's.
+
     * ``body="quadruped"``: a four-legged drawing, every leg about its drawn
       pose and the body rigid (:func:`nnsf.reshape.quadruped.retarget_quadruped`;
       ``arms``, ``foreshortening`` and the torso options do not apply).
@@ -115,6 +123,8 @@ def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", fr
     P = check_finite(points, source, frames)
     if arms not in ARM_CHOICES:
         raise InputError(source, "arms", f"one of {', '.join(ARM_CHOICES)}", repr(arms))
+    if head not in HEAD_CHOICES:
+        raise InputError(source, "head", f"one of {', '.join(HEAD_CHOICES)}", repr(head))
     rest = np.asarray(rest_keypoints, dtype=np.float64)
     if body == "quadruped":
         return retarget_quadruped(P, rest)
@@ -149,13 +159,14 @@ def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", fr
         s_across = np.clip(width / max(float(np.median(width)), 1e-12), *torso_stretch)
         u = up_d / np.linalg.norm(up_d)
         n = np.array([-u[1], u[0]])
-        rel = rest[list(TORSO)] - rest[0]  # (7, 2)
+        rigid = TORSO + ((JOINT_INDEX["head_top"],) if head == "torso" else ())
+        rel = rest[list(rigid)] - rest[0]  # (k, 2)
         a_up, a_across = rel @ u, rel @ n
         local = (a_up[None] * s_up[:, None])[..., None] * u + (a_across[None] * s_across[:, None])[..., None] * n
         c, s_ = np.cos(ang)[:, None], np.sin(ang)[:, None]
         rot = np.stack([c * local[..., 0] - s_ * local[..., 1], s_ * local[..., 0] + c * local[..., 1]], -1)
-        out[:, list(TORSO)] = out[:, :1] + rot
-        placed[list(TORSO)] = True
+        out[:, list(rigid)] = out[:, :1] + rot
+        placed[list(rigid)] = True
     for b, (p, c) in enumerate(BONES):
         if placed[c]:
             continue
