@@ -95,7 +95,6 @@ def main(argv=None) -> int:
                     help="render processes; each count is timed in the same run (the peer: 1)")
     args = ap.parse_args(argv)
 
-    from nnsf.animate.animation import Motion, animate_files, read_motion_spec
     from nnsf.datasets import contract, synthetic
     from nnsf.factor.style_model import StyleModel, fit_model, unify_table
 

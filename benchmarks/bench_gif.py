@@ -51,24 +51,13 @@ def per_frame_median_cut(path: Path, images: np.ndarray, fps: float) -> None:
                duration=int(round(1000.0 / fps)), disposal=1, optimize=False)
 
 
-def decoded(path: Path) -> np.ndarray:
-    from PIL import Image
-
-    out = []
-    with Image.open(path) as im:
-        for t in range(im.n_frames):
-            im.seek(t)
-            out.append(np.asarray(im.convert("RGB")))
-    return np.array(out)
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--frames", type=int, default=120)
     ap.add_argument("--repeat", type=int, default=2)
     args = ap.parse_args(argv)
 
-    from nnsf.reshape.video import write_gif
+    from nnsf.reshape.video import read_gif, write_gif
 
     rows = {}
     with tempfile.TemporaryDirectory() as d:
@@ -83,7 +72,7 @@ def main(argv=None) -> int:
                 t = time.perf_counter()
                 fn(path, images, 30.0)
                 best = min(best, time.perf_counter() - t)
-            back = decoded(path)
+            back = read_gif(path)
             rows[name] = best
             err = np.abs(back.astype(np.int16) - images)[~page].mean()
             flicker = ((back[1:] != back[:-1]).any(-1) & still).sum() / max(1, still.sum())

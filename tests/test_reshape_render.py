@@ -12,7 +12,7 @@ from nnsf.reshape.depth import (
 )
 from nnsf.reshape.parts import PARTS, PART_INDEX
 from nnsf.reshape.render import MeshRenderer
-from nnsf.reshape.video import write_gif, write_mp4, write_png_frames
+from nnsf.reshape.video import read_gif, write_gif, write_mp4, write_png_frames
 from nnsf.reshape.rig import Rig
 
 
@@ -166,23 +166,12 @@ def test_overlaps_from_boxes(rig):
 
 # --------------------------------------------------------------------------- files
 
-def _gif_frames(path) -> np.ndarray:
-    from PIL import Image
-
-    out = []
-    with Image.open(path) as im:
-        for t in range(im.n_frames):
-            im.seek(t)
-            out.append(np.asarray(im.convert("RGB")))
-    return np.array(out)
-
-
 def test_gif_of_few_colours_is_exact_and_its_page_stays_white(tmp_path):
     imgs = np.full((6, 30, 50, 4), 0, np.uint8)  # transparent page: composited over white
     for t in range(6):
         imgs[t, 5:25, 4 * t: 4 * t + 10] = (200, 50, 20, 255)
         imgs[t, 10:14, 30:34] = (10, 120 + 20 * t, 240, 255)
-    back = _gif_frames(write_gif(tmp_path / "a.gif", imgs, fps=12))
+    back = read_gif(write_gif(tmp_path / "a.gif", imgs, fps=12))
     want = np.where(imgs[..., 3:] > 0, imgs[..., :3], 255)
     assert back.shape == want.shape and np.array_equal(back, want)
 
@@ -196,7 +185,7 @@ def test_gif_shares_one_palette_so_still_pixels_do_not_flicker(tmp_path):
     for t in range(T):
         imgs[t, 10:50, 20 + 2 * t: 60 + 2 * t] = np.dstack([yy * 6, xx * 6, (yy + xx + 4 * t) * 3]).astype(np.uint8)
     imgs[:, 52:58, 5:85] = np.linspace(0, 250, 80).astype(np.uint8)[None, None, :, None]  # a still grey ramp
-    back = _gif_frames(write_gif(tmp_path / "g.gif", imgs, fps=12))
+    back = read_gif(write_gif(tmp_path / "g.gif", imgs, fps=12))
     page = (imgs == 255).all(-1)
     assert np.array_equal(back[page], imgs[page])
     still = (imgs[1:] == imgs[:-1]).all(-1)

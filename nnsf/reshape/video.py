@@ -126,6 +126,18 @@ def write_gif(path, images, fps: float) -> Path:
     return path
 
 
+def read_gif(path) -> np.ndarray:
+    """The frames of a GIF as RGB ``(T, H, W, 3)`` uint8 (Pillow), each as a viewer shows it."""
+    from PIL import Image
+
+    out = []
+    with Image.open(path) as im:
+        for t in range(im.n_frames):
+            im.seek(t)
+            out.append(np.asarray(im.convert("RGB")))
+    return np.array(out)
+
+
 def mp4_codec() -> str:
     """The MP4 codec this OpenCV build can write: ``avc1`` (H.264, plays in browsers and
     QuickTime) when its FFmpeg has an H.264 encoder, else ``mp4v`` (MPEG-4 Part 2, which
