@@ -32,7 +32,9 @@ from __future__ import annotations
 import argparse
 import errno
 import os
+import signal
 import sys
+import threading
 from pathlib import Path
 
 from nnsf.errors import InputError, exception_line
@@ -182,8 +184,26 @@ def _animate(args) -> int:
     return 0
 
 
+def _terminate_as_interrupt(signum, frame):
+    # SIGTERM (a job killed by a scheduler, `timeout`) unwinds as Ctrl-C does: `finally` blocks
+    # remove temporary files (a render's frame file in /dev/shm) and the user gets one line.
+    raise KeyboardInterrupt
+
+
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
+    old = None
+    if threading.current_thread() is threading.main_thread():
+        old = signal.signal(signal.SIGTERM, _terminate_as_interrupt)
+    try:
+        return _run(args)
+    finally:
+        if old is not None:
+            signal.signal(signal.SIGTERM, old)
+
+
+def _run(args) -> int:
+    """The command ``args`` names; an exit status, one line on stderr for a failure."""
     try:
         _settle_publications()
         if args.command == "animate":  # needs no params.yaml

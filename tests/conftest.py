@@ -39,11 +39,14 @@ def _spawn_audit(event: str, args) -> None:
                        "@pytest.mark.slow (README, Tests), or run the code in this process")
 
 
-# Two libraries ask the system once per process by running a command: joblib counts the
-# physical cores (`lscpu`), the platform module the processor (`uname -p`, for Prefect and
-# Dask).  Done here, before any test, so that a quick test using them starts no process.
+# Three libraries ask the system by running a command: joblib counts the physical cores
+# (`lscpu`) and the platform module the processor (`uname -p`, for Prefect and Dask), once
+# per process; matplotlib lists the fonts (`fc-list`) once per machine, when it builds its font
+# cache (a fresh home has none).  Done here, before any test, so that a quick test using them
+# starts no process.
 import platform  # noqa: E402
 
+import matplotlib.font_manager  # noqa: E402,F401
 from joblib.externals.loky.backend.context import cpu_count  # noqa: E402
 
 cpu_count(only_physical_cores=True)

@@ -8,6 +8,7 @@ read ``../shared/data`` and skip when it is absent.
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import zipfile
 from pathlib import Path
@@ -363,6 +364,114 @@ def test_frames_rendered_by_two_processes_are_the_frames_of_one(monkeypatch):
     assert np.array_equal(two, one)
     assert seen[-1] == (len(V), len(V)) and len(seen) == 8  # 4 chunks per worker
     assert not (one == one[:, :1, :1]).all()  # something was drawn
+
+
+def test_frame_files_of_dead_processes_are_removed_and_no_other(tmp_path):
+    from nnsf.reshape import render_pool
+
+    try:
+        dead = int(Path("/proc/sys/kernel/pid_max").read_text()) + 1  # no process has this pid
+    except OSError:
+        dead = 2 ** 22 + 1
+    names = [f"nnsf-frames-{dead}-x1.u8", f"nnsf-frames-{os.getpid()}-x2.u8", "nnsf-frames-1-x3.u8",
+             f"other-{dead}.u8", f"nnsf-frames-{dead}-x4.txt"]
+    for n in names:
+        (tmp_path / n).write_bytes(b"\0" * 16)
+    gone = render_pool.remove_stale(str(tmp_path))
+    assert gone == [str(tmp_path / names[0])]
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(names[1:])
+
+
+@pytest.mark.slow  # a `nnsf animate` process and its render pool
+@pytest.mark.parametrize("how, wait", [("SIGTERM", 0.0), ("SIGTERM", 2.0), ("SIGINT", 2.0)],
+                         ids=["sigterm-as-workers-start", "sigterm-while-drawing", "ctrl-c-while-drawing"])
+def test_an_interrupted_pooled_render_exits_in_one_line_and_leaves_no_frame_file(tmp_path, how, wait):
+    """SIGTERM to the process (a scheduler), or SIGINT to its whole process group (Ctrl-C in a
+    terminal, which the workers receive too), as the workers start or while they draw."""
+    import signal
+    import subprocess
+    import sys
+    import tempfile
+    import time
+
+    out = tmp_path / "walk.mp4"
+    proc = subprocess.Popen([sys.executable, "-m", "nnsf.cli", "animate", "--character", "pip", "--motion",
+                             "synthetic:max/walk/600", "--out", str(out), "--vertices", "300",
+                             "--workers", "2"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    pattern = f"nnsf-frames-{proc.pid}-*.u8"
+    folders = [Path("/dev/shm"), Path(tempfile.gettempdir())]
+    seen = []
+    deadline = time.monotonic() + 120
+    while not seen and proc.poll() is None and time.monotonic() < deadline:
+        seen = [f for d in folders for f in d.glob(pattern)]
+        time.sleep(0.05)
+    assert seen, "the render never started a pool"
+    time.sleep(wait)
+    assert proc.poll() is None, "the render ended before it could be interrupted"
+    t0 = time.monotonic()
+    if how == "SIGINT":
+        os.killpg(proc.pid, signal.SIGINT)
+    else:
+        proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    stopped = time.monotonic() - t0
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines()[-1] == "error: interrupted"
+    assert "Traceback" not in err and "Error" not in err, err
+    assert not any(f.exists() for f in seen)
+    assert not out.exists()
+    assert stopped < 15, f"{stopped:.1f} s to stop: the chunks not started were drawn"
+
+
+@pytest.mark.slow  # a `nnsf animate` process and its render pool
+def test_the_workers_of_a_killed_render_end_and_its_frame_file_goes_with_the_next(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import tempfile
+    import time
+
+    from nnsf.reshape import render_pool
+
+    proc = subprocess.Popen([sys.executable, "-m", "nnsf.cli", "animate", "--character", "pip", "--motion",
+                             "synthetic:max/walk/600", "--out", str(tmp_path / "walk.mp4"), "--vertices", "300",
+                             "--workers", "2"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+    def children():
+        kids = []
+        for stat in Path("/proc").glob("[0-9]*/stat"):
+            try:
+                fields = stat.read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == proc.pid:
+                kids.append(int(stat.parent.name))
+        return kids
+
+    seen, kids = [], []
+    deadline = time.monotonic() + 120
+    while (not seen or len(kids) < 2) and proc.poll() is None and time.monotonic() < deadline:
+        seen = [f for d in (Path("/dev/shm"), Path(tempfile.gettempdir()))
+                for f in d.glob(f"nnsf-frames-{proc.pid}-*.u8")]
+        kids = children() if seen else []
+        time.sleep(0.05)
+    assert seen and len(kids) >= 2, "the render never started its pool"
+    time.sleep(1.0)
+    assert proc.poll() is None, "the render ended before it could be killed"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=30)
+    deadline = time.monotonic() + 20
+    while any(Path(f"/proc/{k}").exists() for k in kids) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    alive = [k for k in kids if Path(f"/proc/{k}").exists()]
+    for k in alive:
+        os.kill(k, signal.SIGKILL)
+    assert not alive, "workers outlived the render they drew for"
+    assert all(f.exists() for f in seen)  # killed outright: nothing could remove it ...
+    removed = [p for f in seen for p in render_pool.remove_stale(str(f.parent))]
+    assert sorted(removed) == sorted(str(f) for f in seen)  # ... until the next render looks
+    assert not any(f.exists() for f in seen)
 
 
 def test_reshape_eval_and_tracking_real_need_data(capsys):

@@ -16,6 +16,12 @@ process of a ``spawn`` pool straight into one shared-memory image array:
   700 px drawing) and the frames cross no pipe: the workers write them into
   one memory-mapped file (in ``/dev/shm`` where there is one, so in memory),
   whose name is removed once they are done; the array returned maps it.
+  An interrupted render (Ctrl-C, SIGTERM under ``nnsf``) cancels the chunks
+  not yet started and removes the file (an interrupt waits while the
+  workers start, and the workers ignore Ctrl-C: no worker prints a traceback);
+  the workers of a caller killed outright end with it; a file left by a process that was
+  killed outright (its name holds the pid) is removed by the next pooled
+  render (:func:`remove_stale`).
 
 Starting a spawn worker costs about a second (imports), so short clips are
 drawn in the calling process (:data:`MIN_FRAMES_PER_WORKER`).
@@ -23,20 +29,26 @@ drawn in the calling process (:data:`MIN_FRAMES_PER_WORKER`).
 from __future__ import annotations
 
 import os
+import re
+import signal
 import sys
 import tempfile
+import threading
 import types
 from contextlib import contextmanager
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from multiprocessing import get_context
+from multiprocessing import get_context, parent_process
 
 import numpy as np
 
 #: Frames each worker must have before a pool is worth its start-up (bench_animate.py, char1 at
-#: 512 px on 2 cores: 120 frames 7.35 s in one process, 7.01 s in two; 300 frames 15.1 vs 11.6 s).
+#: 512 px on 2 idle cores, render: 210 frames 6.29 s in one process, 5.74 s in two; 300 frames
+#: 8.97 vs 6.96 s).
 MIN_FRAMES_PER_WORKER = 100
 
 _RENDERER = None
+#: The signals that stop a render: held while the workers start, ignored by the workers.
+_STOPS = {signal.SIGINT, signal.SIGTERM}
 
 
 def default_workers() -> int:
@@ -51,6 +63,48 @@ def default_workers() -> int:
 def _init(renderer) -> None:
     global _RENDERER
     _RENDERER = renderer
+    # Ctrl-C reaches the whole process group: the caller cancels the chunks, and a worker
+    # stopped by it would only print a traceback of its own.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOPS)  # held by the caller while it started us
+    # A pool's worker waits for work on a queue whose write end it holds itself: if the caller is
+    # killed outright, no end-of-file ever wakes it.  It watches the caller instead.
+    threading.Thread(target=_exit_with_parent, name="nnsf-parent-watch", daemon=True).start()
+
+
+def _exit_with_parent() -> None:
+    parent = parent_process()
+    if parent is not None:
+        parent.join()  # returns when the caller's end of the start-up pipe closes: it has ended
+        os._exit(1)
+
+
+@contextmanager
+def _stops_held():
+    """SIGINT and SIGTERM wait, and then take effect, while the spawn workers start.
+
+    The caller writes each worker its start-up data (the pickled renderer,
+    megabytes) through a pipe.  An interrupt in the middle of that write
+    leaves the worker a truncated pickle (its traceback on the terminal) or
+    blocked on the rest of it, and the pool's shutdown waiting on that
+    worker for ever.  So, in the main thread, the signals' handlers only
+    note them until the workers are started; and the signals are blocked in
+    this thread, a mask the workers inherit, so that a Ctrl-C sent to the
+    whole process group meanwhile reaches no worker before :func:`_init`
+    ignores it.
+    """
+    noted: list[int] = []
+    main = threading.current_thread() is threading.main_thread()
+    handlers = {s: signal.signal(s, lambda signum, frame: noted.append(signum)) for s in _STOPS} if main else {}
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, _STOPS)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+        for s, h in handlers.items():
+            signal.signal(s, h)
+        if noted:
+            signal.raise_signal(noted[0])  # now handled as it would have been
 
 
 def _draw(path: str, shape: tuple, start: int, frames: np.ndarray, orders: list, offset, background) -> int:
@@ -87,6 +141,42 @@ def _memory_folder(nbytes: int) -> str | None:
     return "/dev/shm" if os.access("/dev/shm", os.W_OK) and room > 2 * nbytes + (64 << 20) else None
 
 
+_STALE = re.compile(r"nnsf-frames-(\d+)-.*\.u8")
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # another user's process (EPERM): alive
+        return True
+    return True
+
+
+def remove_stale(folder: str | None) -> list[str]:
+    """Remove the frame files in ``folder`` (default: the temp folder) whose process is gone; returns their paths.
+
+    A render killed outright (SIGKILL, a container stopped) leaves its file:
+    in ``/dev/shm`` that is memory held until the next reboot.
+    """
+    folder = folder or tempfile.gettempdir()
+    gone = []
+    try:
+        names = os.listdir(folder)
+    except OSError:
+        return gone
+    for name in names:
+        m = _STALE.fullmatch(name)
+        if m and int(m.group(1)) != os.getpid() and not _alive(int(m.group(1))):
+            try:
+                os.unlink(os.path.join(folder, name))
+                gone.append(os.path.join(folder, name))
+            except OSError:  # removed meanwhile by another render, or not ours to remove
+                pass
+    return gone
+
+
 def render_frames(renderer, frames: np.ndarray, orders, offset, background, size,
                   workers: int | None = None, progress=None) -> np.ndarray:
     """RGB frames ``(T, H, W, 3)`` uint8 of a deformed mesh, ``frames`` ``(T, n, 2)`` px.
@@ -111,7 +201,8 @@ def render_frames(renderer, frames: np.ndarray, orders, offset, background, size
         return images
     shape = (T, H, W, 3)
     folder = _memory_folder(int(np.prod(shape)))
-    fd, path = tempfile.mkstemp(prefix="nnsf-frames-", suffix=".u8", dir=folder)
+    remove_stale(folder)
+    fd, path = tempfile.mkstemp(prefix=f"nnsf-frames-{os.getpid()}-", suffix=".u8", dir=folder)
     os.close(fd)
     try:
         images = np.memmap(path, np.uint8, mode="w+", shape=shape)
@@ -120,14 +211,20 @@ def render_frames(renderer, frames: np.ndarray, orders, offset, background, size
         done = 0
         with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_init,
                                  initargs=(renderer,)) as pool:
-            with _main_hidden():  # the workers start at the first submits
-                jobs = [pool.submit(_draw, path, shape, int(a), np.asarray(frames[a:b]), list(orders[a:b]),
-                                    offset, background)
-                        for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
-            for job in as_completed(jobs):
-                done += job.result()
-                if progress is not None:
-                    progress(done, T)
+            try:
+                with _main_hidden(), _stops_held():  # the workers start at the first submits
+                    jobs = [pool.submit(_draw, path, shape, int(a), np.asarray(frames[a:b]),
+                                        list(orders[a:b]), offset, background)
+                            for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+                for job in as_completed(jobs):
+                    done += job.result()
+                    if progress is not None:
+                        progress(done, T)
+            except BaseException:
+                # Interrupted or failed: the chunks not started are dropped (leaving the block
+                # would otherwise wait for every one of them to be drawn).
+                pool.shutdown(wait=True, cancel_futures=True)
+                raise
     finally:
         os.unlink(path)  # the mapping stays valid; the file goes when the array does
     return images
