@@ -255,6 +255,7 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "reshape.mesh": _choice(("layered", "limbs", "split", "connected")),
     "reshape.propagation": _choice(("limb-frame", "eq12")),
     "reshape.arms": _choice(ARM_CHOICES),
+    "reshape.head": _choice(HEAD_CHOICES),
     "reshape.fps": _num(1, 120),
     "reshape.max_frames": _size(1, 5000, 512 * 512 * 3, "rendered frames of 512x512 px"),
     "reshape.formats": _list(_choice(RESHAPE_FORMATS), 3),
@@ -273,6 +274,9 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "reshape_eval.arms": ((lambda v: isinstance(v, dict) and all(
         isinstance(k, str) and x in ARM_CHOICES for k, x in v.items())),
         "a mapping of character names to " + " or ".join(ARM_CHOICES)),
+    "reshape_eval.head": ((lambda v: isinstance(v, dict) and all(
+        isinstance(k, str) and x in HEAD_CHOICES for k, x in v.items())),
+        "a mapping of character names to " + " or ".join(HEAD_CHOICES)),
     "animate.character": _str(),
     "animate.motion": _str(),
     "animate.style": _str(),

@@ -143,6 +143,8 @@ def test_the_project_params_pass_and_every_key_is_in_the_schema(tmp_path):
     ("reshape_eval.characters", ["char1", 5]),     # names must be strings
     ("reshape_eval.arms", {"char5": "sideways"}),  # motion or drawing per character
     ("reshape.arms", "sideways"),
+    ("reshape_eval.head", {"char3": "nod"}),     # motion or torso per character
+    ("reshape.head", "nod"),
     ("reshape.formats", ["gif", "gif", "png", "mp4"]),
 ])
 def test_free_form_fields_are_still_validated(key, value):

@@ -146,6 +146,7 @@ reshape:
   mesh: layered
   propagation: limb-frame
   arms: motion
+  head: torso
   fps: 12
   max_frames: 6
   formats: [png, gif, mp4]

@@ -73,6 +73,33 @@ def test_stage_writes_frames_gif_mp4_and_metrics_reproducibly(tmp_path, characte
     assert before == after
 
 
+def test_reshape_head_torso_keeps_the_drawn_head_through_a_nod(tmp_path, character_file):
+    """``reshape.head``: with ``motion`` a nodding head turns on the drawing; with ``torso`` it keeps
+    its drawn angle to the body (the rest of the figure is the same in both)."""
+    csv = _csv(tmp_path / "motion.csv")
+    table = pd.read_csv(csv)
+    cols = list(FEATURE_COLUMNS[2 * J["head_top"]: 2 * J["head_top"] + 2])  # its x and y
+    kp = rest_pose() + 2.0
+    for i, row in table.iterrows():  # the head nods 40 degrees about the neck and back
+        t = int(row["frame"])
+        table.loc[i, cols] = _rot(kp[J["head_top"]][None], kp[J["neck"]], 40 * np.sin(np.pi * t / 6))[0]
+    table.to_csv(csv, index=False)
+    frames = {}
+    for head in ("motion", "torso"):
+        out = tmp_path / head
+        reshape(_params(head=head, formats=["png"]), csv, character_file, out)
+        frames[head] = [np.asarray(bytearray(p.read_bytes())) for p in sorted((out / "frames").glob("*.png"))]
+    assert len(frames["motion"]) == len(frames["torso"]) == 6
+    assert np.array_equal(frames["motion"][0], frames["torso"][0])  # no nod at frame 0
+    assert not np.array_equal(frames["motion"][3], frames["torso"][3])  # the nod's peak
+
+
+def test_bad_head_setting_names_the_field(tmp_path, character_file):
+    with pytest.raises(InputError, match=r"reshape\.head"):
+        reshape(_params(head="nod"), _csv(tmp_path / "motion.csv"), character_file, tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+
+
 def test_default_character_needs_no_shared_data(tmp_path):
     csv = _csv(tmp_path / "motion.csv", frames=3)
     out = tmp_path / "out"

@@ -100,6 +100,10 @@ AZIMUTH = {"walk_normal_001": 90.0}
 #: arms are drawn spread, and driven by direction they hang behind its body.  Overridden by
 #: ``reshape_eval.arms`` in params.yaml.
 ARMS = {"char5": "drawing"}
+#: ``head`` of :func:`nnsf.reshape.drive.retarget` per character (others: ``motion``): char3, a
+#: candy corn, has no neck; its head is the cone's tip, which turned on its own shows its drawn
+#: outline as a line across the body.  Overridden by ``reshape_eval.head`` in params.yaml.
+HEAD = {"char3": "torso"}
 #: Every how many frames the rendered-frame artefacts (:mod:`nnsf.reshape.artefacts`) are measured:
 #: every frame, so the width jitter is frame to frame.
 ARTEFACT_EVERY = 1
@@ -156,7 +160,8 @@ def evaluate_item(item: dict) -> dict:
     ``item`` keys: ``character`` (folder) or ``kenney`` (a Kenney character
     name, with ``kenney_root`` and ``kenney_annotations``), ``motion`` (BVH
     path), ``azimuth`` (projection, degrees), ``arms`` (``motion`` or
-    ``drawing``, default ``motion``), ``n_vertices``,
+    ``drawing``, default ``motion``), ``head`` (``motion`` or ``torso``,
+    default ``motion``), ``n_vertices``,
     ``max_frames``, ``subkeys_per_limb``, ``figure`` (bool), ``gif_dir``
     (or None).  Module-level and picklable for a task-runner map.
     """
@@ -178,7 +183,8 @@ def evaluate_item(item: dict) -> dict:
             anim = results[f"{mesh}/{base}"]  # the same animation, rendered without the seal
         else:
             rig = build_rig(ch, base, mesh, item["n_vertices"], item["subkeys_per_limb"], base_mesh=meshes[mesh])
-            anim = animate(rig, motion, depth, source=str(item["motion"]), arms=item.get("arms", "motion"))
+            anim = animate(rig, motion, depth, source=str(item["motion"]), arms=item.get("arms", "motion"),
+                           head=item.get("head", "motion"))
         results[key] = anim
     allV = np.concatenate([a.frames.reshape(-1, 2) for a in results.values()])
     offset, size = canvas(ch, allV)
@@ -188,7 +194,8 @@ def evaluate_item(item: dict) -> dict:
                                                seal=False if method.endswith("_unsealed") else None)
         row = {"character": ch.name, "motion": Path(item["motion"]).stem.replace("dataset-1_", ""),
                "mesh": mesh, "method": method, "azimuth": azimuth, "body": ch.body,
-               "arms": item.get("arms", "motion"), "sealed": bool(renderers[key].seal)}
+               "arms": item.get("arms", "motion"), "head": item.get("head", "motion"),
+               "sealed": bool(renderers[key].seal)}
         row.update(report(anim, depth_margin=0.02 * height))
         row["subkey_slide"] = subkey_slide(anim.rig, anim.keypoints)
         # A variant whose frames equal an already measured one's (on the layered mesh subkeys pin
@@ -338,11 +345,13 @@ def figure_widths(table: pd.DataFrame, path: Path) -> None:
 
 def run(data_root, out_dir=Path("reports"), characters=CHARACTERS, motions=MOTIONS,
         n_vertices: int = 800, max_frames: int = 240, subkeys_per_limb: int = 4, kenney_annotations=None,
-        mapper=None, azimuth=None, kenney_characters=None, kenney_vertices: int = 300, arms=None) -> dict:
+        mapper=None, azimuth=None, kenney_characters=None, kenney_vertices: int = 300, arms=None,
+        head=None) -> dict:
     """Evaluate and write the report files (module docstring); returns the summary dict.
 
     ``azimuth``: projection per motion (degrees; default :data:`AZIMUTH`).
     ``arms``: ``{character: "motion" | "drawing"}`` (default :data:`ARMS`).
+    ``head``: ``{character: "motion" | "torso"}`` (default :data:`HEAD`).
     ``kenney_characters``: Kenney sprites driven by the same motions (default
     all six of :mod:`nnsf.reshape.kenney` when their images and
     ``kenney_annotations`` exist), meshed with ``kenney_vertices``.
@@ -354,10 +363,11 @@ def run(data_root, out_dir=Path("reports"), characters=CHARACTERS, motions=MOTIO
         raise InputError(data_root, "folder", "animated-drawings/characters and bandai-namco-1/data inside")
     az = dict(AZIMUTH if azimuth is None else azimuth)
     arm_mode = dict(ARMS if arms is None else arms)
+    head_mode = dict(HEAD if head is None else head)
     gif_dir = out_dir / "reshape_eval"
     items = [{"character": str(chars / c), "motion": str(mots / f"dataset-1_{m}.bvh"), "n_vertices": n_vertices,
               "max_frames": max_frames, "subkeys_per_limb": subkeys_per_limb, "azimuth": float(az.get(m, 0.0)),
-              "arms": arm_mode.get(c, "motion"),
+              "arms": arm_mode.get(c, "motion"), "head": head_mode.get(c, "motion"),
               "figure": (c, m) in FIGURE_ITEMS or c == characters[0], "sheet": True,
               "gif_dir": str(gif_dir) if (c, m) in FIGURE_ITEMS else None}
              for c in characters for m in motions]
@@ -368,7 +378,8 @@ def run(data_root, out_dir=Path("reports"), characters=CHARACTERS, motions=MOTIO
             items += [{"kenney": c, "kenney_root": str(kroot), "kenney_annotations": str(ann),
                        "motion": str(mots / f"dataset-1_{m}.bvh"), "n_vertices": kenney_vertices,
                        "max_frames": max_frames, "subkeys_per_limb": subkeys_per_limb,
-                       "azimuth": float(az.get(m, 0.0)), "figure": False, "gif_dir": None,
+                       "azimuth": float(az.get(m, 0.0)), "head": head_mode.get(c, "motion"),
+                       "figure": False, "gif_dir": None,
                        "sheet": c == KENNEY_SHEET} for m in motions]
     refused = {}
     for c in REFUSED:  # reported with the loader's reason
@@ -478,6 +489,7 @@ def reshape_eval(params: dict, data_root, out_dir=Path("reports"),
     per_limb = get("subkeys_per_limb", 4)
     azimuth = get("azimuth", dict(AZIMUTH))
     arms = get("arms", dict(ARMS))
+    head = get("head", dict(HEAD))
     if not (isinstance(azimuth, dict) and all(isinstance(k, str) and isinstance(v, (int, float))
                                               and not isinstance(v, bool) for k, v in azimuth.items())):
         raise InputError("params.yaml", "reshape_eval.azimuth", "a mapping motion -> degrees", azimuth)
@@ -490,7 +502,7 @@ def reshape_eval(params: dict, data_root, out_dir=Path("reports"),
         if not ok:
             raise InputError(source_of(params), f"reshape_eval.{key}", what, val)
     s = run(data_root, out_dir, chars, motions, n_vertices, max_frames, per_limb, kenney_annotations, mapper,
-            azimuth=azimuth, arms=arms)
+            azimuth=azimuth, arms=arms, head=head)
     metrics = {}
     for v, m in s["means"].items():
         for k in ("driving_failure_ratio", "arap_energy_mean", "stretch_ratio_max", "flipped_triangles",

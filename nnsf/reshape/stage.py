@@ -122,16 +122,18 @@ def build_rig(character: Character, method: str = "ours", mesh: str = "layered",
 
 
 def animate(rig: Rig, motion: np.ndarray, joint_depth: np.ndarray | None = None, source="motion",
-            frames=None, hysteresis: float = 0.015, overrides=None, arms: str = "motion") -> Animation:
+            frames=None, hysteresis: float = 0.015, overrides=None, arms: str = "motion",
+            head: str = "motion") -> Animation:
     """Drive ``rig`` with a motion ``(T, 17, 2)`` (any units); depth ``(T, 17)`` optional.
 
     ``hysteresis``: depth tie band as a fraction of the motion's body height
     (median vertical extent of its key points).  ``overrides``: checked user
     depth overrides (:func:`nnsf.reshape.depth.parse_overrides`), applied
-    last, on their frames only.  ``arms``: ``motion`` or ``drawing``
-    (:func:`nnsf.reshape.drive.retarget`).
+    last, on their frames only.  ``arms``: ``motion`` or ``drawing``; ``head``: ``motion`` or
+    ``torso`` (:func:`nnsf.reshape.drive.retarget`).
     """
-    kp = retarget(motion, rig.character.keypoints, source=source, frames=frames, arms=arms, body=rig.character.body)
+    kp = retarget(motion, rig.character.keypoints, source=source, frames=frames, arms=arms, body=rig.character.body,
+                  head=head)
     V = rig.animate(kp)
     orders, z = part_orders(rig, V, motion, joint_depth, hysteresis)
     if overrides:
@@ -214,7 +216,7 @@ def _params(params: dict) -> dict:
     defaults = {"clip": None, "character": "bruno", "character_size": 512, "n_vertices": 800,
                 "subkeys_per_limb": 4, "method": "ours", "mesh": "layered", "propagation": "limb-frame",
                 "fps": 24, "max_frames": 240, "formats": list(FORMATS),
-                "depth_overrides": [], "arms": "motion"}
+                "depth_overrides": [], "arms": "motion", "head": "motion"}
     p = {key: checked(params, f"reshape.{key}", default) for key, default in defaults.items()}
     if p["method"] == "ours" and p["subkeys_per_limb"] == 0:
         raise InputError(source_of(params), "reshape.subkeys_per_limb", "at least 1 for method ours", 0)
@@ -240,7 +242,7 @@ def reshape(params: dict, motion_csv=TRANSLATION_DIR / "translated_features.csv"
                     source=source)
     overrides = depth_mod.parse_overrides(p["depth_overrides"], len(points), source=source)
     anim = animate(rig, points, source=f"{motion_csv} (clip {clip})", frames=frame_ids, overrides=overrides,
-                   arms=p["arms"])
+                   arms=p["arms"], head=p["head"])
     notes = list(character.notes) + extra_arms_notes(character, p["arms"], "reshape.arms")
     offset, size = canvas(character, anim.frames)
     renderer = MeshRenderer.for_mesh(rig.mesh, character, size=size)
