@@ -432,3 +432,36 @@ def test_the_seal_closes_a_crack_whole_or_not_at_all(gap, filled):
     # across the sealed crack and still two across the open gap
     assert A.detached(crop[..., 3] >= 128) == 1
     assert A.detached(out[..., 3] >= 128) == (0 if filled else 1)
+
+
+def test_soft_rims_inside_the_body_are_laid_over_it_and_soft_edges_outside_stay():
+    """A limb's anti-aliased rim (α 160) along a 2 px crack the seal fills: before, the page showed
+    through the rim inside the body (Kenney's male_person at rest: a dotted light line down the arm,
+    char1's ink where a leg meets the body); now it is laid over the nearest opaque colour.  The
+    same rim on the outer edge, against the page, and a translucent patch of paint inside one part,
+    away from any seam, keep their transparency."""
+    from nnsf.reshape.seal import inner_soft, seal
+
+    red, blue = np.array([200, 0, 0]), np.array([0, 0, 200])
+    crop = np.zeros((40, 60, 4), np.uint8)
+    labels = np.full((40, 60), -1, np.int64)
+    crop[5:35, 5:25, :3], crop[5:35, 5:25, 3] = red, 255
+    labels[5:35, 5:25] = 0                                   # torso
+    crop[5:35, 27:50, :3], crop[5:35, 27:50, 3] = blue, 255
+    labels[5:35, 27:50] = 2                                  # upper arm, joined to it
+    rim = (blue * 160 + 127) // 255                          # premultiplied, α 160
+    crop[5:35, 27, :3], crop[5:35, 27, 3] = rim, 160         # the arm's soft rim along the crack
+    crop[5:35, 49, :3], crop[5:35, 49, 3] = rim, 160         # ... and along its outer edge
+    crop[15:20, 35:40, :3], crop[15:20, 35:40, 3] = rim, 160  # translucent paint inside the arm
+    out = seal(crop, labels, close=2, joined=[(0, 2)])
+    assert (out[8:32, 25:27, 3] == 255).all()                # the crack is filled
+    inner = out[8:32, 27]
+    assert (inner[:, 3] == 255).all()                        # the rim inside is opaque now ...
+    assert np.array_equal(inner[0, :3], np.minimum(rim + ((255 - 160) * blue + 127) // 255, 255))  # ... over blue
+    assert np.array_equal(out[:, 49], crop[:, 49])           # the outer edge: as drawn
+    assert np.array_equal(out[15:20, 35:40], crop[15:20, 35:40])  # the paint: as drawn
+    # the same rim with the crack filled, but one part only on both sides: no seam, left as it is
+    crack = np.zeros((40, 60), bool)
+    crack[5:35, 25:27] = True
+    assert inner_soft(crop[..., 3], crack)[8:32, 27].all()
+    assert not inner_soft(crop[..., 3], crack, np.where(labels >= 0, 2, -1)).any()

@@ -21,7 +21,9 @@ where two parts meet.  :func:`seal` closes them on the rendered frame:
 Filled pixels take the colour of the nearest fully opaque pixel of the frame
 (OpenCV's distance transform with per-pixel labels): the body's fill
 inside a crack, the ink of the outline across a notch, so an outline cut
-by a crack is drawn across it again.
+by a crack is drawn across it again.  Part-transparent pixels inside the
+character (a piece's soft rim beside a filled crack, :func:`inner_soft`)
+are laid over that colour, so the page does not show through them.
 
 It works on the renderer's premultiplied RGBA crop and its per-pixel part
 image, and costs a few milliseconds per frame (``benchmarks/bench_seal.py``).
@@ -144,18 +146,68 @@ def tab_slivers(alpha: np.ndarray, tab: np.ndarray, close: int = 4) -> np.ndarra
     return np.asarray(tab, dtype=bool) & cv2.morphologyEx(over.astype(np.uint8), cv2.MORPH_CLOSE, ker).astype(bool)
 
 
+def _window(img: np.ndarray, ys: np.ndarray, xs: np.ndarray, r: int, outside) -> np.ndarray:
+    """The ``(2r + 1)²`` neighbours ``(k, (2r + 1)²)`` of pixels ``(ys, xs)`` of ``img`` (``outside`` beyond it)."""
+    d = np.arange(-r, r + 1)
+    yy = (ys[:, None, None] + d[None, :, None]).repeat(len(d), axis=2)
+    xx = (xs[:, None, None] + d[None, None, :]).repeat(len(d), axis=1)
+    inside = (yy >= 0) & (yy < img.shape[0]) & (xx >= 0) & (xx < img.shape[1])
+    vals = img[np.clip(yy, 0, img.shape[0] - 1), np.clip(xx, 0, img.shape[1] - 1)]
+    return np.where(inside, vals, outside).reshape(len(ys), -1)
+
+
+def inner_soft(alpha: np.ndarray, fill: np.ndarray, labels: np.ndarray | None = None, margin: int = 2,
+               reach: int = 3) -> np.ndarray:
+    """Part-transparent pixels ``(h, w)`` bool (0 < α < 255) farther than ``margin`` px (Chebyshev) from
+    any background (α < 128, not in ``fill``) of alpha ``(h, w)`` uint8: soft edges inside the character;
+    with part ``labels`` ``(h, w)`` (−1 empty), only those within ``reach`` px of two parts (a seam).
+
+    A piece's anti-aliased rim is part transparent.  Where the piece lies
+    on another, :meth:`~nnsf.reshape.render.MeshRenderer.render_labelled`
+    lays the rim over it; where the rim bordered a drawn gap or a crack the
+    seal fills, nothing lies under it, and the page shows through it: a
+    dotted light line inside the body (a Kenney sprite's arm against its
+    vest, at rest; char1's ink where its leg meets its body).  An edge
+    against the page, even a wide soft one, lies within ``margin`` of the
+    page and keeps its transparency; so does a drawing's own translucent
+    paint away from a seam.  The seam test looks at windows around the few
+    remaining pixels, not at a morphology pass over the frame.
+    """
+    a = np.ascontiguousarray(alpha, dtype=np.uint8)
+    cand = cv2.inRange(a, 1, 254)  # 255 where part transparent; OpenCV passes, not numpy temporaries
+    if not cv2.countNonZero(cand):
+        return np.zeros(a.shape, bool)
+    bg = cv2.bitwise_and(cv2.inRange(a, 0, 127), cv2.bitwise_not(np.asarray(fill, dtype=bool).view(np.uint8) * 255))
+    k = np.ones((2 * margin + 1, 2 * margin + 1), np.uint8)
+    near_bg = cv2.dilate(bg, k, borderType=cv2.BORDER_CONSTANT, borderValue=255)
+    out = cv2.bitwise_and(cand, cv2.bitwise_not(near_bg)).astype(bool)
+    ys, xs = np.nonzero(out)
+    if labels is not None and len(ys):
+        win = np.where(_window(a, ys, xs, reach, 0) > 0, _window(np.asarray(labels), ys, xs, reach, -1), -1)
+        big = np.iinfo(win.dtype).max
+        hi = win.max(axis=1)
+        lo = np.where(win >= 0, win, big).min(axis=1)
+        drop = ~((hi >= 0) & (lo != hi))
+        out[ys[drop], xs[drop]] = False
+    return out
+
+
 def seal(crop: np.ndarray, labels: np.ndarray, tab: np.ndarray | None = None, **kw) -> np.ndarray:
     """A premultiplied RGBA crop ``(h, w, 4)`` uint8 with :func:`seal_mask` filled (nearest opaque colour).
 
     ``tab`` ``(h, w)`` bool: the pixels showing a joint tab; its slivers
     (:func:`tab_slivers`) are filled as well, from the pixels around them.
+    The soft edges inside the character (:func:`inner_soft`) within 3 px of
+    two parts are laid over the nearest opaque colour, premultiplied "over",
+    and become opaque.
     """
     fill = seal_mask(labels, crop[..., 3], **kw)
     if tab is not None and tab.any():
         fill |= tab_slivers(crop[..., 3], tab, kw.get("close", 4))
-    if not fill.any():
+    soft = inner_soft(crop[..., 3], fill, labels) & ~fill
+    if not fill.any() and not soft.any():
         return crop
-    ys, xs = np.nonzero(fill)
+    ys, xs = np.nonzero(fill | soft)
     pad = 8
     y0, y1 = max(ys.min() - pad, 0), min(ys.max() + pad + 1, crop.shape[0])
     x0, x1 = max(xs.min() - pad, 0), min(xs.max() + pad + 1, crop.shape[1])
@@ -168,8 +220,15 @@ def seal(crop: np.ndarray, labels: np.ndarray, tab: np.ndarray | None = None, **
                                              labelType=cv2.DIST_LABEL_PIXEL)
     src = np.argwhere(solid)
     out = crop.copy()
-    f = fill[y0:y1, x0:x1]
-    near = src[lab[f] - 1]
     box = out[y0:y1, x0:x1]
-    box[f] = crop[y0:y1, x0:x1][near[:, 0], near[:, 1]]
+    f = fill[y0:y1, x0:x1]
+    if f.any():
+        near = src[lab[f] - 1]
+        box[f] = crop[y0:y1, x0:x1][near[:, 0], near[:, 1]]
+    s = soft[y0:y1, x0:x1]
+    if s.any():
+        near = src[lab[s] - 1]
+        under = crop[y0:y1, x0:x1][near[:, 0], near[:, 1]].astype(np.uint16)
+        px = crop[y0:y1, x0:x1][s].astype(np.uint16)
+        box[s] = np.minimum(px + ((255 - px[:, 3:4]) * under + 127) // 255, 255).astype(np.uint8)
     return out
