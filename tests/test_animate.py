@@ -472,6 +472,8 @@ def test_the_workers_of_a_killed_render_end_and_its_frame_file_goes_with_the_nex
     removed = [p for f in seen for p in render_pool.remove_stale(str(f.parent))]
     assert sorted(removed) == sorted(str(f) for f in seen)  # ... until the next render looks
     assert not any(f.exists() for f in seen)
+    for sem in Path("/dev/shm").glob(f"sem.loky-{proc.pid}-*"):  # joblib's, which SIGKILL also leaves
+        sem.unlink(missing_ok=True)
 
 
 def test_reshape_eval_and_tracking_real_need_data(capsys):
