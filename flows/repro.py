@@ -17,6 +17,7 @@ from pathlib import Path
 
 from flows import prefect_server, project, stage_server
 from flows.console import error_line
+from nnsf.errors import terminate_as_interrupt
 
 
 def dvc(*args: str) -> list[str]:
@@ -47,11 +48,6 @@ def stages_to_run(root: Path, args: list[str], env: dict[str, str]) -> list[str]
     return re.findall(r"Running stage '([^']+)'", dry.stdout)
 
 
-def _terminate_as_interrupt(signum, frame):
-    # SIGTERM (CI timeout, a cancelled Prefect run) must still stop the server.
-    raise KeyboardInterrupt
-
-
 def main(args: list[str]) -> int:
     """Run ``dvc repro <args>``; start and stop a Prefect server if stages will run."""
     root = project.root()
@@ -68,7 +64,7 @@ def main(args: list[str]) -> int:
     todo = stages_to_run(root, args, env)
     if todo == []:
         return subprocess.call(repro, cwd=root, env=env)  # a no-op: DVC says so itself
-    signal.signal(signal.SIGTERM, _terminate_as_interrupt)
+    signal.signal(signal.SIGTERM, terminate_as_interrupt)  # a CI timeout must still stop the server
     home = Path(env["PREFECT_HOME"])
     what = f"stages {', '.join(todo)}" if todo else "the stages to run"
     print(f"Starting a local Prefect server (PREFECT_HOME={home}) for {what}", flush=True)

@@ -37,7 +37,7 @@ import sys
 import threading
 from pathlib import Path
 
-from nnsf.errors import InputError, exception_line
+from nnsf.errors import InputError, exception_line, terminate_as_interrupt
 from nnsf.io import read_json
 from nnsf.params import STAGE_NAMES
 
@@ -184,17 +184,11 @@ def _animate(args) -> int:
     return 0
 
 
-def _terminate_as_interrupt(signum, frame):
-    # SIGTERM (a job killed by a scheduler, `timeout`) unwinds as Ctrl-C does: `finally` blocks
-    # remove temporary files (a render's frame file in /dev/shm) and the user gets one line.
-    raise KeyboardInterrupt
-
-
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     old = None
     if threading.current_thread() is threading.main_thread():
-        old = signal.signal(signal.SIGTERM, _terminate_as_interrupt)
+        old = signal.signal(signal.SIGTERM, terminate_as_interrupt)
     try:
         return _run(args)
     finally:

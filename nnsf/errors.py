@@ -28,6 +28,13 @@ VALUE_LIMIT = 80
 REASON_LIMIT = 600
 
 
+def terminate_as_interrupt(signum, frame):
+    """A SIGTERM handler that raises :class:`KeyboardInterrupt`: a job stopped by a scheduler,
+    ``timeout`` or a cancelled run unwinds as Ctrl-C does, its ``finally`` blocks run (a
+    temporary server stopped, a render's frame file removed) and the user gets one line."""
+    raise KeyboardInterrupt
+
+
 def _cut(text: str, limit: int) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 

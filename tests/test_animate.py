@@ -382,6 +382,41 @@ def test_frame_files_of_dead_processes_are_removed_and_no_other(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(names[1:])
 
 
+def _children(pid: int) -> list[int]:
+    """Process ids whose parent is ``pid`` (from /proc)."""
+    kids = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            kids.append(int(stat.parent.name))
+    return kids
+
+
+def _pooled_render(out: Path, **popen):
+    """A `nnsf animate` process drawing 600 frames on 2 workers, once its pool runs:
+    (the process, its frame files, its worker pids)."""
+    import subprocess
+    import sys
+    import tempfile
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "nnsf.cli", "animate", "--character", "pip", "--motion",
+                             "synthetic:max/walk/600", "--out", str(out), "--vertices", "300",
+                             "--workers", "2"], **popen)
+    folders = (Path("/dev/shm"), Path(tempfile.gettempdir()))
+    seen, kids = [], []
+    deadline = time.monotonic() + 120
+    while (not seen or len(kids) < 2) and proc.poll() is None and time.monotonic() < deadline:
+        seen = [f for d in folders for f in d.glob(f"nnsf-frames-{proc.pid}-*.u8")]
+        kids = _children(proc.pid) if seen else []
+        time.sleep(0.05)
+    assert seen and len(kids) >= 2, "the render never started its pool"
+    return proc, seen, kids
+
+
 @pytest.mark.slow  # a `nnsf animate` process and its render pool
 @pytest.mark.parametrize("how, wait", [("SIGTERM", 0.0), ("SIGTERM", 2.0), ("SIGINT", 2.0)],
                          ids=["sigterm-as-workers-start", "sigterm-while-drawing", "ctrl-c-while-drawing"])
@@ -390,23 +425,11 @@ def test_an_interrupted_pooled_render_exits_in_one_line_and_leaves_no_frame_file
     terminal, which the workers receive too), as the workers start or while they draw."""
     import signal
     import subprocess
-    import sys
-    import tempfile
     import time
 
     out = tmp_path / "walk.mp4"
-    proc = subprocess.Popen([sys.executable, "-m", "nnsf.cli", "animate", "--character", "pip", "--motion",
-                             "synthetic:max/walk/600", "--out", str(out), "--vertices", "300",
-                             "--workers", "2"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)
-    pattern = f"nnsf-frames-{proc.pid}-*.u8"
-    folders = [Path("/dev/shm"), Path(tempfile.gettempdir())]
-    seen = []
-    deadline = time.monotonic() + 120
-    while not seen and proc.poll() is None and time.monotonic() < deadline:
-        seen = [f for d in folders for f in d.glob(pattern)]
-        time.sleep(0.05)
-    assert seen, "the render never started a pool"
+    proc, seen, _ = _pooled_render(out, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                   start_new_session=True)
     time.sleep(wait)
     assert proc.poll() is None, "the render ended before it could be interrupted"
     t0 = time.monotonic()
@@ -428,35 +451,11 @@ def test_an_interrupted_pooled_render_exits_in_one_line_and_leaves_no_frame_file
 def test_the_workers_of_a_killed_render_end_and_its_frame_file_goes_with_the_next(tmp_path):
     import signal
     import subprocess
-    import sys
-    import tempfile
     import time
 
     from nnsf.reshape import render_pool
 
-    proc = subprocess.Popen([sys.executable, "-m", "nnsf.cli", "animate", "--character", "pip", "--motion",
-                             "synthetic:max/walk/600", "--out", str(tmp_path / "walk.mp4"), "--vertices", "300",
-                             "--workers", "2"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-
-    def children():
-        kids = []
-        for stat in Path("/proc").glob("[0-9]*/stat"):
-            try:
-                fields = stat.read_text().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            if int(fields[1]) == proc.pid:
-                kids.append(int(stat.parent.name))
-        return kids
-
-    seen, kids = [], []
-    deadline = time.monotonic() + 120
-    while (not seen or len(kids) < 2) and proc.poll() is None and time.monotonic() < deadline:
-        seen = [f for d in (Path("/dev/shm"), Path(tempfile.gettempdir()))
-                for f in d.glob(f"nnsf-frames-{proc.pid}-*.u8")]
-        kids = children() if seen else []
-        time.sleep(0.05)
-    assert seen and len(kids) >= 2, "the render never started its pool"
+    proc, seen, kids = _pooled_render(tmp_path / "walk.mp4", stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     time.sleep(1.0)
     assert proc.poll() is None, "the render ended before it could be killed"
     proc.send_signal(signal.SIGKILL)

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import functools
 
-
 import cv2
 import numpy as np
 
@@ -38,7 +37,7 @@ from nnsf.reshape.parts import JOINED_PARTS, PARTS
 from nnsf.reshape.regions import body_line
 from nnsf.reshape.outline import outline_style, redraw_outline
 from nnsf.reshape.tab_texture import TabClip, ink_mask, tab_textures
-from nnsf.reshape.seal import drawn_hole_limit, seal
+from nnsf.reshape.seal import drawn_hole_limit, over, seal
 
 
 class MeshRenderer:
@@ -385,10 +384,9 @@ class MeshRenderer:
                 # only those pixels are looked up again: a (k, 1) map
                 under = cv2.remap(self._tex8, bx.ravel()[soft, None], by.ravel()[soft, None],
                                   interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                                  borderValue=(0, 0, 0, 0))[:, 0].astype(np.uint16)
+                                  borderValue=(0, 0, 0, 0))[:, 0]
                 flat = crop.reshape(-1, 4)
-                f = flat[soft].astype(np.uint16)
-                flat[soft] = np.minimum(f + ((255 - f[:, 3:4]) * under + 127) // 255, 255).astype(np.uint8)
+                flat[soft] = over(flat[soft], under)
         part_crop = None
         if ids is not None and h:
             part_crop = np.where(ids >= 0, self.parts[np.maximum(ids, 0)], -1)

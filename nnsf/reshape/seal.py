@@ -146,6 +146,13 @@ def tab_slivers(alpha: np.ndarray, tab: np.ndarray, close: int = 4) -> np.ndarra
     return np.asarray(tab, dtype=bool) & cv2.morphologyEx(over.astype(np.uint8), cv2.MORPH_CLOSE, ker).astype(bool)
 
 
+def over(top: np.ndarray, under: np.ndarray) -> np.ndarray:
+    """Premultiplied RGBA ``top`` laid over ``under`` (both ``(k, 4)`` uint8): ``top + (1 − α_top) · under``,
+    in integers with rounding, ``(k, 4)`` uint8."""
+    t = np.asarray(top).astype(np.uint16)
+    return np.minimum(t + ((255 - t[:, 3:4]) * np.asarray(under).astype(np.uint16) + 127) // 255, 255).astype(np.uint8)
+
+
 def _window(img: np.ndarray, ys: np.ndarray, xs: np.ndarray, r: int, outside) -> np.ndarray:
     """The ``(2r + 1)²`` neighbours ``(k, (2r + 1)²)`` of pixels ``(ys, xs)`` of ``img`` (``outside`` beyond it)."""
     d = np.arange(-r, r + 1)
@@ -228,7 +235,5 @@ def seal(crop: np.ndarray, labels: np.ndarray, tab: np.ndarray | None = None, **
     s = soft[y0:y1, x0:x1]
     if s.any():
         near = src[lab[s] - 1]
-        under = crop[y0:y1, x0:x1][near[:, 0], near[:, 1]].astype(np.uint16)
-        px = crop[y0:y1, x0:x1][s].astype(np.uint16)
-        box[s] = np.minimum(px + ((255 - px[:, 3:4]) * under + 127) // 255, 255).astype(np.uint8)
+        box[s] = over(crop[y0:y1, x0:x1][s], crop[y0:y1, x0:x1][near[:, 0], near[:, 1]])
     return out
