@@ -67,6 +67,32 @@ def main(frames: int = 60, repeat: int = 3) -> None:
           f"(redraw: +{times['full'] - times['seal']:.1f} ms; line width {style[1]:g} px)")
     print(f"  ink the redraw adds outside the pieces {np.mean(outside):7.1f} px/frame (max {max(outside)})")
     print(f"  artefact measures                   {art:6.1f} ms/frame  (evaluation only)")
+    sprite(frames, repeat)
+
+
+def sprite(frames: int, repeat: int) -> None:
+    """A 128 px Kenney sprite, where the seal keeps the drawing's own gaps (``seal.DrawnGaps``):
+    its cost against the seal at the drawing's scale (1 px closing, no drawn gaps)."""
+    from nnsf.reshape.kenney import kenney_character
+
+    ch, _ = kenney_character("robot", DATA / "kenney-toon", Path(__file__).resolve().parents[1] / "tests" / "data" / "kenney")
+    clip = load_clip(DATA / "bandai-namco-1" / "data" / "dataset-1_kick_normal_001.bvh", fps=30)
+    rig = build_rig(ch, "ours", "layered", 300, 4)
+    anim = animate(rig, clip.points[:frames], clip.depth[:frames])
+    off, size = canvas(ch, anim.frames)
+    plain = MeshRenderer.for_mesh(rig.mesh, ch, size=size, seal=False)
+    plain.reink = None
+    gaps = MeshRenderer.for_mesh(rig.mesh, ch, size=size)
+    gaps.reink = None
+    narrow = MeshRenderer.for_mesh(rig.mesh, ch, size=size)
+    narrow.reink = None
+    narrow._gaps, narrow._seal_kw["close"] = None, narrow._seal_kw["tab_close"]
+    t = {k: _time(r, anim, off, frames, repeat) for k, r in (("plain", plain), ("narrow", narrow), ("gaps", gaps))}
+    print(f"robot kick (Kenney), {size[1]} x {size[0]} canvas, {len(gaps._gaps or [])} drawn-slit pixels")
+    print(f"  render, no seal, no outline redraw  {t['plain']:6.1f} ms/frame")
+    print(f"  + seal, 1 px closing                {t['narrow']:6.1f} ms/frame  (+{t['narrow'] - t['plain']:.2f} ms)")
+    print(f"  + seal, 3 px closing, drawn slits   {t['gaps']:6.1f} ms/frame  (+{t['gaps'] - t['plain']:.2f} ms; "
+          f"{t['gaps'] / t['narrow']:.2f}x the 1 px seal's frame)")
 
 
 if __name__ == "__main__":

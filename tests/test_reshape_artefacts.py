@@ -465,3 +465,60 @@ def test_soft_rims_inside_the_body_are_laid_over_it_and_soft_edges_outside_stay(
     crack[5:35, 25:27] = True
     assert inner_soft(crop[..., 3], crack)[8:32, 27].all()
     assert not inner_soft(crop[..., 3], crack, np.where(labels >= 0, 2, -1)).any()
+
+
+def _sprite_with_a_drawn_gap():
+    """A 128 px sprite: a torso (x 20-50) and an arm (x 54-66) joined by a shoulder at the top
+    (y 10-20), with a 3 px gap drawn between them below it, open at the bottom."""
+    from nnsf.reshape.render import MeshRenderer
+
+    rects = [((20, 10), (50, 110), P["torso"]), ((50, 10), (56, 20), P["l_upper_arm"]),
+             ((54, 10), (66, 100), P["l_upper_arm"])]
+    tex = np.zeros((128, 96, 4), np.uint8)
+    verts, tris, parts = [], [], []
+    for (x0, y0), (x1, y1), part in rects:
+        tex[y0:y1 + 1, x0:x1 + 1] = (200, 0, 0, 255) if part == P["torso"] else (0, 0, 200, 255)
+        k = len(verts)
+        verts += [(x0, y0), (x1, y0), (x1, y1), (x0, y1)]
+        tris += [(k, k + 1, k + 2), (k, k + 2, k + 3)]
+        parts += [part, part]
+    verts = np.array(verts, float)
+    r = MeshRenderer(verts, np.array(tris), np.array(parts), tex, mask=tex[..., 3] > 0, seal=True)
+    arm = np.zeros(len(verts), bool)
+    arm[4:] = True
+    return r, verts, arm
+
+
+def test_the_seal_keeps_a_drawn_gap_open_and_closes_a_new_crack():
+    """A sprite's drawn gap between two joined parts is no wider than a crack the deformation
+    opens.  The seal closes cracks up to 7 px wide on any drawing, and keeps the gaps the drawing
+    has at rest open, moved with the mesh (Kenney's robot and male_person: the gap between arm and
+    body, painted over before)."""
+    r, verts, arm = _sprite_with_a_drawn_gap()
+    assert r._gaps is not None and len(r._gaps) > 0
+    rest = r.render(verts)
+    assert (rest[25:95, 51:54, 3] == 0).all()                 # the drawn gap, open at rest
+    assert (rest[12:19, 20:67, 3] == 255).all()               # the shoulder, whole
+    moved = verts.copy()
+    moved[arm, 0] += 5                                        # the arm pulled 5 px from the body
+    out = r.render(moved)
+    assert (out[12:19, 51:55, 3] == 255).all()                # the 4 px crack at the shoulder: sealed
+    assert (out[25:95, 51:59, 3] == 0).all()                  # the drawn gap, 8 px now: open
+    # The same renderer without the drawn gaps fills the drawn gap at rest; with the closing the
+    # drawing's scale gives (1 px: gaps up to 2 px) it leaves the crack open.
+    r._gaps = None
+    assert (r.render(verts)[25:95, 51:54, 3] == 255).all()
+    r._seal_kw["close"] = r._seal_kw["tab_close"]
+    assert (r.render(moved)[12:19, 51:55, 3] == 0).all()
+
+
+def test_the_crack_closing_does_not_fill_the_crop_edge():
+    """Two joined parts meet at the crop's left edge, with page beyond them in column 0.  OpenCV's
+    default border let the closing fill column 0 beside the junction, a pixel out of nothing."""
+    from nnsf.reshape.seal import crack_candidates
+
+    labels = np.full((30, 20), -1, np.int64)
+    labels[2:15, 1:] = 0
+    labels[15:28, 1:] = 2
+    cand = crack_candidates(labels, labels >= 0, 3, [(0, 2)])
+    assert not cand.any()

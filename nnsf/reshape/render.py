@@ -37,7 +37,12 @@ from nnsf.reshape.parts import JOINED_PARTS, PARTS
 from nnsf.reshape.regions import body_line
 from nnsf.reshape.outline import outline_style, redraw_outline
 from nnsf.reshape.tab_texture import TabClip, ink_mask, tab_textures
-from nnsf.reshape.seal import drawn_hole_limit, over, seal
+from nnsf.reshape.seal import DrawnGaps, drawn_hole_limit, over, seal
+
+#: Cracks up to ``2·CRACK_CLOSE + 1`` px wide are sealed on any drawing: a crack's width comes from
+#: how far a joint turns past its piece's overlap, in pixels, not from the drawing's size.  A small
+#: drawing's own narrow gaps, which a closing this wide would fill, are kept (:class:`DrawnGaps`).
+CRACK_CLOSE = 3
 
 
 class MeshRenderer:
@@ -69,6 +74,7 @@ class MeshRenderer:
             ys = np.flatnonzero(np.asarray(mask, dtype=bool).any(axis=1))
             height = float(ys[-1] - ys[0] + 1) if len(ys) else 0.0
             self._seal_kw["close"] = int(np.clip(round(0.007 * height), 1, 4))
+            self._seal_kw["tab_close"] = self._seal_kw["close"]
             # Cracks only where a joint joins two parts; a gap between others is drawn.
             self._seal_kw["joined"] = JOINED_PARTS
         self.uv = np.asarray(rest_vertices, dtype=np.float64)
@@ -161,6 +167,17 @@ class MeshRenderer:
                 if len(under) != 1:
                     raise ValueError(f"part {PARTS[q]} tucks under several parts {under.tolist()}; expected one")
                 self._tucked[q] = (k, int(under[0]), self._own[q][~np.isin(self._own[q], k)])
+        #: The drawing's own narrow gaps (:class:`~nnsf.reshape.seal.DrawnGaps`), kept open by the seal;
+        #: None unless sealing a masked drawing whose scale closes less than :data:`CRACK_CLOSE` px
+        #: (the joint tabs' slivers keep the scale's closing, ``tab_close``).
+        self._gaps = None
+        if self.seal and mask is not None and self._seal_kw["close"] < CRACK_CLOSE:
+            self._seal_kw["close"] = CRACK_CLOSE
+            _, _, ids, _, _ = self._crop_maps(self.uv, None, with_ids=True, size=(H, W), origin=True)
+            alpha = (tex[..., 3].astype(np.float32) * np.asarray(mask, np.float32) + 0.5).astype(np.uint8)
+            gaps = DrawnGaps(ids, alpha, self.uv, self.triangles, self.parts, CRACK_CLOSE, self._seal_kw["tab_close"],
+                             self._seal_kw["joined"])
+            self._gaps = gaps if len(gaps) else None
 
     @classmethod
     def for_mesh(cls, mesh, character, size=None, seal=None) -> "MeshRenderer":
@@ -187,7 +204,7 @@ class MeshRenderer:
         out._clip = TabClip(mesh, character.mask) if mesh.tabs else None
         return out
 
-    def _raster(self, V: np.ndarray, order):
+    def _raster(self, V: np.ndarray, order, size=None):
         """Covered pixel runs ``(y, x_first, length, triangle)``, each ``(r,)``, nearest part last.
 
         Scanline rasterisation vectorised over (triangle, row) pairs: on row
@@ -195,7 +212,7 @@ class MeshRenderer:
         so a triangle covers the run ⌈max lower bounds⌉ … ⌊min upper bounds⌋;
         only the runs are expanded into pixels.
         """
-        H, W = self.size
+        H, W = self.size if size is None else size
         sel, grp = self._draw_list(order)
         P = V[self.triangles[sel]]  # (s, 3, 2)
         y0 = np.clip(np.ceil(P[..., 1].min(axis=1) - 1e-9), 0, H).astype(np.int64)
@@ -275,7 +292,8 @@ class MeshRenderer:
         b[:, 0] += self._shift
         return A, b
 
-    def _crop_maps(self, vertices, order, with_ids: bool = False, below: bool = False):
+    def _crop_maps(self, vertices, order, with_ids: bool = False, below: bool = False, size=None,
+                   origin: bool = False):
         """Maps for the bounding box of the drawn pixels: ``(y0, x0, ids, map_x, map_y)``, crop-sized.
 
         ``ids`` (triangle per pixel, −1 empty) is None unless ``with_ids``.
@@ -289,12 +307,14 @@ class MeshRenderer:
         """
         V = np.asarray(vertices, dtype=np.float64)
         order = list(range(len(PARTS))) if order is None else list(order)
-        ry, rx, rn, rt, rg = self._raster(V, order)
+        ry, rx, rn, rt, rg = self._raster(V, order, size)
         if len(ry) == 0:
             e = np.zeros((0, 0), np.float32)
             return (0, 0, (e.astype(np.int32) if with_ids else None), e, e) + ((e, e) if below else ())
         y0, x0 = int(ry.min()), int(rx.min())
         h, w = int(ry.max()) - y0 + 1, int((rx + rn).max()) - x0
+        if origin:  # the whole image of ``size``, not the drawn box
+            y0, x0, (h, w) = 0, 0, size
         A, b = self._affine(V)
         # Per run: texel = A[:, 0] x + (A[:, 1] y + b).
         a0, a1 = A[rt, 0, 0], A[rt, 1, 0]
@@ -392,7 +412,8 @@ class MeshRenderer:
             part_crop = np.where(ids >= 0, self.parts[np.maximum(ids, 0)], -1)
         if self.seal and h:
             tab = (ids >= 0) & (self._tab_layer[np.maximum(ids, 0)] >= 3)
-            crop = seal(crop, part_crop, tab=tab, **self._seal_kw)
+            keep = None if self._gaps is None else self._gaps.mask(vertices, y0, x0, h, w)
+            crop = seal(crop, part_crop, tab=tab, keep=keep, **self._seal_kw)
         if self.reink is not None and h:
             # A margin for the half of the stroke that lies outside the silhouette.
             H, W = self.size
@@ -409,8 +430,8 @@ class MeshRenderer:
             inked = self._reink(crop, mx, my)
             if self.seal and inked is not crop:
                 # A stroke half outside the silhouette can close a pocket of paper: sealed as well.
-
-                inked = seal(inked, part_crop, **self._seal_kw)
+                keep = None if self._gaps is None else self._gaps.mask(vertices, y0, x0, h, w)
+                inked = seal(inked, part_crop, keep=keep, **self._seal_kw)
             crop = inked
         part_img = None
         if labels:

@@ -16,7 +16,10 @@ where two parts meet.  :func:`seal` closes them on the rendered frame:
   closing of the coverage (an ellipse of ``2·close + 1`` px) that lie within
   ``close + 1`` px (Chebyshev) of two different parts, in runs that touch the
   drawn pixels (:func:`touching`), are filled.  The closing also rounds the
-  inside corner of a bent joint a little, as a drawn joint is.
+  inside corner of a bent joint a little, as a drawn joint is.  A small
+  drawing's own slits between joined parts, which a closing that wide would
+  paint over, are found at rest and kept open in every frame
+  (:class:`DrawnGaps`).
 
 Filled pixels take the colour of the nearest fully opaque pixel of the frame
 (OpenCV's distance transform with per-pixel labels): the body's fill
@@ -69,8 +72,22 @@ def touching(fill: np.ndarray, cov: np.ndarray) -> np.ndarray:
     return keep[comp]
 
 
+def crack_candidates(labels: np.ndarray, cov: np.ndarray, close: int, joined=None) -> np.ndarray:
+    """Background pixels ``(h, w)`` bool inside the closing of coverage ``cov`` ``(h, w)`` bool by an
+    ellipse of ``2·close + 1`` px and within ``close + 1`` px of two parts of ``labels`` ``(h, w)``
+    (of a pair in ``joined``, when given): a crack's or a notch's pixels, before :func:`touching`."""
+    k = 2 * close + 1
+    ker = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
+    # Page all round the crop: OpenCV's default border would let the closing fill the crop's edge.
+    fill = cv2.morphologyEx(np.pad(cov.astype(np.uint8), k), cv2.MORPH_CLOSE, ker)[k:-k, k:-k].astype(bool) & ~cov
+    if fill.any():
+        lab = np.where(cov, labels, -1)
+        fill &= two_parts_near(lab, close + 1) if joined is None else joined_near(lab, close + 1, joined)
+    return fill
+
+
 def seal_mask(labels: np.ndarray, alpha: np.ndarray, close: int = 4, hole_share: float = 0.02,
-              thin: float = 3.0, hole_max: float | None = None, joined=None) -> np.ndarray:
+              thin: float = 3.0, hole_max: float | None = None, joined=None, keep=None) -> np.ndarray:
     """Pixels ``(h, w)`` bool to fill, from visible parts ``(h, w)`` int (−1 empty) and alpha ``(h, w)`` uint8.
 
     ``hole_max``: fill no wider-than-thin hole larger than this (px²); the
@@ -81,18 +98,19 @@ def seal_mask(labels: np.ndarray, alpha: np.ndarray, close: int = 4, hole_share:
     between parts no joint joins (two legs, an arm and the body's side) is
     the drawing's own gap: the Kenney robot's 2 px crotch, which the
     closing otherwise paints over.
+    ``keep``: pixels ``(h, w)`` bool the crack step leaves open (the drawing's
+    own slits in this frame, :meth:`DrawnGaps.mask`); a slit a sealed crack
+    encloses is filled as a thin hole, as any enclosed crack is.
     """
     cov = np.asarray(alpha) >= 128
     if not cov.any():
         return np.zeros(cov.shape, bool)
     # Cracks and notches first: closing a notch's mouth can enclose a hole behind it.
-    k = 2 * close + 1
-    ker = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
-    closed = cv2.morphologyEx(cov.astype(np.uint8), cv2.MORPH_CLOSE, ker).astype(bool)
-    fill = closed & ~cov
+    fill = crack_candidates(labels, cov, close, joined)
+    if keep is not None:
+        keep = np.asarray(keep, dtype=bool)
+        fill &= ~keep
     if fill.any():
-        lab = np.where(cov, labels, -1)
-        fill &= two_parts_near(lab, close + 1) if joined is None else joined_near(lab, close + 1, joined)
         fill = touching(fill, cov)
     drawn = cov | fill
     bg = (~drawn).astype(np.uint8)
@@ -199,7 +217,8 @@ def inner_soft(alpha: np.ndarray, fill: np.ndarray, labels: np.ndarray | None = 
     return out
 
 
-def seal(crop: np.ndarray, labels: np.ndarray, tab: np.ndarray | None = None, **kw) -> np.ndarray:
+def seal(crop: np.ndarray, labels: np.ndarray, tab: np.ndarray | None = None, tab_close: int | None = None,
+         **kw) -> np.ndarray:
     """A premultiplied RGBA crop ``(h, w, 4)`` uint8 with :func:`seal_mask` filled (nearest opaque colour).
 
     ``tab`` ``(h, w)`` bool: the pixels showing a joint tab; its slivers
@@ -210,7 +229,7 @@ def seal(crop: np.ndarray, labels: np.ndarray, tab: np.ndarray | None = None, **
     """
     fill = seal_mask(labels, crop[..., 3], **kw)
     if tab is not None and tab.any():
-        fill |= tab_slivers(crop[..., 3], tab, kw.get("close", 4))
+        fill |= tab_slivers(crop[..., 3], tab, tab_close if tab_close is not None else kw.get("close", 4))
     soft = inner_soft(crop[..., 3], fill, labels) & ~fill
     if not fill.any() and not soft.any():
         return crop
@@ -237,3 +256,88 @@ def seal(crop: np.ndarray, labels: np.ndarray, tab: np.ndarray | None = None, **
         near = src[lab[s] - 1]
         box[s] = over(crop[y0:y1, x0:x1][s], crop[y0:y1, x0:x1][near[:, 0], near[:, 1]])
     return out
+
+
+class DrawnGaps:
+    """The drawing's own narrow slits between joined parts, carried through the deformation.
+
+    A sprite's artist draws slits a few pixels wide where two joined parts
+    meet (a Kenney robot's arm beside its body, the slit between a sleeve and
+    a vest).  A crack the deformation opens is no wider, so a closing wide
+    enough to seal the cracks would paint the drawn slits over too.  The
+    drawn ones are known at rest: the pixels a closing of ``close`` px fills
+    there beyond what one of ``narrow`` px fills, in runs longer than the
+    closing's disc (``2·close + 2`` px).  A shorter run is a concave corner
+    where two parts meet on the outline (hair on a shoulder): it is sealed
+    like a crack.  Each slit pixel lies between two parts; it is tied to the
+    rest triangle of the nearest pixel of each (barycentric coordinates,
+    extrapolated past the triangle's edge) and carried by both into every
+    frame.  :meth:`mask` keeps the pixels between the two carried copies open:
+    as the parts swing apart the slit widens with them, as they close in it
+    narrows.
+
+    ``ids``: the rest pose's triangle per pixel ``(H, W)`` int (−1 empty),
+    ``alpha``: its alpha ``(H, W)`` uint8, both in texture pixels;
+    ``vertices`` ``(n, 2)`` rest positions, ``triangles`` ``(t, 3)``, ``parts`` ``(t,)``;
+    ``joined``: the part pairs whose cracks are sealed (:func:`seal_mask`).
+    """
+
+    #: Points sampled along each slit pixel's segment between its two carried copies.
+    SAMPLES = 9
+
+    def __init__(self, ids, alpha, vertices, triangles, parts, close: int, narrow: int, joined=None):
+        ids = np.asarray(ids)
+        cov = (np.asarray(alpha) >= 128) & (ids >= 0)
+        labels = np.where(cov, np.asarray(parts)[np.maximum(ids, 0)], -1)
+        wide = crack_candidates(labels, cov, close, joined)
+        n, comp, st, _ = cv2.connectedComponentsWithStats(wide.astype(np.uint8), connectivity=8)
+        slit = np.maximum(st[:, cv2.CC_STAT_WIDTH], st[:, cv2.CC_STAT_HEIGHT]) >= 2 * close + 2
+        slit[0] = False
+        gap = wide & slit[comp] & ~touching(crack_candidates(labels, cov, narrow, joined), cov)
+        yx = np.argwhere(gap)
+        self.triangles = np.zeros((2, 0, 3), np.int64)
+        self.bary = np.zeros((2, 0, 3))
+        present = [int(q) for q in np.unique(labels) if q >= 0]
+        if not len(yx) or len(present) < 2:
+            return
+        # The two nearest parts of each gap pixel, and the nearest pixel of each: one distance
+        # transform per part, with the index of its nearest zero pixel.
+        dist = np.empty((len(present), len(yx)), np.float32)
+        near = np.empty((len(present), len(yx), 2), np.int64)
+        for j, q in enumerate(present):
+            own = labels == q
+            d, lab = cv2.distanceTransformWithLabels((~own).astype(np.uint8), cv2.DIST_L2, 5,
+                                                     labelType=cv2.DIST_LABEL_PIXEL)
+            dist[j] = d[yx[:, 0], yx[:, 1]]
+            near[j] = np.argwhere(own)[lab[yx[:, 0], yx[:, 1]] - 1]
+        two = np.argsort(dist, axis=0, kind="stable")[:2]  # (2, k)
+        at = near[two, np.arange(len(yx))[None, :]]        # (2, k, 2) row, col
+        tri = np.asarray(triangles)[ids[at[..., 0], at[..., 1]]]  # (2, k, 3)
+        P = np.asarray(vertices, dtype=np.float64)[tri]  # (2, k, 3, 2)
+        # Barycentric coordinates of each pixel centre in each triangle: solve [B − A, C − A] w = p − A.
+        M = np.stack([P[..., 1, :] - P[..., 0, :], P[..., 2, :] - P[..., 0, :]], axis=-1)
+        w = np.linalg.solve(M, (yx[None, :, ::-1] - P[..., 0, :])[..., None])[..., 0]
+        self.triangles = tri
+        self.bary = np.concatenate([1.0 - w.sum(axis=-1, keepdims=True), w], axis=-1)
+
+    def __len__(self) -> int:
+        return self.bary.shape[1]
+
+    def mask(self, vertices, y0: int, x0: int, h: int, w: int) -> np.ndarray | None:
+        """Pixels ``(h, w)`` bool of the crop at ``(y0, x0)`` that the drawn gaps cover in the frame of
+        ``vertices`` ``(n, 2)``: the segments between each slit pixel's two carried copies, widened
+        by a pixel and closed (3 × 3); None without drawn slits."""
+        if not len(self):
+            return None
+        q = np.einsum("akj,akjd->akd", self.bary, np.asarray(vertices, dtype=np.float64)[self.triangles])
+        s = np.linspace(0.0, 1.0, self.SAMPLES)[:, None, None]
+        pts = (q[0][None] * (1.0 - s) + q[1][None] * s).reshape(-1, 2)
+        x = np.rint(pts[:, 0]).astype(np.int64) - x0
+        y = np.rint(pts[:, 1]).astype(np.int64) - y0
+        ok = (x >= 0) & (x < w) & (y >= 0) & (y < h)
+        out = np.zeros((h, w), np.uint8)
+        out[y[ok], x[ok]] = 1
+        # Closed as well: neighbouring slit pixels carried by different parts (a slit beside the
+        # arm, then beside the leg) part by a pixel, and a crack fill in that line is a sliver in the gap.
+        ker = np.ones((3, 3), np.uint8)
+        return cv2.morphologyEx(cv2.dilate(out, ker), cv2.MORPH_CLOSE, ker).astype(bool)
