@@ -39,9 +39,11 @@ from nnsf.reshape.outline import outline_style, redraw_outline
 from nnsf.reshape.tab_texture import TabClip, ink_mask, tab_textures
 from nnsf.reshape.seal import DrawnGaps, drawn_hole_limit, over, seal
 
-#: Cracks up to ``2·CRACK_CLOSE + 1`` px wide are sealed on any drawing: a crack's width comes from
-#: how far a joint turns past its piece's overlap, in pixels, not from the drawing's size.  A small
-#: drawing's own narrow gaps, which a closing this wide would fill, are kept (:class:`DrawnGaps`).
+#: Cracks up to ``2·CRACK_CLOSE + 1`` px wide are sealed on a sprite (a drawing whose scale closing
+#: is 1 px): a crack's width comes from how far a joint turns past its piece's overlap, in pixels,
+#: not from the drawing's size.  The sprite's own slits, which a closing this wide would fill, are
+#: kept (:class:`DrawnGaps`).  A larger drawing keeps its 2-4 px scale closing: on char5 (277 px)
+#: 3 px merged two of its extra arms where they turn apart.
 CRACK_CLOSE = 3
 
 
@@ -167,11 +169,11 @@ class MeshRenderer:
                 if len(under) != 1:
                     raise ValueError(f"part {PARTS[q]} tucks under several parts {under.tolist()}; expected one")
                 self._tucked[q] = (k, int(under[0]), self._own[q][~np.isin(self._own[q], k)])
-        #: The drawing's own narrow gaps (:class:`~nnsf.reshape.seal.DrawnGaps`), kept open by the seal;
-        #: None unless sealing a masked drawing whose scale closes less than :data:`CRACK_CLOSE` px
-        #: (the joint tabs' slivers keep the scale's closing, ``tab_close``).
+        #: The drawing's own narrow slits (:class:`~nnsf.reshape.seal.DrawnGaps`), kept open by the seal;
+        #: None unless sealing a masked sprite (scale closing 1 px, under 214 px tall), whose cracks
+        #: are then closed by :data:`CRACK_CLOSE` px (the joint tabs' slivers keep ``tab_close``).
         self._gaps = None
-        if self.seal and mask is not None and self._seal_kw["close"] < CRACK_CLOSE:
+        if self.seal and mask is not None and self._seal_kw["close"] == 1:
             self._seal_kw["close"] = CRACK_CLOSE
             _, _, ids, _, _ = self._crop_maps(self.uv, None, with_ids=True, size=(H, W), origin=True)
             alpha = (tex[..., 3].astype(np.float32) * np.asarray(mask, np.float32) + 0.5).astype(np.uint8)
