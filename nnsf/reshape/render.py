@@ -175,9 +175,10 @@ class MeshRenderer:
         self._gaps = None
         if self.seal and mask is not None and self._seal_kw["close"] == 1:
             self._seal_kw["close"] = CRACK_CLOSE
-            _, _, ids, _, _ = self._crop_maps(self.uv, None, with_ids=True, size=(H, W), origin=True)
-            alpha = (tex[..., 3].astype(np.float32) * np.asarray(mask, np.float32) + 0.5).astype(np.uint8)
-            gaps = DrawnGaps(ids, alpha, self.uv, self.triangles, self.parts, CRACK_CLOSE, self._seal_kw["tab_close"],
+            # The rest pose in texture pixels; the atlas's first slot holds the masked drawing's alpha.
+            ids = self.maps(self.uv, size=(H, W))[2]
+            gaps = DrawnGaps(ids, self._tex8[:, :W, 3], self.uv, self.triangles, self.parts, CRACK_CLOSE,
+                             self._seal_kw["tab_close"],
                              self._seal_kw["joined"])
             self._gaps = gaps if len(gaps) else None
 
@@ -294,8 +295,7 @@ class MeshRenderer:
         b[:, 0] += self._shift
         return A, b
 
-    def _crop_maps(self, vertices, order, with_ids: bool = False, below: bool = False, size=None,
-                   origin: bool = False):
+    def _crop_maps(self, vertices, order, with_ids: bool = False, below: bool = False, size=None):
         """Maps for the bounding box of the drawn pixels: ``(y0, x0, ids, map_x, map_y)``, crop-sized.
 
         ``ids`` (triangle per pixel, −1 empty) is None unless ``with_ids``.
@@ -315,8 +315,6 @@ class MeshRenderer:
             return (0, 0, (e.astype(np.int32) if with_ids else None), e, e) + ((e, e) if below else ())
         y0, x0 = int(ry.min()), int(rx.min())
         h, w = int(ry.max()) - y0 + 1, int((rx + rn).max()) - x0
-        if origin:  # the whole image of ``size``, not the drawn box
-            y0, x0, (h, w) = 0, 0, size
         A, b = self._affine(V)
         # Per run: texel = A[:, 0] x + (A[:, 1] y + b).
         a0, a1 = A[rt, 0, 0], A[rt, 1, 0]
@@ -356,16 +354,17 @@ class MeshRenderer:
         return out + ((bx.reshape(h, w), by.reshape(h, w), None if bid is None else bid.reshape(h, w))
                       if below else ())
 
-    def maps(self, vertices, order=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def maps(self, vertices, order=None, size=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Texture look-up maps for one frame.
 
         Returns ``map_x, map_y`` ``(H, W)`` float32 (texel coordinates in the
         texture atlas, −1 where nothing is drawn) and the triangle-id image
         ``(H, W)`` int32 (−1 where empty).  ``order``: part ids back to front
-        (default: :data:`PARTS` order); parts not listed are not drawn.
+        (default: :data:`PARTS` order); parts not listed are not drawn.  ``size``: ``(H, W)`` of
+        the image (default the renderer's).
         """
-        H, W = self.size
-        y0, x0, ids, mx, my = self._crop_maps(vertices, order, with_ids=True)
+        H, W = self.size if size is None else size
+        y0, x0, ids, mx, my = self._crop_maps(vertices, order, with_ids=True, size=(H, W))
         h, w = ids.shape
         full = [np.full((H, W), -1, dtype=d) for d in (np.float32, np.float32, np.int32)]
         for f, c in zip(full, (mx, my, ids)):
@@ -414,7 +413,8 @@ class MeshRenderer:
             part_crop = np.where(ids >= 0, self.parts[np.maximum(ids, 0)], -1)
         if self.seal and h:
             tab = (ids >= 0) & (self._tab_layer[np.maximum(ids, 0)] >= 3)
-            keep = None if self._gaps is None else self._gaps.mask(vertices, y0, x0, h, w)
+            slits = None if self._gaps is None else self._gaps.points(vertices)
+            keep = None if slits is None else self._gaps.mask(slits, y0, x0, h, w)
             crop = seal(crop, part_crop, tab=tab, keep=keep, **self._seal_kw)
         if self.reink is not None and h:
             # A margin for the half of the stroke that lies outside the silhouette.
@@ -432,7 +432,7 @@ class MeshRenderer:
             inked = self._reink(crop, mx, my)
             if self.seal and inked is not crop:
                 # A stroke half outside the silhouette can close a pocket of paper: sealed as well.
-                keep = None if self._gaps is None else self._gaps.mask(vertices, y0, x0, h, w)
+                keep = None if slits is None else self._gaps.mask(slits, y0, x0, h, w)
                 inked = seal(inked, part_crop, keep=keep, **self._seal_kw)
             crop = inked
         part_img = None

@@ -108,8 +108,7 @@ def seal_mask(labels: np.ndarray, alpha: np.ndarray, close: int = 4, hole_share:
     # Cracks and notches first: closing a notch's mouth can enclose a hole behind it.
     fill = crack_candidates(labels, cov, close, joined)
     if keep is not None:
-        keep = np.asarray(keep, dtype=bool)
-        fill &= ~keep
+        fill &= ~np.asarray(keep, dtype=bool)
     if fill.any():
         fill = touching(fill, cov)
     drawn = cov | fill
@@ -323,15 +322,16 @@ class DrawnGaps:
     def __len__(self) -> int:
         return self.bary.shape[1]
 
-    def mask(self, vertices, y0: int, x0: int, h: int, w: int) -> np.ndarray | None:
-        """Pixels ``(h, w)`` bool of the crop at ``(y0, x0)`` that the drawn gaps cover in the frame of
-        ``vertices`` ``(n, 2)``: the segments between each slit pixel's two carried copies, widened
-        by a pixel and closed (3 × 3); None without drawn slits."""
-        if not len(self):
-            return None
+    def points(self, vertices) -> np.ndarray:
+        """Pixel positions ``(SAMPLES · k, 2)`` (x, y) along each slit pixel's segment between its two
+        carried copies in the frame of ``vertices`` ``(n, 2)``."""
         q = np.einsum("akj,akjd->akd", self.bary, np.asarray(vertices, dtype=np.float64)[self.triangles])
         s = np.linspace(0.0, 1.0, self.SAMPLES)[:, None, None]
-        pts = (q[0][None] * (1.0 - s) + q[1][None] * s).reshape(-1, 2)
+        return (q[0][None] * (1.0 - s) + q[1][None] * s).reshape(-1, 2)
+
+    def mask(self, pts: np.ndarray, y0: int, x0: int, h: int, w: int) -> np.ndarray:
+        """Pixels ``(h, w)`` bool of the crop at ``(y0, x0)`` that the slits cover, from their
+        :meth:`points` ``pts``: widened by a pixel and closed (3 × 3)."""
         x = np.rint(pts[:, 0]).astype(np.int64) - x0
         y = np.rint(pts[:, 1]).astype(np.int64) - y0
         ok = (x >= 0) & (x < w) & (y >= 0) & (y < h)
