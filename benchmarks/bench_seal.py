@@ -5,7 +5,9 @@ Renders char1 kicking (layered mesh, subkeys) three ways, each the fastest of
 three passes: without seal and redraw, with the seal, with both (the
 default), and prints milliseconds per frame; needs ../shared/data.  Also
 counts the pixels the redraw inks outside the sealed pieces (a stroke
-laid half outside a new edge is a bump beside the drawn outline).  Run:
+laid half outside a new edge is a bump beside the drawn outline).  Then a Kenney
+sprite with and without its drawn slits, and char5 with and without the
+acute-corner step of its 2 px seal.  Run:
 ``python benchmarks/bench_seal.py``.
 """
 from __future__ import annotations
@@ -68,6 +70,27 @@ def main(frames: int = 60, repeat: int = 3) -> None:
     print(f"  ink the redraw adds outside the pieces {np.mean(outside):7.1f} px/frame (max {max(outside)})")
     print(f"  artefact measures                   {art:6.1f} ms/frame  (evaluation only)")
     sprite(frames, repeat)
+    corners(frames, repeat)
+
+
+def corners(frames: int, repeat: int) -> None:
+    """char5 (277 px, a 2 px scale closing), whose acute corners the 3 px closing's short runs seal
+    (``seal_mask(corner=...)``): its cost against the seal without that step."""
+    from nnsf.reshape.formats import read_character
+
+    ch = read_character(DATA / "animated-drawings" / "characters" / "char5")  # extra arms: not the biped reader
+    clip = load_clip(DATA / "bandai-namco-1" / "data" / "dataset-1_walk_normal_001.bvh", fps=30)
+    rig = build_rig(ch, "ours", "layered", 800, 4)
+    anim = animate(rig, clip.points[:frames], clip.depth[:frames], arms="drawing")
+    off, size = canvas(ch, anim.frames)
+    with_corners = MeshRenderer.for_mesh(rig.mesh, ch, size=size)
+    without = MeshRenderer.for_mesh(rig.mesh, ch, size=size)
+    del without._seal_kw["corner"]
+    t = {k: _time(r, anim, off, frames, repeat) for k, r in (("without", without), ("corners", with_corners))}
+    print(f"char5 walk, {size[1]} x {size[0]} canvas, scale closing {with_corners._seal_kw['close']} px")
+    print(f"  render (seal, outline redraw)       {t['without']:6.1f} ms/frame")
+    print(f"  + acute corners (3 px short runs)   {t['corners']:6.1f} ms/frame  (+{t['corners'] - t['without']:.2f} ms; "
+          f"{t['corners'] / t['without']:.3f}x)")
 
 
 def sprite(frames: int, repeat: int) -> None:

@@ -522,3 +522,42 @@ def test_the_crack_closing_does_not_fill_the_crop_edge():
     labels[15:28, 1:] = 2
     cand = crack_candidates(labels, labels >= 0, 3, [(0, 2)])
     assert not cand.any()
+
+
+def _torso_and_limb(limb_mask):
+    """A grey torso block (part 0) and a darker limb (part 2) drawn where ``limb_mask`` is, beside it."""
+    crop = np.zeros((60, 60, 4), np.uint8)
+    labels = np.full((60, 60), -1, np.int64)
+    crop[5:55, 5:30] = (150, 150, 150, 255)
+    labels[5:55, 5:30] = 0
+    limb = limb_mask & (labels < 0)
+    crop[limb] = (120, 120, 120, 255)
+    labels[limb] = 2
+    return crop, labels
+
+
+def test_the_corner_closing_seals_an_acute_corner_and_leaves_a_long_gap():
+    """A drawing whose scale closing is 2 px (char5, char6) seals the short runs a 3 px closing adds:
+    the tip of the acute wedge where a limb leaves the body.  A gap along the body is a long run
+    of that closing: it stays open, as with the 2 px closing, where the 3 px closing fills it."""
+    import cv2
+
+    from nnsf.reshape.seal import seal_mask
+
+    wedge = np.zeros((60, 60), np.uint8)
+    cv2.line(wedge, (27, 10), (50, 50), 1, 7)          # a limb leaving the body's side at 30°
+    crop, labels = _torso_and_limb(wedge.astype(bool))
+    two = seal_mask(labels, crop[..., 3], close=2, joined=[(0, 2)])
+    corner = seal_mask(labels, crop[..., 3], close=2, joined=[(0, 2)], corner=3)
+    three = seal_mask(labels, crop[..., 3], close=3, joined=[(0, 2)])
+    assert two.sum() > 0 and (two <= corner).all()
+    assert corner.sum() > two.sum() + 5                 # the wedge sealed deeper
+    assert (corner == three).all()                      # as deep as the 3 px closing seals it
+
+    side = np.zeros((60, 60), bool)
+    side[10:40, 34:46] = True                           # a limb 4 px from the body's side, 30 px long
+    crop, labels = _torso_and_limb(side)
+    gap = np.s_[15:35, 30:34]
+    assert not seal_mask(labels, crop[..., 3], close=2, joined=[(0, 2)])[gap].any()
+    assert seal_mask(labels, crop[..., 3], close=3, joined=[(0, 2)])[gap].all()   # the control
+    assert not seal_mask(labels, crop[..., 3], close=2, joined=[(0, 2)], corner=3)[gap].any()

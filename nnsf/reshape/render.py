@@ -43,7 +43,9 @@ from nnsf.reshape.seal import DrawnGaps, drawn_hole_limit, over, seal
 #: is 1 px): a crack's width comes from how far a joint turns past its piece's overlap, in pixels,
 #: not from the drawing's size.  The sprite's own slits, which a closing this wide would fill, are
 #: kept (:class:`DrawnGaps`).  A larger drawing keeps its 2-4 px scale closing: on char5 (277 px)
-#: 3 px merged two of its extra arms where they turn apart.
+#: 3 px merged two of its extra arms where they turn apart.  Where its scale closing is narrower,
+#: the runs of a ``CRACK_CLOSE`` px closing shorter than its disc are sealed too (``corner`` of
+#: :func:`~nnsf.reshape.seal.seal_mask`): acute corners between a limb and the body, not gaps.
 CRACK_CLOSE = 3
 
 
@@ -79,6 +81,7 @@ class MeshRenderer:
             self._seal_kw["tab_close"] = self._seal_kw["close"]
             # Cracks only where a joint joins two parts; a gap between others is drawn.
             self._seal_kw["joined"] = JOINED_PARTS
+            self._seal_kw["corner"] = CRACK_CLOSE
         self.uv = np.asarray(rest_vertices, dtype=np.float64)
         self.triangles = np.asarray(triangles, dtype=np.int64)
         self.parts = np.asarray(parts, dtype=np.int64)

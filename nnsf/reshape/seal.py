@@ -19,7 +19,9 @@ where two parts meet.  :func:`seal` closes them on the rendered frame:
   inside corner of a bent joint a little, as a drawn joint is.  A small
   drawing's own slits between joined parts, which a closing that wide would
   paint over, are found at rest and kept open in every frame
-  (:class:`DrawnGaps`).
+  (:class:`DrawnGaps`).  A drawing whose closing is narrower than a crack
+  can be wide has the short runs of a wider closing sealed as well: the
+  acute corners where a limb's outline meets the body's (``corner``).
 
 Filled pixels take the colour of the nearest fully opaque pixel of the frame
 (OpenCV's distance transform with per-pixel labels): the body's fill
@@ -81,13 +83,34 @@ def crack_candidates(labels: np.ndarray, cov: np.ndarray, close: int, joined=Non
     # Page all round the crop: OpenCV's default border would let the closing fill the crop's edge.
     fill = cv2.morphologyEx(np.pad(cov.astype(np.uint8), k), cv2.MORPH_CLOSE, ker)[k:-k, k:-k].astype(bool) & ~cov
     if fill.any():
-        lab = np.where(cov, labels, -1)
-        fill &= two_parts_near(lab, close + 1) if joined is None else joined_near(lab, close + 1, joined)
+        # Only the box of the candidates, and its reach: the part tests dilate once per part.
+        ys, xs = np.nonzero(fill)
+        r = close + 1
+        y0, y1 = max(ys.min() - r, 0), ys.max() + r + 1
+        x0, x1 = max(xs.min() - r, 0), xs.max() + r + 1
+        lab = np.where(cov[y0:y1, x0:x1], labels[y0:y1, x0:x1], -1)
+        fill[y0:y1, x0:x1] &= two_parts_near(lab, r) if joined is None else joined_near(lab, r, joined)
     return fill
 
 
+def short_runs(mask: np.ndarray, extent: int) -> np.ndarray:
+    """The 8-connected components of ``mask`` ``(h, w)`` bool whose bounding box is shorter than
+    ``extent`` px both ways, ``(h, w)`` bool."""
+    ys, xs = np.nonzero(mask)
+    if not len(ys):
+        return mask
+    y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
+    n, comp, st, _ = cv2.connectedComponentsWithStats(mask[y0:y1, x0:x1].astype(np.uint8), connectivity=8)
+    short = np.maximum(st[:, cv2.CC_STAT_WIDTH], st[:, cv2.CC_STAT_HEIGHT]) < extent
+    short[0] = False
+    out = np.zeros(mask.shape, bool)
+    out[y0:y1, x0:x1] = short[comp]
+    return out
+
+
 def seal_mask(labels: np.ndarray, alpha: np.ndarray, close: int = 4, hole_share: float = 0.02,
-              thin: float = 3.0, hole_max: float | None = None, joined=None, keep=None) -> np.ndarray:
+              thin: float = 3.0, hole_max: float | None = None, joined=None, keep=None,
+              corner: int | None = None) -> np.ndarray:
     """Pixels ``(h, w)`` bool to fill, from visible parts ``(h, w)`` int (−1 empty) and alpha ``(h, w)`` uint8.
 
     ``hole_max``: fill no wider-than-thin hole larger than this (px²); the
@@ -101,12 +124,19 @@ def seal_mask(labels: np.ndarray, alpha: np.ndarray, close: int = 4, hole_share:
     ``keep``: pixels ``(h, w)`` bool the crack step leaves open (the drawing's
     own slits in this frame, :meth:`DrawnGaps.mask`); a slit a sealed crack
     encloses is filled as a thin hole, as any enclosed crack is.
+    ``corner``: a closing wider than ``close`` whose extra fill is sealed too
+    where it comes in runs shorter than its disc (``2·corner + 2`` px): the
+    acute corner where a limb's outline meets the body's, a pixel or two of
+    page a closing of 2 px leaves.  A longer run is a gap, between two of
+    char5's arms that turn apart, and stays open.
     """
     cov = np.asarray(alpha) >= 128
     if not cov.any():
         return np.zeros(cov.shape, bool)
     # Cracks and notches first: closing a notch's mouth can enclose a hole behind it.
     fill = crack_candidates(labels, cov, close, joined)
+    if corner is not None and corner > close:
+        fill |= short_runs(crack_candidates(labels, cov, corner, joined) & ~fill, 2 * corner + 2)
     if keep is not None:
         fill &= ~np.asarray(keep, dtype=bool)
     if fill.any():
@@ -289,10 +319,7 @@ class DrawnGaps:
         cov = (np.asarray(alpha) >= 128) & (ids >= 0)
         labels = np.where(cov, np.asarray(parts)[np.maximum(ids, 0)], -1)
         wide = crack_candidates(labels, cov, close, joined)
-        n, comp, st, _ = cv2.connectedComponentsWithStats(wide.astype(np.uint8), connectivity=8)
-        slit = np.maximum(st[:, cv2.CC_STAT_WIDTH], st[:, cv2.CC_STAT_HEIGHT]) >= 2 * close + 2
-        slit[0] = False
-        gap = wide & slit[comp] & ~touching(crack_candidates(labels, cov, narrow, joined), cov)
+        gap = wide & ~short_runs(wide, 2 * close + 2) & ~touching(crack_candidates(labels, cov, narrow, joined), cov)
         yx = np.argwhere(gap)
         self.triangles = np.zeros((2, 0, 3), np.int64)
         self.bary = np.zeros((2, 0, 3))
