@@ -7,7 +7,8 @@ default), and prints milliseconds per frame; needs ../shared/data.  Also
 counts the pixels the redraw inks outside the sealed pieces (a stroke
 laid half outside a new edge is a bump beside the drawn outline).  Then a Kenney
 sprite with and without its drawn slits, and char5 with and without the
-acute-corner step of its 2 px seal.  Run:
+acute-corner step of its 2 px seal.  The default's line "without the
+hairline fill" times ``seal_mask(hairline=False)`` (``seal.hairlines``).  Run:
 ``python benchmarks/bench_seal.py``.
 """
 from __future__ import annotations
@@ -52,8 +53,10 @@ def main(frames: int = 60, repeat: int = 3) -> None:
     plain.reink = None
     sealed = MeshRenderer.for_mesh(rig.mesh, ch, size=size)
     sealed.reink = None
+    nohair = MeshRenderer.for_mesh(rig.mesh, ch, size=size)  # the default without the hairline step
+    nohair._seal_kw["hairline"] = False
     times = {"plain": _time(plain, anim, off, frames, repeat), "seal": _time(sealed, anim, off, frames, repeat),
-             "full": _time(full, anim, off, frames, repeat)}
+             "full": _time(full, anim, off, frames, repeat), "nohair": _time(nohair, anim, off, frames, repeat)}
     imgs = [full.render_labelled(anim.frames[t] + off, anim.orders[t], labels=True) for t in range(frames)]
     outside = [int(((rgba[..., 3] >= 128) & (sealed.render(anim.frames[t] + off, anim.orders[t])[..., 3] < 128)).sum())
                for t, (rgba, _) in enumerate(imgs)]
@@ -67,6 +70,8 @@ def main(frames: int = 60, repeat: int = 3) -> None:
     print(f"  + seal                              {times['seal']:6.1f} ms/frame  (seal: +{times['seal'] - times['plain']:.1f} ms)")
     print(f"  + outline redraw (the default)      {times['full']:6.1f} ms/frame  "
           f"(redraw: +{times['full'] - times['seal']:.1f} ms; line width {style[1]:g} px)")
+    print(f"  the default without the hairline fill {times['nohair']:6.1f} ms/frame  "
+          f"(hairlines: {times['full'] / times['nohair']:.3f}x)")
     print(f"  ink the redraw adds outside the pieces {np.mean(outside):7.1f} px/frame (max {max(outside)})")
     print(f"  artefact measures                   {art:6.1f} ms/frame  (evaluation only)")
     sprite(frames, repeat)
@@ -85,7 +90,7 @@ def corners(frames: int, repeat: int) -> None:
     off, size = canvas(ch, anim.frames)
     with_corners = MeshRenderer.for_mesh(rig.mesh, ch, size=size)
     without = MeshRenderer.for_mesh(rig.mesh, ch, size=size)
-    del without._seal_kw["corner"]
+    del without._seal_kw["corner"]  # the hairline fill stays on in both
     t = {k: _time(r, anim, off, frames, repeat) for k, r in (("without", without), ("corners", with_corners))}
     print(f"char5 walk, {size[1]} x {size[0]} canvas, scale closing {with_corners._seal_kw['close']} px")
     print(f"  render (seal, outline redraw)       {t['without']:6.1f} ms/frame")

@@ -561,3 +561,41 @@ def test_the_corner_closing_seals_an_acute_corner_and_leaves_a_long_gap():
     assert not seal_mask(labels, crop[..., 3], close=2, joined=[(0, 2)])[gap].any()
     assert seal_mask(labels, crop[..., 3], close=3, joined=[(0, 2)])[gap].all()   # the control
     assert not seal_mask(labels, crop[..., 3], close=2, joined=[(0, 2)], corner=3)[gap].any()
+
+
+def test_a_crack_wider_than_the_reach_is_sealed_whole_not_split_by_two_hairlines():
+    """A limb parting from the body in a long wedge (1 px wider every 4 rows; char4's thighs at the
+    crotch).  Where the wedge is 5-6 px wide only its middle lies within the two-part reach (4 px
+    with a 3 px closing): the crack step alone fills the middle and leaves a line of page on each
+    side.  The seal of a drawing (not a sprite's) fills those lines too, so each such row is sealed
+    from body to limb."""
+    from nnsf.reshape.seal import crack_candidates, hairlines, seal_mask, touching
+
+    crop = np.zeros((80, 80, 4), np.uint8)
+    labels = np.full((80, 80), -1, np.int64)
+    crop[5:75, 5:30] = 255
+    labels[5:75, 5:30] = 0
+    gap = {}
+    for y in range(10, 75):
+        x0 = 30 + (y - 10) // 4
+        crop[y, x0:x0 + 12] = 255
+        labels[y, x0:x0 + 12] = 2
+        gap[y] = x0 - 30
+    cov = crop[..., 3] >= 128
+    middle = touching(crack_candidates(labels, cov, 3, [(0, 2)]), cov)
+    # the crack step alone: page beside its fill, 1-2 px wide, in the rows 5-6 px wide
+    assert hairlines(middle, cov).sum() >= 8
+    assert sum(middle[y, 30:30 + g].any() and not middle[y, 30:30 + g].all() for y, g in gap.items()) >= 5
+    assert hairlines(seal_mask(labels, crop[..., 3], close=3, joined=[(0, 2)]), cov).sum() >= 8  # a sprite's seal
+    sealed = seal_mask(labels, crop[..., 3], close=3, joined=[(0, 2)], hairline=True)
+    assert not hairlines(sealed, cov).any()
+    assert all(sealed[y, 30:30 + g].all() for y, g in gap.items() if 0 < g <= 5)
+    assert sum(sealed[y, 30:36].all() for y, g in gap.items() if g == 6) >= 2
+    assert not sealed[60:75, 30:45].any()              # the wedge's mouth, 12-16 px wide, stays open
+
+    line = np.zeros((3, 12), bool)                     # drawn | 2 px page | filled | 3 px page | drawn
+    fill = line.copy()
+    cov = line.copy()
+    cov[:, :3] = cov[:, 9:] = True
+    fill[:, 5] = True
+    assert (hairlines(fill, cov)[0] == [0, 0, 0, 1, 1, 0, 0, 0, 0, 0, 0, 0]).all()

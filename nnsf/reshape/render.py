@@ -82,6 +82,7 @@ class MeshRenderer:
             # Cracks only where a joint joins two parts; a gap between others is drawn.
             self._seal_kw["joined"] = JOINED_PARTS
             self._seal_kw["corner"] = CRACK_CLOSE
+            self._seal_kw["hairline"] = True
         self.uv = np.asarray(rest_vertices, dtype=np.float64)
         self.triangles = np.asarray(triangles, dtype=np.int64)
         self.parts = np.asarray(parts, dtype=np.int64)
@@ -178,6 +179,7 @@ class MeshRenderer:
         self._gaps = None
         if self.seal and mask is not None and self._seal_kw["close"] == 1:
             self._seal_kw["close"] = CRACK_CLOSE
+            self._seal_kw["hairline"] = False
             # The rest pose in texture pixels; the atlas's first slot holds the masked drawing's alpha.
             ids = self.maps(self.uv, size=(H, W))[2]
             gaps = DrawnGaps(ids, self._tex8[:, :W, 3], self.uv, self.triangles, self.parts, CRACK_CLOSE,
