@@ -23,10 +23,9 @@ from pathlib import Path
 import numpy as np
 
 from nnsf.datasets.bvh_source import load_clip
-from nnsf.reshape.artefacts import tear_pixels
+from nnsf.reshape.artefacts import frame_tears
 from nnsf.reshape.evaluation import AZIMUTH, HEAD, KC, MOTIONS
 from nnsf.reshape.kenney import kenney_character
-from nnsf.reshape.parts import PARTS
 from nnsf.reshape.render import MeshRenderer
 from nnsf.reshape.stage import animate, build_rig, canvas
 
@@ -50,10 +49,7 @@ def main(max_frames: int = 240) -> None:
             n = k = 0
             for t in range(T):
                 V = anim.frames[t] + off
-                rgba, lab = r.render_labelled(V, anim.orders[t], labels=True)
-                cov = rgba[..., 3] >= 128
-                # as the evaluation labels them: a sealed pixel, drawn but of no piece, is "other"
-                tp = tear_pixels(np.where(cov, np.where(lab >= 0, lab, len(PARTS)), -1), background=~cov)
+                tp = frame_tears(*r.render_labelled(V, anim.orders[t], labels=True))  # as the evaluation counts
                 n += int(tp.sum())
                 if r._gaps is not None:  # the renderer's carried slits: what its seal keeps open
                     k += int((tp & r._gaps.mask(r._gaps.points(V), 0, 0, *size)).sum())

@@ -479,6 +479,14 @@ def part_image(triangle_ids: np.ndarray, parts: np.ndarray) -> np.ndarray:
     return out
 
 
+def frame_tears(rgba: np.ndarray, labels: np.ndarray, by_pair: bool = False):
+    """:func:`tear_pixels` of a rendered frame, RGBA ``(H, W, 4)`` and its labels ``(H, W)``: drawn
+    pixels with no part (filled by the seal) are ink, not background, labelled apart."""
+    cov = rgba[..., 3] >= 128
+    lab = np.where(cov, np.where(labels >= 0, labels, len(PARTS)), -1)
+    return tear_pixels(lab, background=~cov, by_pair=by_pair)
+
+
 def frame_artefacts(rgba: np.ndarray, labels: np.ndarray, ink_thr: float, spike_thr: float,
                     joints=None, reach: int = 2) -> dict[str, float]:
     """Holes, tears, outline continuity, spikes and joint gaps of one rendered frame.
@@ -487,11 +495,9 @@ def frame_artefacts(rgba: np.ndarray, labels: np.ndarray, ink_thr: float, spike_
     radii (k,))`` for :func:`joint_gaps`; ``reach``: :func:`outline_continuity`'s.
     """
     cov = rgba[..., 3] >= 128
-    # Drawn pixels with no part (filled by the seal) are ink, not background: label them apart.
-    lab = np.where(cov, np.where(labels >= 0, labels, len(PARTS)), -1)
     hp, hn = holes(cov)
     seam, pose = hole_kinds(cov, np.where(cov, labels, -1))
-    tp, pair_tears = tear_pixels(lab, background=~cov, by_pair=True)
+    tp, pair_tears = frame_tears(rgba, labels, by_pair=True)
     out = {"hole_px": hp, "holes_gt4": hn, "seam_holes": seam, "pose_holes": pose,
            "tear_px": int(tp.sum()), "tear_pairs": pair_tears,
            "outline_ink": outline_continuity(cov, rgba[..., :3], ink_thr, reach),

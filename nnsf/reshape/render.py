@@ -82,7 +82,8 @@ class MeshRenderer:
             # Cracks only where a joint joins two parts; a gap between others is drawn.
             self._seal_kw["joined"] = JOINED_PARTS
             self._seal_kw["corner"] = CRACK_CLOSE
-            self._seal_kw["hairline"] = True
+            # Not on a sprite (scale closing 1 px): it would fill its 1-2 px drawn slits.
+            self._seal_kw["hairline"] = self._seal_kw["close"] > 1
         self.uv = np.asarray(rest_vertices, dtype=np.float64)
         self.triangles = np.asarray(triangles, dtype=np.int64)
         self.parts = np.asarray(parts, dtype=np.int64)
@@ -179,7 +180,6 @@ class MeshRenderer:
         self._gaps = None
         if self.seal and mask is not None and self._seal_kw["close"] == 1:
             self._seal_kw["close"] = CRACK_CLOSE
-            self._seal_kw["hairline"] = False
             # The rest pose in texture pixels; the atlas's first slot holds the masked drawing's alpha.
             ids = self.maps(self.uv, size=(H, W))[2]
             gaps = DrawnGaps(ids, self._tex8[:, :W, 3], self.uv, self.triangles, self.parts, CRACK_CLOSE,
@@ -437,6 +437,7 @@ class MeshRenderer:
             inked = self._reink(crop, mx, my)
             if self.seal and inked is not crop:
                 # A stroke half outside the silhouette can close a pocket of paper: sealed as well.
+                # the slits again, in the crop padded for the stroke
                 keep = None if slits is None else self._gaps.mask(slits, y0, x0, h, w)
                 inked = seal(inked, part_crop, keep=keep, **self._seal_kw)
             crop = inked
