@@ -480,11 +480,9 @@ def part_image(triangle_ids: np.ndarray, parts: np.ndarray) -> np.ndarray:
 
 
 def frame_tears(rgba: np.ndarray, labels: np.ndarray, by_pair: bool = False):
-    """:func:`tear_pixels` of a rendered frame, RGBA ``(H, W, 4)`` and its labels ``(H, W)``: drawn
-    pixels with no part (filled by the seal) are ink, not background, labelled apart."""
+    """:func:`tear_pixels` of a frame, RGBA ``(H, W, 4)``, labels ``(H, W)``: seal-filled pixels are ink, not page."""
     cov = rgba[..., 3] >= 128
-    lab = np.where(cov, np.where(labels >= 0, labels, len(PARTS)), -1)
-    return tear_pixels(lab, background=~cov, by_pair=by_pair)
+    return tear_pixels(np.where(cov, np.where(labels >= 0, labels, len(PARTS)), -1), background=~cov, by_pair=by_pair)
 
 
 def frame_artefacts(rgba: np.ndarray, labels: np.ndarray, ink_thr: float, spike_thr: float,
