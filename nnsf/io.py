@@ -25,9 +25,11 @@ from __future__ import annotations
 import contextlib
 import errno
 import json
+import math
 import os
 import shutil
 import tempfile
+import zipfile
 from glob import escape as glob_escape
 from pathlib import Path
 from typing import Iterator, Mapping
@@ -35,8 +37,10 @@ from typing import Iterator, Mapping
 import numpy as np
 import pandas as pd
 
-from nnsf.errors import InputError
+from nnsf.errors import InputError, exception_line
 from nnsf.errors import read_bytes, read_text  # noqa: F401  (re-exported: readers beside the writers)
+from nnsf.safe_yaml import parse_yaml, read_yaml  # noqa: F401  (re-exported: the one YAML reader)
+from nnsf.schema import Context, Rule, check
 
 
 class WriteError(InputError):
@@ -304,28 +308,103 @@ def write_npz(path, digits: int | None = DIGITS, **arrays: np.ndarray) -> None:
             np.savez(fh, **arrays)
 
 
-def read_npz(path) -> dict[str, np.ndarray]:
-    """Read every array of an ``.npz`` into memory; never unpickles."""
+#: Largest total of array bytes an ``.npz`` read back may declare (checked on its headers, before reading).
+MAX_NPZ_BYTES = 2_000_000_000
+#: Most arrays in one ``.npz`` read back.
+MAX_NPZ_ARRAYS = 10_000
+
+
+def _npy_header(fh) -> tuple[np.dtype, tuple, bool, int]:
+    """``(dtype, shape, fortran_order, data offset)`` of an open ``.npy`` stream (reads the header only)."""
+    version = np.lib.format.read_magic(fh)
+    if version == (1, 0):
+        shape, fortran, dtype = np.lib.format.read_array_header_1_0(fh)
+    elif version == (2, 0):
+        shape, fortran, dtype = np.lib.format.read_array_header_2_0(fh)
+    else:
+        raise ValueError(f"unsupported .npy format version {version}")
+    return dtype, tuple(shape), fortran, fh.tell()
+
+
+def read_npz(path, schema: Mapping | None = None, max_bytes: int = MAX_NPZ_BYTES,
+             what: str = "file of arrays without pickled objects") -> dict[str, np.ndarray]:
+    """Read every array of an ``.npz`` into memory, checked before anything is allocated.
+
+    The zip directory and every member's ``.npy`` header are read first: each
+    member must be one ``.npy`` array without Python objects (never
+    unpickled), whose header's dtype and shape account for exactly the bytes
+    the member holds, and all of them together at most ``max_bytes``.  With
+    a ``schema`` (``{name: nnsf.schema.Array}``), names it does not list are
+    refused, required ones must be present, and each header must follow its
+    rule (dtype kind, shape, named sizes shared between arrays); after
+    reading, the rules' value checks (finite values, labels) run too.  Every
+    failure is an :class:`InputError` naming ``path`` and the array.
+    """
     path = Path(path)
     if not path.is_file():
-        raise InputError(path, "file", "an existing .npz file")
+        raise InputError(path, "file", f"an existing .npz {what}")
+    ctx = Context()
     try:
-        with np.load(path, allow_pickle=False) as z:
-            return {k: z[k] for k in z.files}
-    except (ValueError, OSError) as exc:
-        raise InputError(path, "file", "a readable .npz archive without pickled objects", reason=str(exc)) from None
+        with zipfile.ZipFile(path) as zf:
+            infos = zf.infolist()
+            if len(infos) > MAX_NPZ_ARRAYS:
+                raise InputError(path, "file", f"an .npz of at most {MAX_NPZ_ARRAYS} arrays", f"{len(infos)} members")
+            headers: dict[str, tuple] = {}
+            total = 0
+            for info in infos:
+                name = info.filename[:-4] if info.filename.endswith(".npy") else None
+                if name is None or info.is_dir():
+                    raise InputError(path, info.filename, "a .npy array (the only members of an .npz)")
+                if name in headers:
+                    raise InputError(path, name, "each array once", "a second member of that name")
+                with zf.open(info) as fh:
+                    dtype, shape, _, offset = _npy_header(fh)
+                if dtype.hasobject:
+                    raise InputError(path, name, "an array without Python objects (never unpickled)", str(dtype))
+                nbytes = math.prod(shape) * dtype.itemsize
+                if info.file_size - offset != nbytes:
+                    raise InputError(path, name, f"the {nbytes} data bytes its header ({dtype}, shape {shape}) "
+                                     "declares", f"{info.file_size - offset} bytes")
+                total += nbytes
+                if total > max_bytes:
+                    raise InputError(path, "file", f"an .npz of at most {max_bytes} bytes of arrays",
+                                     f"more than {max_bytes} bytes")
+                headers[name] = (dtype, shape, info)
+            if schema is not None:
+                unknown = [n for n in headers if n not in schema]
+                if unknown:
+                    raise InputError(path, unknown[0], "only the arrays " + ", ".join(schema), "an unknown array")
+                for name, rule in schema.items():
+                    if name in headers:
+                        rule.check_header(path, name, headers[name][0], headers[name][1], ctx)
+                    elif rule.required:
+                        raise InputError(path, name, rule.expected, "missing")
+            arrays = {}
+            for name, (_, _, info) in headers.items():
+                with zf.open(info) as fh:
+                    arrays[name] = np.lib.format.read_array(fh, allow_pickle=False)
+    except InputError:
+        raise
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile, zipfile.LargeZipFile, NotImplementedError) as exc:
+        raise InputError(path, "file", f"a readable .npz {what}",
+                         reason=exception_line(exc)) from None
+    if schema is not None:
+        for name, a in arrays.items():
+            schema[name].check(path, name, a, ctx)
+    return arrays
 
 
 #: Largest JSON file read (bytes): annotations, labels and reports are far smaller.
 MAX_JSON_BYTES = 64_000_000
 
 
-def read_json(path) -> dict:
-    """Read a JSON object, naming the file on failure.
+def read_json(path, rule: Rule | None = None) -> dict:
+    """Read a JSON object, naming the file on failure; checked against ``rule`` when given.
 
     Every failure is an :class:`InputError` naming ``path``: missing or
     unreadable file, more than :data:`MAX_JSON_BYTES`, not UTF-8, not JSON,
-    nested deeper than Python's parser allows, or not an object at the top.
+    nested deeper than Python's parser allows, not an object at the top, or
+    (with a ``rule``, e.g. an :class:`nnsf.schema.Record`) a field outside it.
     """
     path = Path(path)
     if not path.is_file():
@@ -339,4 +418,4 @@ def read_json(path) -> dict:
         raise InputError(path, "file", "JSON nested at most a few hundred levels deep") from None
     if not isinstance(obj, dict):
         raise InputError(path, "top level", "a JSON object", type(obj).__name__)
-    return obj
+    return obj if rule is None else check(path, rule, obj)

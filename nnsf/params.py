@@ -12,10 +12,9 @@ import numbers
 from pathlib import Path
 from typing import Any, Callable
 
-import yaml
-
 from nnsf.errors import InputError, summarize
 from nnsf.errors import read_text
+from nnsf.safe_yaml import parse_yaml
 
 DATASETS = ("synthetic", "bvh", "frames")
 FACINGS = ("first", "normalise", "none")
@@ -455,7 +454,7 @@ MAX_PARAMS_BYTES = 1_000_000
 
 
 def load(path="params.yaml") -> dict:
-    """Read and validate a params file (``yaml.safe_load``).
+    """Read and validate a params file (the bounded safe loader, :func:`nnsf.safe_yaml.parse_yaml`).
 
     Every failure is an :class:`InputError` naming the file: missing,
     unreadable (permissions), larger than :data:`MAX_PARAMS_BYTES`, not
@@ -464,15 +463,7 @@ def load(path="params.yaml") -> dict:
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "file", "an existing params.yaml")
-    text = read_text(path, max_bytes=MAX_PARAMS_BYTES, what="a params file")
-    try:
-        params = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}" if mark else "file"
-        raise InputError(path, where, "valid YAML", reason=getattr(exc, "problem", None) or str(exc)) from None
-    except RecursionError:
-        raise InputError(path, "file", "YAML nested at most a few hundred levels deep") from None
+    params = parse_yaml(read_text(path, max_bytes=MAX_PARAMS_BYTES, what="a params file"), path)
     out = Params(validate(params if params is not None else {}, path))
     out.source = str(path)
     return out

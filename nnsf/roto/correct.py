@@ -37,7 +37,7 @@ from nnsf.frames.annotation import read_annotation
 from nnsf.frames.clips import read_clip
 from nnsf.frames.cvat import _meta, _parse_points
 from nnsf.frames.clips import read_index
-from nnsf.roto.tracks import read_tracks
+from nnsf.roto.tracks import TRACKS, read_tracks
 from nnsf.io import atomic_path, read_npz, write_npz
 from nnsf.roto.curves import project_to_polyline
 from nnsf.roto.solve import ClipTracker, TrackOptions, plan
@@ -349,7 +349,7 @@ def _clip_tracks(frames_dir: Path, tracks_dir: Path, row):
     path = tracks_dir / row.clip / "curves.npz"
     control, names, n_points = read_tracks(path, ann)
 
-    z = read_npz(path)
+    z = read_npz(path, TRACKS, what="file of tracked curves")
     keys = [int(k) for k in z["keyframes"]] if "keyframes" in z else ann.keyframe_indices
     return ann, path, control, names, n_points, keys
 
