@@ -315,6 +315,10 @@ def _run(args) -> int:
             if args.corrections is not None:
                 done = apply_corrections(params, args.corrections, pipeline.FRAMES_DIR,
                                          pipeline.TRACKS_DIR, clip=args.clip)
+                if not done["corrected_frames"]:
+                    print(f"track: {done['clip']}: no frame of {args.corrections} differs from the tracked "
+                          "curves (at the file's precision) and no frame was ticked nnsf_keyframe: nothing "
+                          "to re-track")
                 print(f"track: {done['clip']}: corrected frames {done['corrected_frames']}; "
                       f"re-tracked intervals {done['resolved_intervals']}; wrote {done['curves']}")
                 from nnsf.roto.stage import keypoints_from_tracks

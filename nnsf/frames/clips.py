@@ -9,11 +9,33 @@ import pandas as pd
 
 from nnsf.errors import InputError
 from nnsf.frames.annotation import Annotation, check_relative, read_annotation
+from nnsf.io import read_npz
+from nnsf.names import safe_name
+from nnsf.schema import Array
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 #: The 12 bytes every complete PNG ends with: IEND chunk (length 0, type, CRC).
 PNG_IEND = b"\x00\x00\x00\x00IEND\xaeB`\x82"
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".webp")
+
+#: The arrays of a rendered clip's ``truth.npz`` (:func:`nnsf.frames.render.render_clip`; T frames,
+#: C side curves of S samples, P control points, an H x W canvas): what :func:`read_truth` accepts.
+TRUTH = {
+    "keypoints": Array("f", ("T", 17, 2)),
+    "sides": Array("f", ("T", "C", "S", 2)),
+    "side_names": Array("U", ("C",)),
+    "control": Array("f", ("T", "C", "P", 2)),
+    "fit_error": Array("f", ("T", "C")),
+    "visible": Array("b", ("T", "C", "S")),
+    "draw_order": Array("U", (None,)),
+    "alpha": Array("u", ("T", "H", "W")),
+    "size": Array("iu", ()),
+}
+
+
+def read_truth(folder) -> dict[str, np.ndarray]:
+    """A rendered clip's ground truth ``<folder>/truth.npz``, checked against :data:`TRUTH`."""
+    return read_npz(Path(folder) / "truth.npz", TRUTH, what="file of a rendered clip's ground truth")
 
 
 def _decode(path: Path, source, field_name: str) -> np.ndarray:
@@ -110,7 +132,8 @@ INDEX_COLUMNS = ("clip", "character", "motion", "folder", "frames")
 
 
 def read_index(frames_dir) -> pd.DataFrame:
-    """``<frames_dir>/index.csv`` checked: columns, unique clips, folders inside ``frames_dir``."""
+    """``<frames_dir>/index.csv`` checked: columns, unique clips, each clip id a safe file name
+    (:func:`nnsf.names.safe_name`), folders inside ``frames_dir`` once symbolic links are resolved."""
     path = Path(frames_dir) / "index.csv"
     if not path.is_file():
         raise InputError(path, "file", "the frame-set index written by the render_frames stage")
@@ -126,6 +149,12 @@ def read_index(frames_dir) -> pd.DataFrame:
     dup = index["clip"].duplicated()
     if dup.any():
         raise InputError(path, "clip", "each clip once", index["clip"][dup].iloc[0])
-    for i, f in enumerate(index["folder"]):
+    root = Path(frames_dir).resolve()
+    for i, (clip, f) in enumerate(zip(index["clip"], index["folder"])):
+        # A clip id names the stages' output files (<tracks>/<clip>/curves.npz, <clip>.xml).
+        safe_name(clip, path, f"clip (row {i + 1})")
         check_relative(f, path, f"folder (row {i + 1})")
+        if not (Path(frames_dir) / f).resolve().is_relative_to(root):
+            raise InputError(path, f"folder (row {i + 1})", "a folder inside the frame set "
+                             "(symbolic links resolved)", f)
     return index

@@ -126,9 +126,14 @@ def read_cvat_video(path, clip: str | None = None, character: str = "unknown",
     tracks = root.findall("track")
     if not tracks:
         raise InputError(path, "<track>", "at least one track (export as CVAT for video 1.1)")
+    seen: dict[str, str] = {}      # label -> id of the track that has it
     for track in tracks:
         tid, label = track.get("id", "?"), track.get("label", "")
         where = f"track id={tid} label={label!r}"
+        if label in seen:
+            raise InputError(path, f"track id={tid} label", f"each label in one track; track id={seen[label]} "
+                             "has this label too (merge the two tracks in CVAT)", label)
+        seen[label] = tid
         if label in SIDE_INDEX:
             kind, target = "polyline", curves
         elif label in JOINT_INDEX:

@@ -50,7 +50,6 @@ from nnsf.frames.curves import (
     GROUP_JOINTS, GROUPS, SIDE_NAMES, fit_control_points,
 )
 from nnsf.io import atomic_path, write_npz
-from nnsf.schema import Array
 from nnsf.skeleton.layout import JOINT_INDEX, JOINTS
 
 #: Groups back to front (see the module docstring).
@@ -60,20 +59,6 @@ DRAW_ORDER: tuple[str, ...] = (
 )
 #: Background colour (RGB).
 BACKGROUND = (238, 234, 224)
-
-#: The arrays of a clip's ``truth.npz`` as :func:`render_clip` writes them (T frames, C side
-#: curves of S samples, P control points, an H x W canvas): the schema its readers check.
-TRUTH = {
-    "keypoints": Array("f", ("T", 17, 2)),
-    "sides": Array("f", ("T", "C", "S", 2)),
-    "side_names": Array("U", ("C",)),
-    "control": Array("f", ("T", "C", "P", 2)),
-    "fit_error": Array("f", ("T", "C")),
-    "visible": Array("b", ("T", "C", "S")),
-    "draw_order": Array("U", (None,)),
-    "alpha": Array("u", ("T", "H", "W")),
-    "size": Array("iu", ()),
-}
 #: Far-side (left) limbs are drawn in the limb colour times this.
 FAR_SHADE = 0.78
 #: Drawing resolution factor (anti-aliasing by area averaging).
