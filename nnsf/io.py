@@ -27,9 +27,13 @@ import errno
 import json
 import math
 import os
+import re
 import shutil
+import sys
 import tempfile
+import threading
 import zipfile
+import zlib
 from glob import escape as glob_escape
 from pathlib import Path
 from typing import Iterator, Mapping
@@ -419,3 +423,141 @@ def read_json(path, rule: Rule | None = None) -> dict:
     if not isinstance(obj, dict):
         raise InputError(path, "top level", "a JSON object", type(obj).__name__)
     return obj if rule is None else check(path, rule, obj)
+
+
+# --------------------------------------------------------------------------- images read back
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+#: Most pixels an image read back may have, checked on its header before anything is decoded
+#: (10000 x 10000; a frame or drawing of the sizes the stages handle is far smaller).
+MAX_IMAGE_PIXELS = 100_000_000
+#: PNG colour types and the bit depths each allows (PNG specification, IHDR).
+_PNG_DEPTHS = {0: (1, 2, 4, 8, 16), 2: (8, 16), 3: (1, 2, 4, 8), 4: (8, 16), 6: (8, 16)}
+
+
+def png_header(data: bytes, source, field: str = "file", max_pixels: int = MAX_IMAGE_PIXELS) -> tuple[int, int]:
+    """``(width, height)`` of the PNG ``data`` (read from ``source``), its structure checked first.
+
+    Checks, before any pixel is decoded: the signature; a first ``IHDR`` chunk
+    of 13 bytes with a valid colour type and bit depth; a size of at most
+    ``max_pixels``; then every chunk's length (inside the file) and CRC, at
+    least one ``IDAT`` and a final ``IEND``.  A truncated or damaged file, or
+    a header claiming a huge image, is an :class:`InputError` naming
+    ``source`` and ``field``, instead of a decoder's message on stderr or an
+    allocation of the claimed size.
+    """
+    expected = "a complete PNG file"
+    if not data.startswith(PNG_SIGNATURE):
+        raise InputError(source, field, expected, reason="no PNG signature")
+    pos, n, first, seen = len(PNG_SIGNATURE), len(data), True, set()
+    width = height = 0
+    while True:
+        if pos + 8 > n:
+            raise InputError(source, field, f"{expected} (ending in an IEND chunk)",
+                             reason=f"truncated: {n} bytes, a chunk header expected at byte {pos}")
+        length = int.from_bytes(data[pos:pos + 4], "big")
+        kind = data[pos + 4:pos + 8]
+        end = pos + 12 + length
+        if length > 2**31 - 1 or end > n:
+            raise InputError(source, field, f"{expected} (ending in an IEND chunk)",
+                             reason=f"truncated: chunk {kind!r} at byte {pos} needs {end} bytes, the file has {n}")
+        if zlib.crc32(data[pos + 4:pos + 8 + length]) != int.from_bytes(data[end - 4:end], "big"):
+            raise InputError(source, field, expected, reason=f"chunk {kind!r} at byte {pos} is damaged (CRC)")
+        if first:
+            if kind != b"IHDR" or length != 13:
+                raise InputError(source, field, expected, reason="the first chunk is not a 13-byte IHDR")
+            width = int.from_bytes(data[pos + 8:pos + 12], "big")
+            height = int.from_bytes(data[pos + 12:pos + 16], "big")
+            depth, colour = data[pos + 16], data[pos + 17]
+            if depth not in _PNG_DEPTHS.get(colour, ()):
+                raise InputError(source, field, expected, reason=f"colour type {colour} with bit depth {depth}")
+            if not (0 < width and 0 < height and width * height <= max_pixels):
+                raise InputError(source, field, f"a PNG of at most {max_pixels} pixels (header checked before "
+                                 "decoding)", f"{width}x{height}")
+            first = False
+        seen.add(kind)
+        pos = end
+        if kind == b"IEND":
+            break
+    if b"IDAT" not in seen:
+        raise InputError(source, field, expected, reason="no image data (IDAT chunk)")
+    return width, height
+
+
+_stderr_lock = threading.Lock()
+_stderr_users = [0, None, None]      # active blocks, saved descriptor, temporary file
+
+
+@contextlib.contextmanager
+def captured_stderr() -> Iterator[list[str]]:
+    """Send what C libraries write to file descriptor 2 (libpng, OpenCV) to a buffer while the block runs.
+
+    Yields a list that receives the captured text when the block ends (the
+    caller puts it in an error's reason, or drops it).  Descriptor 2 is shared
+    by the process, so overlapping blocks in several threads share one
+    redirection (counted), and text that is not a decoder's
+    (``libpng ...``, OpenCV's ``[ WARN``/``[ERROR``) is passed on to stderr.
+    """
+    captured: list[str] = []
+    with _stderr_lock:
+        if _stderr_users[0] == 0:
+            try:
+                sys.stderr.flush()
+            except (OSError, ValueError):
+                pass
+            tmp = tempfile.TemporaryFile()
+            _stderr_users[1], _stderr_users[2] = os.dup(2), tmp
+            os.dup2(tmp.fileno(), 2)
+        _stderr_users[0] += 1
+        start = os.lseek(2, 0, os.SEEK_CUR)
+    try:
+        yield captured
+    finally:
+        with _stderr_lock:
+            tmp = _stderr_users[2]
+            end = os.lseek(2, 0, os.SEEK_CUR)
+            text = os.pread(tmp.fileno(), max(end - start, 0), start).decode("utf-8", "replace")
+            _stderr_users[0] -= 1
+            if _stderr_users[0] == 0:
+                os.dup2(_stderr_users[1], 2)
+                os.close(_stderr_users[1])
+                tmp.close()
+                _stderr_users[1] = _stderr_users[2] = None
+        noise = re.compile(r"^(libpng (warning|error)|\[ ?(WARN|ERROR))")
+        captured.extend(line for line in text.splitlines() if noise.match(line))
+        passed = [line for line in text.splitlines() if line.strip() and not noise.match(line)]
+        if passed:
+            print("\n".join(passed), file=sys.stderr)
+
+
+def decode_image(data: bytes, source, field: str = "file", flags: int | None = None,
+                 max_pixels: int = MAX_IMAGE_PIXELS) -> np.ndarray:
+    """Decode image bytes with OpenCV (``flags``: default ``IMREAD_UNCHANGED``); InputError if it cannot.
+
+    A PNG is checked by :func:`png_header` first.  The decoder's own messages
+    (``libpng error: ...``) never reach stderr: they become the error's reason.
+    """
+    import cv2
+
+    if data.startswith(PNG_SIGNATURE):
+        png_header(data, source, field, max_pixels)
+    with captured_stderr() as noise:
+        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED if flags is None else flags) \
+            if data else None
+    if img is None:
+        raise InputError(source, field, "an image OpenCV can decode (PNG, JPEG, ...)",
+                         f"an unreadable file of {len(data)} bytes", reason="; ".join(noise) or None)
+    return img
+
+
+#: Largest image file read (bytes).
+MAX_IMAGE_BYTES = 512_000_000
+
+
+def read_image(path, field: str = "file", flags: int | None = None, source=None) -> np.ndarray:
+    """:func:`decode_image` of the file ``path`` (read whole, at most :data:`MAX_IMAGE_BYTES`).
+
+    Errors name ``source`` (default ``path``) and ``field``.
+    """
+    path = Path(path)
+    return decode_image(read_bytes(path, MAX_IMAGE_BYTES, "a readable image file"),
+                        path if source is None else source, field, flags)

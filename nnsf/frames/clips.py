@@ -9,13 +9,10 @@ import pandas as pd
 
 from nnsf.errors import InputError
 from nnsf.frames.annotation import Annotation, check_relative, read_annotation
-from nnsf.io import read_npz
+from nnsf.io import PNG_SIGNATURE, decode_image, png_header, read_npz
 from nnsf.names import safe_name
 from nnsf.schema import Array
 
-PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-#: The 12 bytes every complete PNG ends with: IEND chunk (length 0, type, CRC).
-PNG_IEND = b"\x00\x00\x00\x00IEND\xaeB`\x82"
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".webp")
 
 #: The arrays of a rendered clip's ``truth.npz`` (:func:`nnsf.frames.render.render_clip`; T frames,
@@ -38,21 +35,24 @@ def read_truth(folder) -> dict[str, np.ndarray]:
     return read_npz(Path(folder) / "truth.npz", TRUTH, what="file of a rendered clip's ground truth")
 
 
-def _decode(path: Path, source, field_name: str) -> np.ndarray:
-    """Decode one frame file to RGB uint8 ``(H, W, 3)``; InputError on a bad file."""
+def _decode(path: Path, source, field_name: str, size: tuple[int, int] | None = None,
+            size_from: str = "the clip's image size") -> np.ndarray:
+    """Decode one frame file to RGB uint8 ``(H, W, 3)``; InputError on a bad file.
+
+    A PNG's header is checked first (:func:`nnsf.io.png_header`: complete,
+    undamaged, and ``size`` = (width, height) when given), so a truncated
+    frame or one claiming a huge size is refused before it is decoded, and
+    the decoder's messages never reach stderr (:func:`nnsf.io.decode_image`).
+    """
     try:
         data = path.read_bytes()
     except OSError as exc:
         raise InputError(path, field_name, "a readable image file", reason=str(exc)) from None
-    if data.startswith(PNG_SIGNATURE) and not data.rstrip(b"\x00").endswith(PNG_IEND):
-        # libpng may decode a cut-off file into a partly grey picture without
-        # complaint; a PNG is complete only when it ends with its IEND chunk.
-        raise InputError(path, field_name, "a complete PNG file (ending in an IEND chunk)",
-                         f"a truncated PNG of {len(data)} bytes")
-    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) if data else None
-    if img is None:
-        raise InputError(path, field_name, "an image OpenCV can decode (PNG, JPEG, ...)",
-                         f"an unreadable file of {len(data)} bytes")
+    if size is not None and data.startswith(PNG_SIGNATURE):
+        got = png_header(data, path, field_name)
+        if got != tuple(size):
+            raise _size_error(path, size, got, size_from)
+    img = decode_image(data, path, field_name)
     if img.dtype == np.uint16:
         img = (img >> 8).astype(np.uint8)
     if img.ndim == 2:
@@ -63,6 +63,11 @@ def _decode(path: Path, source, field_name: str) -> np.ndarray:
         a = img[..., 3:4].astype(np.float32) / 255.0
         img = np.rint(rgb * a + 255.0 * (1 - a)).astype(np.uint8)
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def _size_error(path: Path, want, got, size_from: str) -> InputError:
+    return InputError(path, "image size", f"{want[0]}x{want[1]} px (width x height), {size_from}; "
+                      "every frame of a clip must have the same size", f"{got[0]}x{got[1]}")
 
 
 def frame_paths(folder, annotation: Annotation | None = None) -> list[Path]:
@@ -112,17 +117,14 @@ def read_clip(folder, annotation: Annotation | str | Path | None = None) -> np.n
     paths = frame_paths(folder, annotation)
     frames = []
     want = tuple(annotation.image_size) if annotation is not None else None   # (w, h)
+    what = "the annotation's image_size" if annotation is not None else f"the size of {paths[0].name}"
     for i, p in enumerate(paths):
-        img = _decode(p, annotation.source if annotation else folder, f"frames[{i}]")
+        img = _decode(p, annotation.source if annotation else folder, f"frames[{i}]", want, what)
         got = (img.shape[1], img.shape[0])
         if want is None:
             want = got
         elif got != want:
-            what = ("the annotation's image_size" if annotation is not None
-                    else f"the size of {paths[0].name}")
-            raise InputError(p, "image size", f"{want[0]}x{want[1]} px (width x height), {what}; "
-                             "every frame of a clip must have the same size",
-                             f"{got[0]}x{got[1]}")
+            raise _size_error(p, want, got, what)
         frames.append(img)
     return np.stack(frames)
 
