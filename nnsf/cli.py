@@ -40,6 +40,10 @@ from pathlib import Path
 from nnsf.errors import InputError, exception_line, terminate_as_interrupt
 from nnsf.io import read_json
 from nnsf.params import STAGE_NAMES
+from nnsf.schema import List, Optional, Record, Str
+
+#: The part of reshape's metrics.json the command reads back: its notes, each printed on one line.
+RESHAPE_NOTES = Record({"notes": Optional(List(Str(max_len=10_000), max_len=1000))}, extra=True)
 
 #: OS errors that mean "this output cannot be written here": reported like bad input (exit 2).
 UNWRITABLE = {errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOTDIR, errno.EISDIR, errno.ENOSPC,
@@ -252,7 +256,7 @@ def _run(args) -> int:
             result = stages.reshape(params, motion_csv=args.motion, out_dir=args.out,
                                     character_path=character_path, joints=args.joints)
             shown = [str(a) for a in result.artifacts if str(a).endswith(".gif")]
-            for note in read_json(Path(args.out) / "metrics.json").get("notes", []):
+            for note in read_json(Path(args.out) / "metrics.json", RESHAPE_NOTES).get("notes", []):
                 print(f"reshape: note: {note}", file=sys.stderr)
             print(f"reshape: wrote {args.out}/" + (f"; open {shown[0]}" if shown else ""))
         elif args.command == "styles":

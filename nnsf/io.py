@@ -428,7 +428,7 @@ def read_json(path, rule: Rule | None = None) -> dict:
 # --------------------------------------------------------------------------- images read back
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 #: Most pixels an image read back may have, checked on its header before anything is decoded
-#: (10000 x 10000; a frame or drawing of the sizes the stages handle is far smaller).
+#: (10000 x 10000; nnsf/__init__.py gives OpenCV the same bound for every format it decodes).
 MAX_IMAGE_PIXELS = 100_000_000
 #: PNG colour types and the bit depths each allows (PNG specification, IHDR).
 _PNG_DEPTHS = {0: (1, 2, 4, 8, 16), 2: (8, 16), 3: (1, 2, 4, 8), 4: (8, 16), 6: (8, 16)}
@@ -522,7 +522,7 @@ def captured_stderr() -> Iterator[list[str]]:
                 os.close(_stderr_users[1])
                 tmp.close()
                 _stderr_users[1] = _stderr_users[2] = None
-        noise = re.compile(r"^(libpng (warning|error)|\[ ?(WARN|ERROR))")
+        noise = re.compile(r"^(libpng (warning|error)|\[ ?(WARN|ERROR)|Corrupt JPEG data|Premature end of JPEG)")
         captured.extend(line for line in text.splitlines() if noise.match(line))
         passed = [line for line in text.splitlines() if line.strip() and not noise.match(line)]
         if passed:
@@ -541,8 +541,13 @@ def decode_image(data: bytes, source, field: str = "file", flags: int | None = N
     if data.startswith(PNG_SIGNATURE):
         png_header(data, source, field, max_pixels)
     with captured_stderr() as noise:
-        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED if flags is None else flags) \
-            if data else None
+        try:
+            img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED if flags is None else flags) \
+                if data else None
+        except cv2.error as exc:   # e.g. a header beyond OPENCV_IO_MAX_IMAGE_PIXELS
+            noise_text = exception_line(exc, with_type=False)
+            raise InputError(source, field, f"an image of at most {max_pixels} pixels OpenCV can decode",
+                             f"a file of {len(data)} bytes", reason=noise_text.split(") ", 1)[-1]) from None
     if img is None:
         raise InputError(source, field, "an image OpenCV can decode (PNG, JPEG, ...)",
                          f"an unreadable file of {len(data)} bytes", reason="; ".join(noise) or None)

@@ -90,8 +90,9 @@ class Array(Rule):
     ``shape``: one entry per axis, an int (that size), a str (a named size,
     the same wherever the name appears in the file) or None (any size).
     ``finite``: every value finite (float arrays).  ``labels``: the values
-    are unique strings naming a label set (see :class:`Map`).  ``max_items``
-    bounds the number of elements.
+    are unique strings naming a label set (see :class:`Map`).  ``below``:
+    integer values are indices into the named size (``0 <= v < size``).
+    ``max_items`` bounds the number of elements.
     """
 
     kinds: str
@@ -99,6 +100,7 @@ class Array(Rule):
     required: bool = True
     finite: bool = False
     labels: str | None = None
+    below: str | None = None
     max_items: int = 50_000_000
 
     @property
@@ -135,6 +137,10 @@ class Array(Rule):
         if self.finite and value.dtype.kind in "fc" and not np.isfinite(value).all():
             self.fail(source, name, value, self.expected + " of finite values",
                       reason=f"{int((~np.isfinite(value)).sum())} values are NaN or infinite")
+        if self.below is not None and self.below in ctx.dims and value.size \
+                and (value.min() < 0 or value.max() >= ctx.dims[self.below]):
+            self.fail(source, name, value, f"{self.expected} of indices in [0, {self.below} = "
+                      f"{ctx.dims[self.below]})", reason=f"values from {value.min()} to {value.max()}")
         if self.labels is not None:
             items = [str(v) for v in value.ravel()]
             if len(set(items)) != len(items):
@@ -167,19 +173,31 @@ class Str(Rule):
 
 @dataclass(frozen=True)
 class Int(Rule):
-    """An integer (not a bool) in ``[lo, hi]``."""
+    """An integer (not a bool) in ``[lo, hi]``.
+
+    ``dim``: the value is the named size ``dim`` (bound here if not yet seen,
+    else equal to it); ``below``: the value is at most the named size ``below``
+    (a row index's end, e.g.), when that size is known.
+    """
 
     lo: int = -(2 ** 63)
     hi: int = 2 ** 63 - 1
+    dim: str | None = None
+    below: str | None = None
 
     @property
     def expected(self) -> str:
         return f"an integer in [{self.lo}, {self.hi}]"
 
     def check(self, source, name, value, ctx=None):
+        ctx = ctx if ctx is not None else Context()
         if not isinstance(value, numbers.Integral) or isinstance(value, (bool, np.bool_)) \
                 or not self.lo <= value <= self.hi:
             self.fail(source, name, value)
+        if self.dim is not None and ctx.dims.setdefault(self.dim, int(value)) != value:
+            self.fail(source, name, value, f"{self.dim} = {ctx.dims[self.dim]} (as the arrays of the file)")
+        if self.below is not None and self.below in ctx.dims and value > ctx.dims[self.below]:
+            self.fail(source, name, value, f"an integer in [{self.lo}, {self.below} = {ctx.dims[self.below]}]")
         return value
 
 

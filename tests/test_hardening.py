@@ -547,6 +547,8 @@ def test_a_model_naming_code_to_run_is_refused_and_writes_nothing(style_model, t
     ("deep nesting", "meta.state.clips_.bruno|walk[0]: expected an encoded array, got 'list'"),
     ("meta styles", "meta.styles: expected the styles of meta.state.styles_"),
     ("unifier", "meta.unifier.offset: expected a list of 2 to 2 items"),
+    ("row index", "meta.state.frame_rows_ (array a"),
+    ("atom count", "meta.state.nnsf_.attrs.n_components_: expected n_components = 3"),
 ])
 def test_every_field_of_a_model_file_is_checked_against_its_schema(style_model, tmp_path, case, field):
     from nnsf.factor.style_model import StyleModel
@@ -589,6 +591,10 @@ def test_every_field_of_a_model_file_is_checked_against_its_schema(style_model, 
             meta["styles"] = ["bruno", "mallory"]
         elif case == "unifier":
             meta["unifier"]["offset"] = [0.0] * 1000
+        elif case == "row index":
+            arrays[state["frame_rows_"]["key"]][0] = 10**6       # a row the shared weights do not have
+        elif case == "atom count":
+            state["nnsf_"]["attrs"]["n_components_"] = {"kind": "json", "value": 7, "type": "int"}
     bad = _rewrite_model(style_model, tmp_path / "bad.npz", change)
     with pytest.raises(InputError) as err:
         StyleModel.load(bad)
@@ -1035,3 +1041,32 @@ def test_a_damaged_frame_is_exactly_one_line_on_stderr(tracked_project, tmp_path
     if damage == "deflate":
         assert "IDAT" in line                          # the decoder's message, as the reason
     assert not (work / "data" / "tracks").exists() or (work / "data" / "tracks" / "failed.json").is_file()
+
+
+@pytest.mark.slow  # a fresh process: OpenCV reads its pixel bound when cv2 is first imported
+def test_any_format_claiming_a_huge_size_is_refused_from_its_header(tmp_path):
+    """A 600-byte JPEG whose header says 20000 x 20000: refused at once, not 1.2 GB decoded in 9 s."""
+    code = textwrap.dedent("""
+        import sys, time
+        from nnsf.io import read_image
+        from nnsf.errors import InputError
+        t = time.perf_counter()
+        try:
+            read_image(sys.argv[1], "frames[0]")
+        except InputError as e:
+            print(time.perf_counter() - t)
+            print(e)
+        """)
+    import cv2
+
+    ok, buf = cv2.imencode(".jpg", np.zeros((8, 8, 3), np.uint8))
+    data = bytearray(buf.tobytes())
+    sof = data.find(b"\xff\xc0")
+    data[sof + 5:sof + 9] = (20000).to_bytes(2, "big") * 2
+    path = tmp_path / "huge.jpg"
+    path.write_bytes(bytes(data))
+    res = subprocess.run([sys.executable, "-c", code, str(path)], env=_env(), capture_output=True, text=True,
+                         timeout=60)
+    seconds, message = res.stdout.splitlines()[:2]
+    assert float(seconds) < 1.0 and res.stderr == "", (seconds, res.stderr)
+    assert message.startswith(f"{path}: frames[0]: expected an image of at most 100000000 pixels"), message

@@ -125,6 +125,9 @@ def fitted_state(est, writer: _Writer) -> dict:
 TRANSLATOR = "nnsf.factor.translate.StyleTranslator"
 ESTIMATORS = {"nnsf.factor.nnsf.NNSF": NNSF}
 
+#: Largest total of array bytes a model file may declare (a model of 100 styles x 100
+#: contents with their training clips holds a few MB).
+MAX_MODEL_BYTES = 256_000_000
 #: Named sizes shared by every array of a model: features, atoms, styles, contents.
 D, K = "n_features", "n_components"
 
@@ -147,8 +150,8 @@ class Estimator(Rule):
 STATE: dict[str, dict[str, Rule]] = {
     "nnsf.factor.nnsf.NNSF": {
         "components_": Array("f", (K, D), finite=True),
-        "n_components_": Int(1, 100_000),
-        "n_features_in_": Int(1, 100_000),
+        "n_components_": Int(1, 100_000, dim=K),
+        "n_features_in_": Int(1, 100_000, dim=D),
         "n_iter_": Int(0, 10**9),
         "objective_": Array("f", (None,)),
         "reconstruction_err_": Num(0.0),
@@ -159,7 +162,7 @@ STATE: dict[str, dict[str, Rule]] = {
     TRANSLATOR: {
         "styles_": Array("U", ("n_styles",), labels="styles"),
         "contents_": Array("U", ("n_contents",), labels="contents"),
-        "n_features_in_": Int(1, 100_000),
+        "n_features_in_": Int(1, 100_000, dim=D),
         "components_": Array("f", (K, D), finite=True),
         "nnsf_": Estimator("nnsf.factor.nnsf.NNSF"),
         "style_bases_": Map(Array("f", (K, D), finite=True), keys="styles"),
@@ -167,12 +170,13 @@ STATE: dict[str, dict[str, Rule]] = {
         "atom_cosine_": Map(Array("f", (K,)), keys="styles"),
         "content_means_": Map(Array("f", (D,), finite=True), keys="contents"),
         "clips_": Map(List(Array("f", (None, D), finite=True), min_len=1),
-                      key=Tuple((Str(max_len=1000), Str(max_len=1000)))),
+                      key=Tuple((Str(max_len=1000), Str(max_len=1000))), keys="styles", key_index=0),
         "style_tempo_": Map(Num(0.0, 1e6), keys="styles"),
         "reference_clips_": Optional(Map(Array("U", ()), keys="contents")),
-        "content_rows_": Optional(Map(Tuple((Int(0), Int(0))), keys="contents")),
+        # "aligned" basis only: the shared weights, then rows of them (ends at most n_rows).
         "shared_weights_": Optional(Array("f", ("n_rows", K), finite=True)),
-        "frame_rows_": Optional(Array("iu", (None,))),
+        "content_rows_": Optional(Map(Tuple((Int(0, below="n_rows"), Int(0, below="n_rows"))), keys="contents")),
+        "frame_rows_": Optional(Array("iu", (None,), below="n_rows")),
     },
 }
 
@@ -331,9 +335,6 @@ class _Reader:
                 setattr(est, attr, self.value(rule, attrs[attr], f"{name}.{attr}", depth + 1))
             elif not isinstance(rule, Optional):
                 raise InputError(self.path, f"{name}.{attr}", rule.expected, "missing")
-        n = getattr(est, "n_features_in_", None)
-        if n is not None and self.ctx.dims.get(D, n) != n:
-            raise InputError(self.path, f"{name}.n_features_in_", f"{self.ctx.dims[D]} (the arrays' width)", n)
         return est
 
     def estimator(self, rule: Estimator, spec: dict, name: str, depth: int):
@@ -411,7 +412,7 @@ def read_meta(path) -> tuple[dict, dict]:
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "file", "an existing style model (.npz written by `nnsf styles`)")
-    arrays = read_npz(path, what="style model (written by `nnsf styles`)")
+    arrays = read_npz(path, max_bytes=MAX_MODEL_BYTES, what="style model (written by `nnsf styles`)")
     if "meta" not in arrays:
         raise InputError(path, "array meta", "the model's JSON metadata", "missing")
     meta_array = arrays.pop("meta")

@@ -38,7 +38,7 @@ from nnsf.frames.clips import read_clip
 from nnsf.frames.cvat import _meta, _parse_points
 from nnsf.frames.clips import read_index
 from nnsf.roto.tracks import TRACKS, read_tracks
-from nnsf.io import atomic_path, read_npz, write_npz
+from nnsf.io import atomic_path, read_bytes, read_npz, write_npz
 from nnsf.names import inside
 from nnsf.roto.curves import project_to_polyline
 from nnsf.roto.solve import ClipTracker, TrackOptions, plan
@@ -46,6 +46,8 @@ from nnsf.roto.options import method as _method
 from nnsf.roto.options import track_options
 
 DECIMALS = 2
+#: Largest corrections file read (bytes), as for CVAT imports (nnsf.frames.cvat).
+MAX_CVAT_BYTES = 256_000_000
 KEYFRAME_ATTRIBUTE = "nnsf_keyframe"
 
 
@@ -117,6 +119,19 @@ def export_cvat(path, control, names, n_points, keyframes, clip: str, image_size
 
 
 # --------------------------------------------------------------------------- import
+def _parse(path: Path):
+    """The XML root of a corrections file: bounded in size, no DOCTYPE or ENTITY, well-formed."""
+    if not path.is_file():
+        raise InputError(path, "file", "an existing CVAT XML file (CVAT for video 1.1)")
+    data = read_bytes(path, MAX_CVAT_BYTES, "a readable CVAT XML file")
+    if b"<!DOCTYPE" in data or b"<!ENTITY" in data:
+        raise InputError(path, "file", "CVAT XML without DOCTYPE or ENTITY declarations")
+    try:
+        return ET.fromstring(data)
+    except ET.ParseError as exc:
+        raise InputError(path, f"line {exc.position[0]}", "well-formed XML", str(exc)) from None
+
+
 def read_cvat_curves(path, clip: str, names: list[str], n_points, n_frames: int
                      ) -> tuple[dict[int, dict[str, np.ndarray]], set[int]]:
     """Per-frame polylines of a CVAT for video 1.1 file written for ``clip``.
@@ -132,15 +147,7 @@ def read_cvat_curves(path, clip: str, names: list[str], n_points, n_frames: int
     curve's, malformed points or XML: nothing in the file is dropped silently.
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "file", "an existing CVAT XML file (CVAT for video 1.1)")
-    data = path.read_bytes()
-    if b"<!DOCTYPE" in data or b"<!ENTITY" in data:
-        raise InputError(path, "file", "CVAT XML without DOCTYPE or ENTITY declarations")
-    try:
-        root = ET.fromstring(data)
-    except ET.ParseError as exc:
-        raise InputError(path, f"line {exc.position[0]}", "well-formed XML", str(exc)) from None
+    root = _parse(path)
     if root.tag != "annotations" or (root.findtext("version") or "").strip() != "1.1":
         raise InputError(path, "<version>", '"1.1" under <annotations> (CVAT for video 1.1)',
                          (root.findtext("version") or "").strip() or root.tag)
@@ -400,13 +407,7 @@ def apply_corrections(params: dict, xml_path, frames_dir, tracks_dir, clip: str 
     xml_path, frames_dir, tracks_dir = Path(xml_path), Path(frames_dir), Path(tracks_dir)
     index = read_index(frames_dir)
     if clip is None:
-        if not xml_path.is_file():
-            raise InputError(xml_path, "file", "an existing CVAT XML file (CVAT for video 1.1)")
-        try:
-            clip = _meta(ET.fromstring(xml_path.read_bytes())).get("name")
-        except ET.ParseError as exc:
-            raise InputError(xml_path, f"line {exc.position[0]}", "well-formed XML",
-                             str(exc)) from None
+        clip = _meta(_parse(xml_path)).get("name")
     rows = [r for r in index.itertuples() if r.clip == clip]
     if not rows:
         raise InputError(xml_path, "<meta><task><name>", "a clip of " + str(frames_dir / "index.csv")
