@@ -418,6 +418,8 @@ def read_json(path, rule: Rule | None = None) -> dict:
         obj = json.loads(text)
     except json.JSONDecodeError as exc:
         raise InputError(path, f"line {exc.lineno}", "valid JSON", reason=exc.msg) from None
+    except ValueError as exc:      # a number Python will not convert (an integer of 5000 digits)
+        raise InputError(path, "file", "valid JSON numbers", reason=str(exc)) from None
     except RecursionError:
         raise InputError(path, "file", "JSON nested at most a few hundred levels deep") from None
     if not isinstance(obj, dict):

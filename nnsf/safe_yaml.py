@@ -26,7 +26,7 @@ from pathlib import Path
 import yaml
 from yaml.nodes import MappingNode, Node, SequenceNode
 
-from nnsf.errors import InputError, read_text
+from nnsf.errors import InputError, exception_line, read_text
 
 #: Deepest nesting of lists and mappings accepted (configuration files use fewer than ten).
 MAX_DEPTH = 64
@@ -67,6 +67,14 @@ class BoundedLoader(yaml.SafeLoader):
             return super().compose_node(parent, index)
         finally:
             self._depth -= 1
+
+    def construct_object(self, node, deep=False):
+        # A scalar a constructor cannot convert (an integer of 5000 digits, a date of month 13)
+        # raises a plain Python error: named here with its line.
+        try:
+            return super().construct_object(node, deep)
+        except (ValueError, TypeError, AttributeError, OverflowError) as exc:
+            raise _Refused(_line(node), "valid YAML values", exception_line(exc)) from None
 
     def compose_document(self):
         node = super().compose_document()
@@ -152,8 +160,10 @@ def parse_yaml(text: str, source, what: str = "YAML"):
         raise InputError(source, exc.where, exc.expected, reason=exc.got) from None
     except yaml.constructor.ConstructorError as exc:
         mark = exc.problem_mark
+        tag = "could not determine a constructor" in (exc.problem or "")
         raise InputError(source, f"line {mark.line + 1}" if mark else "file",
-                         f"{what} without tags that build Python objects", reason=exc.problem) from None
+                         f"{what} without tags that build Python objects" if tag else f"valid {what} values",
+                         reason=exc.problem) from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         raise InputError(source, f"line {mark.line + 1}" if mark else "file", f"valid {what}",

@@ -12,6 +12,7 @@ from __future__ import annotations
 import copy
 import json
 import os
+import re
 import resource
 import signal
 import subprocess
@@ -826,15 +827,26 @@ def test_an_alias_bomb_in_char_cfg_is_one_line_in_under_a_second(tmp_path, capsy
                                   for i in range(1, 10)), "<<: expected YAML of at most"),
     ("a: " + "[" * 200 + "]" * 200 + "\n", "line 1: expected YAML nested at most 64 levels deep"),
     ("a: !!python/object/apply:os.system ['true']\n", "expected YAML without tags that build Python objects"),
+    ("a: " + "1" * 5000 + "\n", "line 1: expected valid YAML values (ValueError: Exceeds the limit"),
+    ("a:\n  when: 2001-13-45\n", "line 2: expected valid YAML values (ValueError: month must be in 1..12)"),
 ])
 def test_yaml_that_would_expand_recurse_or_build_objects_is_refused_at_once(tmp_path, text, words):
     from nnsf.io import read_yaml
 
     path = tmp_path / "joints.yaml"
     path.write_text(text)
-    with pytest.raises(InputError, match=words.replace("[", r"\[")) as err:
+    with pytest.raises(InputError, match=re.escape(words)) as err:
         read_yaml(path)
     assert str(err.value).startswith(f"{path}: ")
+
+
+def test_a_json_number_python_will_not_convert_is_one_line(tmp_path):
+    from nnsf.io import read_json
+
+    path = tmp_path / "unifier.json"
+    path.write_text('{"margin": ' + "1" * 5000 + "}")
+    with pytest.raises(InputError, match=r"unifier\.json: file: expected valid JSON numbers \(Exceeds the limit"):
+        read_json(path)
 
 
 # --------------------------------------------------------------------------- 14. tracking-server faults
