@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Iterator
 
 from nnsf.errors import InputError, exception_line
+from nnsf.pipeline import OUTPUT_FOLDERS
 
 from flows import project
 
@@ -154,7 +155,8 @@ def recorded(stage: str, artifacts=()) -> Iterator[None]:
     except (InputError, KeyboardInterrupt):
         raise
     except Exception as exc:
-        kept = ", ".join(str(a) for a in list(artifacts)[:4]) + (", ..." if len(artifacts) > 4 else "")
+        files = [str(a) for a in artifacts] or [str(f) for f in OUTPUT_FOLDERS.get(stage, ())]
+        kept = ", ".join(files[:4]) + (", ..." if len(files) > 4 else "")
         raise InputError(store_name(project.mlflow_uri()), "run", f"the {stage} stage's MLflow run recorded; "
-                         f"its outputs were written and are kept ({kept or 'see dvc.yaml'}), rerun the stage "
-                         "to record it", reason=exception_line(exc)) from None
+                         f"its outputs were written and are kept ({kept}), rerun the stage to record it",
+                         reason=exception_line(exc)) from None
