@@ -211,6 +211,7 @@ def _run(args) -> int:
 
         params = params_mod.load(args.params)
         if args.command == "check":
+            _check_stage_params(params)
             print(f"{args.params}: ok")
             return 0
         # Every output folder is checked before any work: a file in the way, no
@@ -354,6 +355,27 @@ def _run(args) -> int:
         return 2
     except Exception as err:  # a bug or an environment problem
         return _unexpected(args.command, err)
+
+
+def _check_stage_params(params: dict) -> None:
+    """The parameter checks stages make beyond the schema that need no data, for ``nnsf check``.
+
+    The schema (:func:`nnsf.params.load`) has every field's type and range;
+    these combine fields or compare them with the code (motion names the
+    generator has, a translator's settings that go together, subkeys the
+    reshaping method needs).  Each runs when its section is present, so
+    ``nnsf check`` refuses what the stage would.
+    """
+    from nnsf.factor.style_model import check_translator, translator_params
+    from nnsf.frames.stage import frames_params
+    from nnsf.reshape.stage import _params as reshape_params
+
+    if "frames" in params:
+        frames_params(params)
+    if "reshape" in params:
+        reshape_params(params)
+    if "translation" in params:
+        check_translator(params, translator_params(params))
 
 
 def _settle_publications() -> None:
