@@ -151,7 +151,11 @@ class Array(Rule):
 
 @dataclass(frozen=True)
 class Str(Rule):
-    """A string of at most ``max_len`` characters (non-empty unless ``empty``), one of ``choices`` if given."""
+    """A string of at most ``max_len`` characters (non-empty unless ``empty``), one of ``choices`` if given.
+
+    Only printable characters: a string read back may end up in a message or a
+    note, which must stay one line (no newline, tab or terminal control code).
+    """
 
     max_len: int = 1000
     choices: tuple | None = None
@@ -161,10 +165,11 @@ class Str(Rule):
     def expected(self) -> str:
         if self.choices:
             return "one of " + ", ".join(map(str, self.choices))
-        return f"a {'' if self.empty else 'non-empty '}string of at most {self.max_len} characters"
+        return f"a {'' if self.empty else 'non-empty '}string of at most {self.max_len} printable characters"
 
     def check(self, source, name, value, ctx=None):
-        if not isinstance(value, str) or len(value) > self.max_len or (not self.empty and not value):
+        if not isinstance(value, str) or len(value) > self.max_len or (not self.empty and not value) \
+                or not value.isprintable():
             self.fail(source, name, value)
         if self.choices is not None and value not in self.choices:
             self.fail(source, name, value)

@@ -550,6 +550,7 @@ def test_a_model_naming_code_to_run_is_refused_and_writes_nothing(style_model, t
     ("unifier", "meta.unifier.offset: expected a list of 2 to 2 items"),
     ("row index", "meta.state.frame_rows_ (array a"),
     ("atom count", "meta.state.nnsf_.attrs.n_components_: expected n_components = 3"),
+    ("two-line view", 'meta.view: expected a string of at most 100 printable characters, got "side\\n'),
 ])
 def test_every_field_of_a_model_file_is_checked_against_its_schema(style_model, tmp_path, case, field):
     from nnsf.factor.style_model import StyleModel
@@ -594,6 +595,8 @@ def test_every_field_of_a_model_file_is_checked_against_its_schema(style_model, 
             meta["unifier"]["offset"] = [0.0] * 1000
         elif case == "row index":
             arrays[state["frame_rows_"]["key"]][0] = 10**6       # a row the shared weights do not have
+        elif case == "two-line view":
+            meta["view"] = "side\nerror: a line of the model's own"
         elif case == "atom count":
             state["nnsf_"]["attrs"]["n_components_"] = {"kind": "json", "value": 7, "type": "int"}
     bad = _rewrite_model(style_model, tmp_path / "bad.npz", change)
