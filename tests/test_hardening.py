@@ -1089,3 +1089,16 @@ def test_any_format_claiming_a_huge_size_is_refused_from_its_header(tmp_path):
     seconds, message = res.stdout.splitlines()[:2]
     assert float(seconds) < 1.0 and res.stderr == "", (seconds, res.stderr)
     assert message.startswith(f"{path}: frames[0]: expected an image of at most 100000000 pixels"), message
+
+
+def test_the_cvat_importer_refuses_a_track_without_a_keyframe(tracked_project, tmp_path):
+    """A curve annotated on no keyframe would silently vanish from the annotation: refused instead."""
+    from nnsf.frames.cvat import read_cvat_video
+
+    def unmark(root):
+        for shape in root.find("track").iter("polyline"):
+            shape.set("keyframe", "0")
+    xml, _ = _cvat_file(tracked_project, tmp_path, unmark)
+    with pytest.raises(InputError, match=r"track id=0 label='.*': expected at least one <polyline> with "
+                                         r'keyframe="1" and outside="0"'):
+        read_cvat_video(xml)
