@@ -486,18 +486,19 @@ def png_header(data: bytes, source, field: str = "file", max_pixels: int = MAX_I
 
 
 _stderr_lock = threading.Lock()
-_stderr_users = [0, None, None]      # active blocks, saved descriptor, temporary file
+_stderr_users = [0, None, None]      # active blocks, saved descriptor 2, the temporary file
 
 
 @contextlib.contextmanager
 def captured_stderr() -> Iterator[list[str]]:
     """Send what C libraries write to file descriptor 2 (libpng, OpenCV) to a buffer while the block runs.
 
-    Yields a list that receives the captured text when the block ends (the
-    caller puts it in an error's reason, or drops it).  Descriptor 2 is shared
-    by the process, so overlapping blocks in several threads share one
-    redirection (counted), and text that is not a decoder's
-    (``libpng ...``, OpenCV's ``[ WARN``/``[ERROR``) is passed on to stderr.
+    Yields a list that receives the decoders' lines when the block ends (the
+    caller puts them in an error's reason, or drops them).  Descriptor 2 is
+    shared by the process, so overlapping blocks in several threads share one
+    redirection (counted), and text that is not a decoder's (``libpng ...``,
+    OpenCV's ``[ WARN``/``[ERROR``, libjpeg's ``Corrupt JPEG data``) is passed
+    on to stderr.  A process without descriptor 2 runs the block as it is.
     """
     captured: list[str] = []
     with _stderr_lock:
@@ -506,20 +507,27 @@ def captured_stderr() -> Iterator[list[str]]:
                 sys.stderr.flush()
             except (OSError, ValueError):
                 pass
-            tmp = tempfile.TemporaryFile()
-            _stderr_users[1], _stderr_users[2] = os.dup(2), tmp
-            os.dup2(tmp.fileno(), 2)
+            try:
+                saved = os.dup(2)
+            except OSError:
+                saved = None
+            if saved is not None:
+                tmp = tempfile.TemporaryFile()
+                os.dup2(tmp.fileno(), 2)
+                _stderr_users[1], _stderr_users[2] = saved, tmp
         _stderr_users[0] += 1
-        start = os.lseek(2, 0, os.SEEK_CUR)
+        start = os.lseek(2, 0, os.SEEK_CUR) if _stderr_users[2] is not None else 0
     try:
         yield captured
     finally:
+        text = ""
         with _stderr_lock:
             tmp = _stderr_users[2]
-            end = os.lseek(2, 0, os.SEEK_CUR)
-            text = os.pread(tmp.fileno(), max(end - start, 0), start).decode("utf-8", "replace")
+            if tmp is not None:
+                end = os.lseek(2, 0, os.SEEK_CUR)
+                text = os.pread(tmp.fileno(), max(end - start, 0), start).decode("utf-8", "replace")
             _stderr_users[0] -= 1
-            if _stderr_users[0] == 0:
+            if _stderr_users[0] == 0 and tmp is not None:
                 os.dup2(_stderr_users[1], 2)
                 os.close(_stderr_users[1])
                 tmp.close()

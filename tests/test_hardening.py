@@ -1102,3 +1102,21 @@ def test_the_cvat_importer_refuses_a_track_without_a_keyframe(tracked_project, t
     with pytest.raises(InputError, match=r"track id=0 label='.*': expected at least one <polyline> with "
                                          r'keyframe="1" and outside="0"'):
         read_cvat_video(xml)
+
+
+def test_decoder_messages_stay_off_stderr_from_several_threads(capfd):
+    """Overlapping decodes share one redirection of descriptor 2, restored when the last ends."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from nnsf.io import decode_image
+
+    def decode(i):
+        try:
+            decode_image(_bad_deflate_png(8, 8), f"f{i}.png")
+        except InputError as exc:
+            return str(exc)
+    with ThreadPoolExecutor(4) as pool:
+        messages = list(pool.map(decode, range(16)))
+    assert all("libpng error" in m for m in messages), messages
+    os.write(2, b"after\n")
+    assert capfd.readouterr().err == "after\n"

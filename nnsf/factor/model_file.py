@@ -12,11 +12,16 @@ File format (``nnsf.style_model``, version :data:`VERSION`): an uncompressed
   translator and of its pooled :class:`~nnsf.factor.nnsf.NNSF`;
 * one array per fitted array, named ``a<N>`` and referenced from ``state``.
 
-Fitted attributes are stored generically -- arrays, numbers, strings, lists,
-dicts with string or tuple-of-string keys and nested estimators -- so that a
-translator that gains an attribute still saves without a change here.
-Floats go through arrays or through JSON's shortest round-trip repr, so a
-loaded model translates bit for bit like the fitted one.
+Values are encoded generically -- arrays, numbers, strings, lists, dicts with
+string or tuple-of-string keys and nested estimators -- but read back only as
+the schema declares (:data:`META`, :data:`STATE`): a model file is data.  No
+class is imported by a name from the file (:data:`ESTIMATORS` maps fixed
+strings to classes), no attribute or parameter outside the schema is set, and
+every array is checked (dtype kind, shape with sizes shared across the file,
+finite values, index ranges) before the translator sees it.  A field is added
+by adding its rule; :func:`save_model` refuses to write an attribute without
+one.  Floats go through arrays or through JSON's shortest round-trip repr, so
+a loaded model translates bit for bit like the fitted one.
 """
 from __future__ import annotations
 
