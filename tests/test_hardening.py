@@ -1,11 +1,17 @@
-"""Hostile and careless input (issue 18): no hang, no silent typo, one bad file fails alone.
+"""Hostile and careless input: no hang, no silent typo, one bad file fails alone, nothing runs or escapes.
 
-One test (or a few) per class of the bad-input probe:
+One test (or a few) per class of the bad-input probes:
 1 alias bomb, 2 unreadable annotation, 3 misspelt keys, 4 infinite/absurd
 values, 5 the params file named, 6 degenerate data, 7 BVH symlinks, 8 error
 reasons kept, 9 disk full.  Class 10 (a killed evaluate) is in
-test_hardening_publish.py.  Everything runs real code on real files; disk
-full is a real kernel error (a tiny tmpfs, or RLIMIT_FSIZE).
+test_hardening_publish.py.  Round two: 11 a model file is data (no code named
+in it runs; every field by its schema), 12 ids are names, never paths (every
+writer; links resolved; ``nnsf check`` = the stages), 13 bounds before
+allocation (YAML, npz headers, image headers), 14 tracking-server faults
+(closed ports, a locked or corrupt mlflow.db), 15 no silent drops (CVAT
+corrections), 16 one line on stderr (decoders' messages).  Everything runs
+real code on real files, real servers' absence and real locks; disk full is a
+real kernel error (a tiny tmpfs, or RLIMIT_FSIZE).
 """
 from __future__ import annotations
 
