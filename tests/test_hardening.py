@@ -1126,3 +1126,23 @@ def test_decoder_messages_stay_off_stderr_from_several_threads(capfd):
     assert all("libpng error" in m for m in messages), messages
     os.write(2, b"after\n")
     assert capfd.readouterr().err == "after\n"
+
+
+def test_adding_a_fitted_field_is_adding_its_rule(style_model, tmp_path, monkeypatch):
+    """A new attribute (here one translator per view, a nested estimator) saves and loads once
+    STATE has its rule, and is checked like every other field."""
+    from nnsf.factor import model_file
+    from nnsf.factor.translate import StyleTranslator
+    from nnsf.schema import Map, Optional
+
+    tr = StyleTranslator.load(style_model)
+    tr.per_view_ = {"side": StyleTranslator.load(style_model)}
+    monkeypatch.setitem(model_file.STATE[model_file.TRANSLATOR], "per_view_",
+                        Optional(Map(model_file.Estimator(model_file.TRANSLATOR))))
+    back = StyleTranslator.load(tr.save(tmp_path / "views.npz"))
+    assert np.array_equal(back.per_view_["side"].style_bases_["bruno"], tr.style_bases_["bruno"])
+    bad = _rewrite_model(tmp_path / "views.npz", tmp_path / "bad.npz", lambda meta, arrays: meta["state"][
+        "per_view_"]["items"][0][1].update({"class": "nnsf.cli.main"}))
+    with pytest.raises(InputError, match=r"meta\.state\.per_view_\.side\.class: expected "
+                                         r"'nnsf\.factor\.translate\.StyleTranslator'"):
+        StyleTranslator.load(bad)

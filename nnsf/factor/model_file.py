@@ -126,7 +126,8 @@ def fitted_state(est, writer: _Writer) -> dict:
 #: The estimator classes a model file may hold, by the fixed string stored in it.  A string
 #: maps to a class here; nothing named in a file is ever imported, and any other name is
 #: refused.  The translator itself is the class :func:`load_model` is given (it imports this
-#: module), and must be the one named :data:`TRANSLATOR`.
+#: module), and must be the one named :data:`TRANSLATOR`; a nested rule
+#: ``Estimator(TRANSLATOR)`` (e.g. one translator per view) gets that same class.
 TRANSLATOR = "nnsf.factor.translate.StyleTranslator"
 ESTIMATORS = {"nnsf.factor.nnsf.NNSF": NNSF}
 
@@ -225,8 +226,9 @@ _MAX_DEPTH = 16
 class _Reader:
     """Decodes ``meta``'s trees, each value by the rule its place in the schema gives it."""
 
-    def __init__(self, arrays, path):
+    def __init__(self, arrays, path, classes: dict):
         self.arrays, self.path, self.used, self.ctx = arrays, path, set(), Context()
+        self.classes = classes         # fixed name -> class: ESTIMATORS and the translator
 
     def spec(self, spec, name: str, kinds: tuple[str, ...]) -> dict:
         kind = spec.get("kind") if isinstance(spec, dict) else None
@@ -343,10 +345,10 @@ class _Reader:
         return est
 
     def estimator(self, rule: Estimator, spec: dict, name: str, depth: int):
-        if spec.get("class") != rule.name or rule.name not in ESTIMATORS:
+        if spec.get("class") != rule.name or rule.name not in self.classes:
             raise InputError(self.path, f"{name}.class", f"{rule.name!r} (an estimator class a model "
                              "file may hold)", spec.get("class"))
-        cls = ESTIMATORS[rule.name]
+        cls = self.classes[rule.name]
         est = self.build(cls, self.params(cls, spec.get("params"), f"{name}.params"), f"{name}.params")
         return self.state(est, rule.name, spec.get("attrs"), f"{name}.attrs", depth)
 
@@ -455,7 +457,7 @@ def load_model(path, translator_class):
     if f"{translator_class.__module__}.{translator_class.__qualname__}" != TRANSLATOR:
         raise TypeError(f"load_model reads {TRANSLATOR} models, not {translator_class!r}")
     meta, arrays = read_meta(path)
-    r = _Reader(arrays, path)
+    r = _Reader(arrays, path, {**ESTIMATORS, TRANSLATOR: translator_class})
     tr = r.build(translator_class, r.params(translator_class, meta["params"], "meta.params"), "meta.params")
     r.state(tr, TRANSLATOR, meta["state"], "meta.state", 0)
     unused = sorted(set(arrays) - r.used)
