@@ -126,6 +126,9 @@ def run_stage_command(stage: str, args: list[str]) -> int:
     from nnsf.pipeline import check_outputs
 
     check_outputs(stage)  # an unwritable output folder: one line now, not after the work
+    from flows.tracking import preflight
+
+    preflight()  # MLflow's store and Prefect's API reached now, within NNSF_TRACKING_TIMEOUT
 
     from flows.console import quiet_prefect_console
 

@@ -25,6 +25,7 @@ import mlflow
 from mlflow.entities import Metric, Param
 from mlflow.exceptions import MlflowException
 from mlflow.tracking import MlflowClient
+from mlflow.utils.logging_utils import MLFLOW_LOGGING_STREAM
 
 from flows import project
 
@@ -33,8 +34,11 @@ from flows import project
 # error line (see flows.console).
 # Only MLflow's own stderr handler: others on that logger (a test runner's
 # capture handler) keep their streams.
+# MLflow's handler writes to its own wrapper of sys.stderr (MLFLOW_LOGGING_STREAM), so that is
+# what is looked for, besides stderr itself.
 for _handler in logging.getLogger("mlflow").handlers:
-    if type(_handler) is logging.StreamHandler and _handler.stream in (sys.stderr, sys.__stderr__):
+    if type(_handler) is logging.StreamHandler and _handler.stream in (sys.stderr, sys.__stderr__,
+                                                                      MLFLOW_LOGGING_STREAM):
         _handler.setStream(sys.stdout)
 
 #: MLflow's per-request limits for ``log_batch``.

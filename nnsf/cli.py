@@ -40,6 +40,10 @@ from pathlib import Path
 from nnsf.errors import InputError, exception_line, terminate_as_interrupt
 from nnsf.io import read_json
 from nnsf.params import STAGE_NAMES
+from nnsf.schema import List, Optional, Record, Str
+
+#: The part of reshape's metrics.json the command reads back: its notes, each printed on one line.
+RESHAPE_NOTES = Record({"notes": Optional(List(Str(max_len=10_000), max_len=1000))}, extra=True)
 
 #: OS errors that mean "this output cannot be written here": reported like bad input (exit 2).
 UNWRITABLE = {errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOTDIR, errno.EISDIR, errno.ENOSPC,
@@ -207,6 +211,7 @@ def _run(args) -> int:
 
         params = params_mod.load(args.params)
         if args.command == "check":
+            _check_stage_params(params)
             print(f"{args.params}: ok")
             return 0
         # Every output folder is checked before any work: a file in the way, no
@@ -252,7 +257,7 @@ def _run(args) -> int:
             result = stages.reshape(params, motion_csv=args.motion, out_dir=args.out,
                                     character_path=character_path, joints=args.joints)
             shown = [str(a) for a in result.artifacts if str(a).endswith(".gif")]
-            for note in read_json(Path(args.out) / "metrics.json").get("notes", []):
+            for note in read_json(Path(args.out) / "metrics.json", RESHAPE_NOTES).get("notes", []):
                 print(f"reshape: note: {note}", file=sys.stderr)
             print(f"reshape: wrote {args.out}/" + (f"; open {shown[0]}" if shown else ""))
         elif args.command == "styles":
@@ -315,6 +320,10 @@ def _run(args) -> int:
             if args.corrections is not None:
                 done = apply_corrections(params, args.corrections, pipeline.FRAMES_DIR,
                                          pipeline.TRACKS_DIR, clip=args.clip)
+                if not done["corrected_frames"]:
+                    print(f"track: {done['clip']}: no frame of {args.corrections} differs from the tracked "
+                          "curves (at the file's precision) and no frame was ticked nnsf_keyframe: nothing "
+                          "to re-track")
                 print(f"track: {done['clip']}: corrected frames {done['corrected_frames']}; "
                       f"re-tracked intervals {done['resolved_intervals']}; wrote {done['curves']}")
                 from nnsf.roto.stage import keypoints_from_tracks
@@ -346,6 +355,27 @@ def _run(args) -> int:
         return 2
     except Exception as err:  # a bug or an environment problem
         return _unexpected(args.command, err)
+
+
+def _check_stage_params(params: dict) -> None:
+    """The parameter checks stages make beyond the schema that need no data, for ``nnsf check``.
+
+    The schema (:func:`nnsf.params.load`) has every field's type and range;
+    these combine fields or compare them with the code (motion names the
+    generator has, a translator's settings that go together, subkeys the
+    reshaping method needs).  Each runs when its section is present, so
+    ``nnsf check`` refuses what the stage would.
+    """
+    from nnsf.factor.style_model import check_translator, translator_params
+    from nnsf.frames.stage import frames_params
+    from nnsf.reshape.stage import _params as reshape_params
+
+    if "frames" in params:
+        frames_params(params)
+    if "reshape" in params:
+        reshape_params(params)
+    if "translation" in params:
+        check_translator(params, translator_params(params))
 
 
 def _settle_publications() -> None:

@@ -9,13 +9,15 @@ from __future__ import annotations
 import difflib
 import math
 import numbers
+import os
 from pathlib import Path
 from typing import Any, Callable
 
-import yaml
-
+from nnsf import names
 from nnsf.errors import InputError, summarize
 from nnsf.errors import read_text
+from nnsf.names import is_safe_name
+from nnsf.safe_yaml import parse_yaml
 
 DATASETS = ("synthetic", "bvh", "frames")
 FACINGS = ("first", "normalise", "none")
@@ -42,10 +44,6 @@ ARM_CHOICES = ("motion", "drawing")
 HEAD_CHOICES = ("motion", "torso")
 TRANSLATION_METHODS = ("nnsf", "nnsf_smooth", "nnsf_nosmooth", "nnsf_restore", "nnsf_swapped", "nnsf_beta0",
                        "nnsf_refit", "api", "api_source", "bilinear", "mgpm", "cbgpm", "offset", "identity", "real")
-
-
-def _optional_str():
-    return (lambda v: v is None or (isinstance(v, str) and v != "")), "a non-empty string or null"
 
 
 def _g(x) -> str:
@@ -110,6 +108,56 @@ def _bool():
 
 def _str(max_len: int = 500):
     return (lambda v: isinstance(v, str) and 0 < len(v) <= max_len), "a non-empty string"
+
+
+def _name(optional: bool = False):
+    """An id that becomes a file name (:func:`nnsf.names.safe_name`): the writers' rule, applied here too."""
+    return ((lambda v: (optional and v is None) or is_safe_name(v)),
+            (names.EXPECTED + ", or null") if optional else names.EXPECTED)
+
+
+#: What a path in params.yaml may be (:func:`project_path`).
+PROJECT_PATH = "a name, or a relative path inside the project (no '..'; symbolic links resolved)"
+
+
+def project_path(value, source, field: str, root=".") -> Path | None:
+    """The path ``value`` names in the project ``root``, or None when it is a name (``rex``, ``synthetic:...``).
+
+    ``value`` is a path when it holds a ``/``, ``\\`` or ``.``, or a file or
+    link of that name exists in ``root``.  A path must be relative, without
+    ``..``, and stay inside ``root`` once symbolic links are resolved
+    (checked by resolving it, not by its text); else an :class:`InputError`
+    naming ``source`` and ``field``.  The stages and ``nnsf check`` (the
+    :data:`SCHEMA` entries of such fields) use this one function.
+    """
+    text = str(value)
+    if text.startswith("synthetic:"):
+        return None
+    root = Path(root)
+    if not any(c in text for c in "/\\.") and not os.path.lexists(root / text):
+        return None
+    parts = text.replace("\\", "/").split("/")
+    p = Path(text)
+    try:
+        outside = (p.is_absolute() or text.startswith(("/", "\\", "~")) or ".." in parts
+                   or not (root / p).resolve().is_relative_to(root.resolve()))
+    except (OSError, RuntimeError) as exc:   # a loop of symbolic links
+        raise InputError(source, field, PROJECT_PATH, text, reason=str(exc)) from None
+    if outside:
+        raise InputError(source, field, PROJECT_PATH, text)
+    return root / p
+
+
+def _project_path():
+    def check(v):
+        if not (isinstance(v, str) and 0 < len(v) <= 500):
+            return False
+        try:
+            project_path(v, "", "")
+        except InputError:
+            return False
+        return True
+    return check, PROJECT_PATH
 
 
 def _view():
@@ -246,8 +294,8 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "translation.methods": _list(_choice(TRANSLATION_METHODS), 20),
     "translation.content_clip": _str(),
     "translation.style": _str(),
-    "reshape.clip": _optional_str(),
-    "reshape.character": _str(),
+    "reshape.clip": _name(optional=True),
+    "reshape.character": _project_path(),
     "reshape.character_size": _int(64, 4096),
     "reshape.n_vertices": _int(100, 6000),
     "reshape.subkeys_per_limb": _int(0, 12),
@@ -263,8 +311,8 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "reshape.depth_overrides": ((lambda v: isinstance(v, list) and len(v) <= 1000
                                  and all(isinstance(x, (str, dict)) for x in v)),
                                 "a list of overrides such as 'left_arm over torso from 12 to 30'"),
-    "reshape_eval.characters": _list(_str(), 100),
-    "reshape_eval.motions": _list(_str(), 100),
+    "reshape_eval.characters": _list(_name(), 100),
+    "reshape_eval.motions": _list(_name(), 100),
     "reshape_eval.n_vertices": _int(100, 6000),
     "reshape_eval.max_frames": _int(3, 5000),
     "reshape_eval.subkeys_per_limb": _int(1, 12),
@@ -277,8 +325,8 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "reshape_eval.head": ((lambda v: isinstance(v, dict) and all(
         isinstance(k, str) and x in HEAD_CHOICES for k, x in v.items())),
         "a mapping of character names to " + " or ".join(HEAD_CHOICES)),
-    "animate.character": _str(),
-    "animate.motion": _str(),
+    "animate.character": _project_path(),
+    "animate.motion": _project_path(),
     "animate.style": _str(),
     "animate.view": _choice(VIEW_CHOICES),
     "animate.arms": _choice(ARM_CHOICES),
@@ -455,7 +503,7 @@ MAX_PARAMS_BYTES = 1_000_000
 
 
 def load(path="params.yaml") -> dict:
-    """Read and validate a params file (``yaml.safe_load``).
+    """Read and validate a params file (the bounded safe loader, :func:`nnsf.safe_yaml.parse_yaml`).
 
     Every failure is an :class:`InputError` naming the file: missing,
     unreadable (permissions), larger than :data:`MAX_PARAMS_BYTES`, not
@@ -464,15 +512,7 @@ def load(path="params.yaml") -> dict:
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "file", "an existing params.yaml")
-    text = read_text(path, max_bytes=MAX_PARAMS_BYTES, what="a params file")
-    try:
-        params = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}" if mark else "file"
-        raise InputError(path, where, "valid YAML", reason=getattr(exc, "problem", None) or str(exc)) from None
-    except RecursionError:
-        raise InputError(path, "file", "YAML nested at most a few hundred levels deep") from None
+    params = parse_yaml(read_text(path, max_bytes=MAX_PARAMS_BYTES, what="a params file"), path)
     out = Params(validate(params if params is not None else {}, path))
     out.source = str(path)
     return out

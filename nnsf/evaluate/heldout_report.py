@@ -27,6 +27,7 @@ from nnsf.io import read_json, write_csv, write_json
 from nnsf.params import require, source_of
 from nnsf.pipeline import FEATURES_CSV, RAW_DIR, REPORTS, StageResult
 from nnsf.publish import publish_stage
+from nnsf.skeleton.unify import UNIFIER
 from nnsf.stick import write_stick_gif
 
 
@@ -101,7 +102,7 @@ def write_heldout(params: dict, features_csv=FEATURES_CSV, reports=REPORTS, mapp
         if unifier_json is None:        # a table in pixels: the generator's pixels are the truth
             truth = SyntheticTruth(seed=seed)
         else:
-            truth = UnifiedTruth(SyntheticTruth(seed=seed), read_json(Path(unifier_json)))
+            truth = UnifiedTruth(SyntheticTruth(seed=seed), read_json(Path(unifier_json), UNIFIER))
     report = skipped_styles(table)
     cells = grid_cells(table)
     if not cells:

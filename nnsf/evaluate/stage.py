@@ -28,7 +28,7 @@ from nnsf.factor.figures import fold_figure
 from nnsf.io import read_npz, write_csv, write_json
 from nnsf.params import require, source_of
 from nnsf.pipeline import (
-    FEATURES_CSV, MODEL_PATH, REPORTS, StageResult, check_rank, label_column, need_several, nnsf_params,
+    FEATURES_CSV, MODEL_PATH, NNSF_MODEL, REPORTS, StageResult, check_rank, label_column, need_several, nnsf_params,
 )
 from nnsf.publish import publish_stage, publishing, recover
 
@@ -182,10 +182,7 @@ def isomap(params: dict, model=MODEL_PATH, features_csv=FEATURES_CSV, reports=RE
     seed = int(require(params, "seed"))
 
     recover(reports, "factorize", wait=True)  # the model of a killed factorize: its set is settled first
-    fitted = read_npz(model)
-    for key in ("V_encoded", "character"):
-        if key not in fitted:
-            raise InputError(model, key, "an array written by the factorize stage")
+    fitted = read_npz(model, NNSF_MODEL, what="model written by the factorize stage")
     V, characters = fitted["V_encoded"], fitted["character"]
     rows = stratified_sample(characters, samples, seed)
     with warnings.catch_warnings(record=True) as caught:

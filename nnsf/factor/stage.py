@@ -234,7 +234,7 @@ def translate_clip(params: dict, features_csv=Path("data/features/features.csv")
     styles = sorted(set(chars))
     if style not in styles:
         raise InputError(features_csv, "style", f"a character (style) of the table: {styles}", style)
-    unifier = Unifier.from_dict(read_json(unifier_json))
+    unifier = Unifier.from_dict(read_json(unifier_json), unifier_json)
     if style not in unifier.scales:
         raise InputError(unifier_json, "characters", f"the target style {style!r}", sorted(unifier.scales))
     rows = clips == content_clip

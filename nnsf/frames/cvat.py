@@ -126,9 +126,14 @@ def read_cvat_video(path, clip: str | None = None, character: str = "unknown",
     tracks = root.findall("track")
     if not tracks:
         raise InputError(path, "<track>", "at least one track (export as CVAT for video 1.1)")
+    seen: dict[str, str] = {}      # label -> id of the track that has it
     for track in tracks:
         tid, label = track.get("id", "?"), track.get("label", "")
         where = f"track id={tid} label={label!r}"
+        if label in seen:
+            raise InputError(path, f"track id={tid} label", f"each label in one track; track id={seen[label]} "
+                             "has this label too (merge the two tracks in CVAT)", label)
+        seen[label] = tid
         if label in SIDE_INDEX:
             kind, target = "polyline", curves
         elif label in JOINT_INDEX:
@@ -137,6 +142,7 @@ def read_cvat_video(path, clip: str | None = None, character: str = "unknown",
             raise InputError(path, f"track id={tid}", "a label naming a side curve (" + ", ".join(
                 SIDE_NAMES[:2]) + ", ...) or a key point (" + ", ".join(JOINTS[:3]) + ", ...)",
                 label)
+        used = 0
         for shape in track:
             if shape.tag not in SHAPES and shape.tag != "attribute":
                 raise InputError(path, where, "polyline shapes for curves and points shapes for "
@@ -158,8 +164,12 @@ def read_cvat_video(path, clip: str | None = None, character: str = "unknown",
                 raise InputError(path, f"{where} frame={f}", f"one keyframe of {label!r} per frame",
                                  "two tracks with this label")
             slot[label] = pts if kind == "polyline" else pts[0]
+            used += 1
             if kind == "polyline":
                 where_curve.setdefault(label, where)
+        if not used:   # a track none of whose shapes is a keyframe would vanish from the annotation
+            raise InputError(path, where, f'at least one <{kind}> with keyframe="1" and outside="0" '
+                             "(mark the annotated frames as keyframes in CVAT)", "none")
     if not curves:
         raise InputError(path, "<polyline>", 'at least one polyline shape with keyframe="1" '
                          'and outside="0"')

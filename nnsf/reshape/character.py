@@ -36,7 +36,7 @@ import yaml
 from nnsf.errors import InputError
 from nnsf.io import atomic_path, read_json, write_json
 from nnsf.skeleton import JOINT_INDEX, JOINTS, N_JOINTS, rest_pose
-from nnsf.io import read_text
+from nnsf.io import parse_yaml, read_text
 
 #: The AnimatedDrawings joint names a supported ``char_cfg.yaml`` holds, each once.
 AD_JOINTS: tuple[str, ...] = (
@@ -260,7 +260,7 @@ def read_ad_joints(cfg_path: Path) -> tuple[dict, dict[str, np.ndarray]]:
     if not cfg_path.is_file():
         raise InputError(cfg_path, "file", "an AnimatedDrawings char_cfg.yaml")
     try:
-        cfg = yaml.safe_load(read_text(cfg_path, 10_000_000, "an AnimatedDrawings char_cfg.yaml"))
+        cfg = parse_yaml(read_text(cfg_path, 10_000_000, "an AnimatedDrawings char_cfg.yaml"), cfg_path)
     except yaml.YAMLError as exc:
         raise InputError(cfg_path, "file", "valid YAML", reason=str(exc)) from None
     except RecursionError:

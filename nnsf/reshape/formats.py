@@ -32,6 +32,7 @@ import numpy as np
 import yaml
 
 from nnsf.errors import InputError
+from nnsf.io import read_yaml
 from nnsf.datasets.synthetic import CHARACTER_NAMES
 from nnsf.reshape import character as chmod
 from nnsf.reshape.character import Character, load_character
@@ -43,7 +44,7 @@ from nnsf.skeleton import JOINTS
 
 def _safe_yaml(path: Path):
     try:
-        return yaml.safe_load(path.read_text())
+        return read_yaml(path)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}" if mark is not None else "file"

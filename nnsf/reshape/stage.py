@@ -49,7 +49,8 @@ from nnsf.reshape.render import MeshRenderer
 from nnsf.reshape.video import contact_sheet, write_gif, write_mp4, write_png_frames
 from nnsf.reshape.rig import Rig
 from nnsf.pipeline import RESHAPE_DIR, TRANSLATION_DIR, StageResult
-from nnsf.params import checked, source_of
+from nnsf.names import safe_name
+from nnsf.params import checked, project_path, source_of
 
 METHODS = {"ours": "subkeys", "keypoints": "keypoints"}
 MESHES = {"layered": "layered", "limbs": "limbs", "split": True, "connected": False}
@@ -74,10 +75,7 @@ def resolve_character(spec, size: int = 512, root=Path("."), source="params.yaml
     looks_like_path = ("/" in text or "\\" in text or text.endswith((".json", ".yaml", ".yml", ".png")))
     if not looks_like_path:
         return synthetic_character(text, size, source=source)
-    p = Path(text)
-    if p.is_absolute() or ".." in p.parts:
-        raise InputError(source, "reshape.character", "a relative path inside the project", text)
-    full = Path(root) / p
+    full = project_path(text, source, "reshape.character", root) or Path(root) / text
     if not full.exists():
         raise InputError(source, "reshape.character", "an existing character file or folder", text)
     return read_character(full)
@@ -237,6 +235,7 @@ def reshape(params: dict, motion_csv=TRANSLATION_DIR / "translated_features.csv"
     character = (read_character(character_path, joints) if character_path is not None
                  else resolve_character(p["character"], p["character_size"], source=source))
     clip, frame_ids, points = read_motion(motion_csv, p["clip"])
+    name = safe_name(character.name, character.source or source, "name") + "_" + safe_name(clip, motion_csv, "clip")
     points, frame_ids = points[: p["max_frames"]], frame_ids[: p["max_frames"]]
     rig = build_rig(character, p["method"], p["mesh"], p["n_vertices"], p["subkeys_per_limb"], p["propagation"],
                     source=source)
@@ -248,7 +247,6 @@ def reshape(params: dict, motion_csv=TRANSLATION_DIR / "translated_features.csv"
     renderer = MeshRenderer.for_mesh(rig.mesh, character, size=size)
     images = renderer.render_clip(anim.frames + offset, anim.orders, background=BACKGROUND)
     numbers = report(anim)
-    name = f"{character.name}_{clip}"
     out_dir = Path(out_dir)
     artifacts = []
     with atomic_dir(out_dir) as tmp:

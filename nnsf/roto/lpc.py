@@ -22,6 +22,7 @@ import pandas as pd
 
 from nnsf.errors import InputError
 from nnsf.frames.annotation import read_annotation
+from nnsf.io import read_image
 from nnsf.params import TRACKERS
 from nnsf.roto.real import REPORTED, score_trackers, write_silhouette_report
 
@@ -40,8 +41,8 @@ _NAME = re.compile(r"^r(\d+)c(\d+)\.png$")
 def read_tiles(sheet_path, names: list[str]) -> tuple[np.ndarray, np.ndarray]:
     """Tiles ``r<row>c<col>.png`` of a sprite sheet: RGB over white (T, 64, 64, 3) uint8, alpha (T, 64, 64)."""
     sheet_path = Path(sheet_path)
-    img = cv2.imread(str(sheet_path), cv2.IMREAD_UNCHANGED)
-    if img is None or img.ndim != 3 or img.shape[2] != 4:
+    img = read_image(sheet_path)
+    if img.ndim != 3 or img.shape[2] != 4:
         raise InputError(sheet_path, "file", "a readable RGBA sprite sheet PNG")
     rgb, alpha = [], []
     for n in names:

@@ -30,7 +30,7 @@ from scipy.spatial import cKDTree
 from nnsf.roto import curves
 from nnsf.errors import InputError
 from nnsf.frames.annotation import read_annotation
-from nnsf.io import write_csv, write_json
+from nnsf.io import read_image, write_csv, write_json
 from nnsf.params import TRACKERS
 from nnsf.roto.figures import roto_overlay
 from nnsf.roto.metrics import _project, length_ratio
@@ -144,8 +144,8 @@ def read_rgba(folder: Path, names: list[str]) -> tuple[np.ndarray, np.ndarray]:
     """Frames composited over white (T, H, W, 3) uint8 RGB and their alpha (T, H, W) uint8."""
     rgb, alpha = [], []
     for n in names:
-        img = cv2.imread(str(Path(folder) / n), cv2.IMREAD_UNCHANGED)
-        if img is None or img.ndim != 3 or img.shape[2] != 4:
+        img = read_image(Path(folder) / n)
+        if img.ndim != 3 or img.shape[2] != 4:
             raise InputError(Path(folder) / n, "file", "a readable RGBA PNG")
         a = img[..., 3:4].astype(np.float32) / 255.0
         comp = np.rint(img[..., :3].astype(np.float32) * a + 255.0 * (1 - a)).astype(np.uint8)

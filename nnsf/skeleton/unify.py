@@ -23,6 +23,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from nnsf.errors import InputError
+from nnsf.schema import List, Map, Num, Optional, Record, Str, check
 from nnsf.skeleton.layout import BONE_NAMES, BONES, N_JOINTS, PARENTS, bone_lengths, to_features, to_points
 from nnsf.skeleton.template import TEMPLATE_BONE_LENGTHS
 
@@ -77,6 +79,20 @@ def character_scale(points: np.ndarray) -> CharacterScale:
     scale = TEMPLATE_BONE_LENGTHS[_SCALE_BONES].sum() / lengths[_SCALE_BONES].sum()
     return CharacterScale(bone_ratio=ratio, root_scale=float(scale),
                           root_ref=np.median(points[:, 0, :], axis=0))
+
+
+def _vector(n: int, lo: float = -1e12, hi: float = 1e12) -> List:
+    return List(Num(lo, hi), min_len=n, max_len=n)
+
+
+#: A unifier as :meth:`Unifier.to_dict` writes it (``unifier.json``, a model file's ``meta.unifier``).
+UNIFIER = Record({
+    "margin": Num(0.0, 1e6),
+    "offset": _vector(2),
+    "bones": Optional(List(Str(choices=tuple(BONE_NAMES)), min_len=len(BONE_NAMES), max_len=len(BONE_NAMES))),
+    "characters": Map(Record({"bone_ratio": _vector(len(BONE_NAMES), 1e-12), "root_scale": Num(1e-12, 1e12),
+                              "root_ref": _vector(2)}), max_len=100_000),
+})
 
 
 @dataclass
@@ -157,7 +173,12 @@ class Unifier:
         }
 
     @classmethod
-    def from_dict(cls, d: dict) -> "Unifier":
+    def from_dict(cls, d: dict, source="unifier") -> "Unifier":
+        """The unifier :meth:`to_dict` described; an :class:`~nnsf.errors.InputError` naming ``source``
+        and the field when ``d`` does not follow :data:`UNIFIER`."""
+        d = check(source, UNIFIER, d)
+        if "bones" in d and d["bones"] != list(BONE_NAMES):
+            raise InputError(source, "bones", "the bones of this nnsf's skeleton, in its order", d["bones"])
         return cls(
             margin=float(d["margin"]),
             offset=np.asarray(d["offset"], dtype=float),
