@@ -172,15 +172,7 @@ def _animate(args) -> int:
     parts = ", ".join(f"{k} {v:.2f} s" for k, v in res.seconds.items() if k != "total")
     print(f"animate: {res.frames} frames at {res.fps:g} fps in {res.seconds['total']:.2f} s ({parts})")
     for kind, path in res.files.items():
-        if kind == "mp4":
-            from nnsf.reshape.video import mp4_codec
-
-            codec = mp4_codec()
-            print(f"animate: {kind}: {path}" + ("" if codec == "avc1" else
-                  " (MPEG-4 Part 2, mp4v: this OpenCV has no H.264 encoder; VLC and ffmpeg play it, "
-                  "browsers and QuickTime may not: use --out FILE.gif for those)"))
-        else:
-            print(f"animate: {kind}: {path}")
+        print(f"animate: {kind}: {path}" + (" (H.264)" if kind == "mp4" else ""))
     return 0
 
 

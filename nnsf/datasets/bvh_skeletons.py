@@ -541,9 +541,13 @@ def choose_family(ranked: list[FamilyMatch], source="<bvh>") -> SkeletonFamily:
     elif best is not None:
         why = f"joint names of a known family; the best match is weak (score below {WEAK_SCORE:g})"
         shown = [best] + [m for m in ranked if m is not best][:2]
-    else:
+    elif ranked and ranked[0].score > 0:
         why = "joint names of a known family; none maps all 17 key points"
         shown = ranked[:3]
+    else:
+        raise InputError(source, "joint names", "joint names of a known family (give --joint-map "
+                         "FILE.yaml, docs/formats.md §3.3)",
+                         reason=f"candidates: none of {', '.join(FAMILIES)} writes any of them")
     raise InputError(source, "joint names",
                      why + " (give --joint-map FILE.yaml, docs/formats.md §3.3)",
                      reason="candidates: " + "; ".join(m.summary(detail=k == 0) for k, m in enumerate(shown[:4])))
