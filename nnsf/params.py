@@ -168,6 +168,7 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "dataset.bvh.facing": _choice(FACINGS),
     "dataset.bvh.center": _bool(),
     "dataset.bvh.complete_grid": _bool(),
+    "dataset.bvh.joint_map": _optional_str(),
     "frames.characters": _int(1, 12),
     "frames.motions": _motions(),
     "frames.clips_per_cell": _int(1, 100),
@@ -476,6 +477,17 @@ def load(path="params.yaml") -> dict:
     out = Params(validate(params if params is not None else {}, path))
     out.source = str(path)
     return out
+
+
+#: The package's own parameters for commands run outside a project (``nnsf styles`` with no
+#: params.yaml): the sections those commands read, equal to the project's params.yaml
+#: (tests/test_cli_styles.py checks that they agree).
+DEFAULTS_FILE = Path(__file__).with_name("defaults.yaml")
+
+
+def load_defaults() -> dict:
+    """:data:`DEFAULTS_FILE`, read and validated as :func:`load` does; its ``source`` names it."""
+    return load(DEFAULTS_FILE)
 
 
 def require(params: dict, key: str):

@@ -13,9 +13,8 @@ from scipy.spatial.transform import Rotation
 
 from nnsf.datasets.bvh import forward_kinematics, parse_bvh, read_bvh
 from nnsf.datasets.projection import detect_up_axis, project, resample, resample_times
-from nnsf.datasets.bvh_skeletons import (
-    FAMILIES, detect_family, family_from_mapping, keypoints_3d, parse_rule,
-)
+from nnsf.datasets.bvh_detect import detect_family
+from nnsf.datasets.bvh_skeletons import FAMILIES, family_from_mapping, keypoints_3d, parse_rule
 from nnsf.datasets.bvh_source import (
     DEPTH_COLUMNS, labels_from_json, labels_from_name, load_clip, read_folder,
 )

@@ -39,7 +39,8 @@ import pandas as pd
 
 from nnsf.datasets.bvh import MAX_BVH_BYTES, forward_kinematics, read_bvh
 from nnsf.datasets.projection import detect_up_axis, project, resample, up_rotation
-from nnsf.datasets.bvh_skeletons import FAMILIES, SkeletonFamily, check_bones, detect_family, keypoints_3d
+from nnsf.datasets.bvh_detect import detect_family
+from nnsf.datasets.bvh_skeletons import FAMILIES, SkeletonFamily, check_bones, keypoints_3d
 from nnsf.datasets.contract import validate
 from nnsf.datasets.joint_map import check_joint_map
 from nnsf.errors import InputError

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from nnsf.errors import InputError
+from nnsf.factor.style_names import check_aliases
 from nnsf.io import round_floats, write_npz
 from nnsf.skeleton import Unifier
 
@@ -149,13 +150,16 @@ class _Reader:
 
 # ----------------------------------------------------------------------------- files
 def save_model(translator, path, *, unifier=None, features_sha256: str | None = None,
-               source: str = "", view: str | None = None, digits: int | None = None) -> Path:
+               source: str = "", view: str | None = None, digits: int | None = None,
+               aliases: dict | None = None) -> Path:
     """Write a fitted translator (and the unifier of its training characters) to ``path``, atomically.
 
     ``digits=None`` keeps every bit, so a loaded model translates exactly as
     the fitted one.  The ``styles`` stage passes 6 significant digits
     (:data:`nnsf.io.DIGITS`) instead, so that the versioned file, and DVC's
     hash of it, is the same on every machine whatever BLAS noise the fit had.
+    ``aliases`` (``{alias: style}``, :mod:`nnsf.factor.style_names`) are other names of the
+    model's styles; stored only when given, so a model without them is unchanged.
     """
     from sklearn.utils.validation import check_is_fitted
 
@@ -175,6 +179,9 @@ def save_model(translator, path, *, unifier=None, features_sha256: str | None = 
         "view": view,
         "state": state,
     }
+    if aliases:
+        # Other names a user may give a style (elderly -> old): a flat {alias: style} of strings.
+        meta["aliases"] = check_aliases(aliases, meta["styles"], "--alias", "alias")
     if digits is not None:
         meta = round_floats(meta, digits)
     write_npz(path, digits=digits, meta=np.array(json.dumps(meta, sort_keys=True)), **w.arrays)
@@ -206,6 +213,10 @@ def read_meta(path) -> tuple[dict, dict]:
     for key in ("styles", "contents", "params", "state"):
         if key not in meta:
             raise InputError(path, f"meta.{key}", "present", "missing")
+    if "aliases" in meta:
+        if not isinstance(meta["styles"], list):
+            raise InputError(path, "meta.styles", "a list of style names", meta["styles"])
+        meta["aliases"] = check_aliases(meta["aliases"], meta["styles"], path, "meta.aliases")
     return meta, arrays
 
 
