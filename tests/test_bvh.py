@@ -853,3 +853,20 @@ def test_a_joint_map_naming_a_joint_the_file_lacks_names_the_map_and_the_nearest
     msg = str(err.value)
     assert msg.startswith(f"{m}: joints.l_knee: expected joints of {p}, got 'UnterschenkeL'"), msg
     assert "UnterschenkelL" in msg
+
+
+def test_an_end_site_at_zero_offset_is_no_point_and_the_next_rule_is_used():
+    from nnsf.datasets.bvh_skeletons import mapping_text
+
+    fam = FAMILIES["cmu-motionbuilder"]
+    names = ["Hips", "LeftUpLeg", "RightUpLeg", "LeftLeg", "RightLeg", "LeftFoot", "RightFoot", "Spine",
+             "Spine1", "Neck", "Neck1", "Head", "Head_end", "LeftArm", "RightArm", "LeftForeArm",
+             "RightForeArm", "LeftHand", "RightHand"]
+    kinds = [0] * len(names)
+    kinds[names.index("Head_end")] = 1
+    assert mapping_text(fam, names, kinds)["head_top"] == "end(Head)"
+    kinds[names.index("Head_end")] = 2                     # OFFSET 0 0 0: the head joint itself
+    assert mapping_text(fam, names, kinds)["head_top"] == "beyond(Neck1, Head, 1)"
+    b = parse_bvh(GOOD_HEADER.replace("OFFSET 0 1 0", "OFFSET 0 0 0") + "Frames: 1\nFrame Time: 0.1\n"
+                  "0 0 0 0 0 0\n", "zero.bvh")
+    assert list(b.site_kinds) == [0, 2]

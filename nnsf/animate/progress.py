@@ -2,7 +2,7 @@
 
 :class:`Phases` times the phases of a job (load, mesh, translate, deform,
 render, encode).  A phase still running after :data:`HEARTBEAT` seconds gets a
-line every :data:`HEARTBEAT` seconds from a watcher thread, with how far it
+line from a watcher thread, with how far it
 got when the phase reports steps (``render: frame 40/120``) and the time so
 far, so a user never watches a silent terminal for long; a phase that ran
 that long also says when it ends.  Quick phases print nothing.
@@ -86,7 +86,11 @@ class Phases:
             self.stop()
 
     def _beat(self, name: str, what: str, t0: float, stop: threading.Event) -> None:
-        while not stop.wait(self.every):
+        # Lines at 1, 2, 4 and then every 5 heartbeats: a minutes-long phase says where it
+        # is a few times a minute, not every two seconds.
+        wait = self.every
+        while not stop.wait(wait):
+            wait = min(2 * wait, 5 * self.every)
             with self._lock:
                 step = self._step
             far = f" {step[0]}/{step[1]}{' ' + step[2] if step[2] else ''}," if step else ""

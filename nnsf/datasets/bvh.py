@@ -117,6 +117,13 @@ class BVH:
         return float(whole) if whole > 0 and abs(fps - whole) <= 1e-3 * fps else fps
 
     @property
+    def site_kinds(self) -> np.ndarray:
+        """Per node, ``(J,)`` int: 0 a joint, 1 an End Site, 2 an End Site whose OFFSET is zero
+        (it coincides with its joint, so it marks no point of its own)."""
+        void = self.is_end_site & ~np.any(self.offsets != 0, axis=1)
+        return self.is_end_site.astype(np.int64) + void
+
+    @property
     def joint_names(self) -> tuple[str, ...]:
         """Names of the real joints (End Sites left out)."""
         return tuple(n for n, e in zip(self.names, self.is_end_site) if not e)

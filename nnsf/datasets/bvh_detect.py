@@ -75,7 +75,8 @@ def rank_families(names: Sequence[str], end_sites: Sequence[bool] | None = None,
     """Every family scored on the joint names (module docstring), best first.
 
     ``names`` are the file's node names in order, ``end_sites`` marks the End
-    Sites among them (not scored, but rules may use them).
+    Sites among them (not scored, but rules may use them; see
+    :class:`~nnsf.datasets.bvh_skeletons.JointNames`).
     """
     families = FAMILIES if families is None else families
     nm = JointNames(names, end_sites)

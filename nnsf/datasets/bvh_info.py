@@ -75,12 +75,12 @@ def bvh_info(path, joint_map: SkeletonFamily | None = None, fps: float = 30.0) -
     L.append(f"hierarchy: {n_joints} joints, {int(bvh.is_end_site.sum())} End Sites, "
              f"{len(bvh.channel_node)} channels")
     L += _hierarchy(bvh)
-    ranked = rank_families(bvh.names, bvh.is_end_site)
+    ranked = rank_families(bvh.names, bvh.site_kinds)
     L.append("families by joint names (score 0..1, key points mapped of 17):")
     L += [f"  {m.family.name:18s} {m.score:.2f}  {m.mapped:2d}/17" for m in ranked[:5]]
     try:
         if joint_map is not None:
-            check_joint_map(joint_map, bvh.names, path, bvh.is_end_site)
+            check_joint_map(joint_map, bvh.names, path, bvh.site_kinds)
             fam = joint_map
             L.append(f"family: {fam.name} ({fam.description}, from --joint-map)")
         else:
@@ -92,7 +92,7 @@ def bvh_info(path, joint_map: SkeletonFamily | None = None, fps: float = 30.0) -
         return info
     info.family = fam.name
     L.append("key points:")
-    L += [f"  {kp:10s} {rule}" for kp, rule in mapping_text(fam, bvh.names, bvh.is_end_site).items()]
+    L += [f"  {kp:10s} {rule}" for kp, rule in mapping_text(fam, bvh.names, bvh.site_kinds).items()]
     try:
         clip = load_clip(path, fps=fps, family=fam)
     except InputError as exc:

@@ -245,7 +245,9 @@ FAMILIES: dict[str, SkeletonFamily] = {f.name: f for f in (
         # is one neck bone higher: the base of the neck lies between them.
         thorax=mid("Neck", "Neck1"),
         neck=joint("Head"),
-        head_top=end("Head"),
+        # The head End Site; where it is missing or at zero OFFSET (retargeted copies of this
+        # skeleton), the crown lies about one upper-neck bone above the head joint.
+        head_top=(end("Head"), beyond("Neck1", "Head", 1.0)),
         **_limbs("UpLeg", "Leg", "Foot", "Arm", "ForeArm", "Hand"),
     ),
     _family(
@@ -262,7 +264,7 @@ FAMILIES: dict[str, SkeletonFamily] = {f.name: f for f in (
         # higher; the shoulders lie between them.
         thorax=mid("lowerneck", "Neck"),
         neck=joint("Head"),
-        head_top=end("Head"),
+        head_top=(end("Head"), beyond("Neck", "Head", 1.0)),
         **_limbs("Hip", "Knee", "Ankle", "Shoulder", "Elbow", "Wrist"),
     ),
     _family(
@@ -309,7 +311,7 @@ FAMILIES: dict[str, SkeletonFamily] = {f.name: f for f in (
         spine=joint("Spine1"),
         thorax=joint("Neck"),
         neck=joint("Head"),
-        head_top=(joint("HeadTop_End"), end("Head")),
+        head_top=(joint("HeadTop_End"), end("Head"), beyond("Neck", "Head", 1.8)),
         **_limbs("UpLeg", "Leg", "Foot", "Arm", "ForeArm", "Hand"),
     ),
     _family(
@@ -323,7 +325,7 @@ FAMILIES: dict[str, SkeletonFamily] = {f.name: f for f in (
         spine=joint("Spine2"),
         thorax=joint("Neck"),
         neck=joint("Head"),
-        head_top=end("Head"),
+        head_top=(end("Head"), beyond("Neck", "Head", 1.2)),
         **_limbs("UpLeg", "Leg", "Foot", "Arm", "ForeArm", "Hand"),
     ),
     _family(
@@ -388,20 +390,27 @@ def _shared_prefix(names: Sequence[str]) -> str:
 class JointNames:
     """A file's node names for matching: each node's lower-case forms (whole, and without a shared prefix).
 
+    ``end_sites`` gives each node's kind (:attr:`nnsf.datasets.bvh.BVH.site_kinds`: 0 a joint,
+    1 an End Site, 2 an End Site at zero OFFSET, which no rule may use: it marks no point of its
+    own); booleans (End Site or not) work too.
+
     ``has(name)`` and ``index(name)`` look a family's joint name up as the module docstring says.
     """
 
-    def __init__(self, names: Sequence[str], end_sites: Sequence[bool] | None = None):
+    def __init__(self, names: Sequence[str], end_sites: Sequence[int] | None = None):
         self.names = tuple(str(n) for n in names)
-        ends = [False] * len(self.names) if end_sites is None else [bool(e) for e in end_sites]
+        kinds = [0] * len(self.names) if end_sites is None else [int(e) for e in end_sites]
+        ends = [k > 0 for k in kinds]
         free = [_namespace_free(n) for n in self.names]
         prefix = _shared_prefix([f for f, e in zip(free, ends) if not e])
-        self.forms: list[tuple[str, ...]] = []
+        self.forms: list[tuple[str, ...]] = [()] * len(free)
         self.lookup: dict[str, int] = {}
         for i, f in enumerate(free):
+            if kinds[i] == 2:       # an End Site at zero OFFSET is its joint, not a point a rule may use
+                continue
             whole = f.lower()
             forms = (whole,) if not prefix or not f.startswith(prefix) else (whole, f[len(prefix):].lower())
-            self.forms.append(forms)
+            self.forms[i] = forms
             for form in forms:
                 self.lookup.setdefault(form, i)
         self.joints = [i for i, e in enumerate(ends) if not e]
@@ -507,7 +516,7 @@ def keypoints_3d(bvh, positions: np.ndarray, rotations: np.ndarray, family: Skel
     """
     F = positions.shape[0]
     out = np.empty((F, len(JOINTS), 3))
-    for k, (idx, w, site, factor) in enumerate(resolve(family, bvh.names, bvh.source, bvh.is_end_site)):
+    for k, (idx, w, site, factor) in enumerate(resolve(family, bvh.names, bvh.source, bvh.site_kinds)):
         if site is not None:
             out[:, k] = positions[:, site] + rotations[:, site] @ (factor * bvh.offsets[site])
         else:

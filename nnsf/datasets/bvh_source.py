@@ -203,9 +203,9 @@ def family_for(bvh, family=None, source=None) -> SkeletonFamily:
     """The skeleton family of a parsed file: detected (``None``), a built-in name, or given."""
     source = bvh.source if source is None else source
     if family is None:
-        return detect_family(bvh.names, source, bvh.is_end_site)
+        return detect_family(bvh.names, source, bvh.site_kinds)
     if isinstance(family, SkeletonFamily):
-        check_joint_map(family, bvh.names, source, bvh.is_end_site)
+        check_joint_map(family, bvh.names, source, bvh.site_kinds)
         return family
     if family not in FAMILIES:
         raise InputError(source, "family", f"one of {', '.join(FAMILIES)}", family)
@@ -243,7 +243,7 @@ def load_clip(path, fps: float | None = 30, azimuth: float = 0.0, elevation: flo
     check_duration(bvh, fps, path)
     P, G = forward_kinematics(bvh, end_sites=True, return_rotations=True)
     K = keypoints_3d(bvh, P, G, fam)
-    check_bones(K, fam, bvh.names, path, bvh.is_end_site)
+    check_bones(K, fam, bvh.names, path, bvh.site_kinds)
     if up == "auto":
         up = detect_up_axis(K, JOINT_INDEX["head_top"], (JOINT_INDEX["l_ankle"], JOINT_INDEX["r_ankle"]))
     K = resample(K, bvh.fps, out_fps) * float(scale)
