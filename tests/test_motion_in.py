@@ -317,3 +317,17 @@ def test_animate_takes_a_style_in_any_case_and_suggests_a_near_name(tmp_path, ca
         assert "style happy" in err
     refused(capsys, base + ["--style", "hapy", "--out", tmp_path / "x.gif"], "m.npz", "--style",
             "did you mean happy", nothing=[tmp_path / "x.gif"])
+
+
+def test_a_csv_motion_with_coinciding_key_points_is_named_not_a_value_error(tmp_path, capsys):
+    from nnsf.datasets import synthetic
+
+    table = contract.validate(synthetic.generate(characters=2, clips_per_cell=1, frames=8, seed=0), "syn")
+    clip = sorted(table["clip"])[0]
+    one = table[table["clip"] == clip].copy()
+    s, t = JOINT_INDEX["spine"] + 1, JOINT_INDEX["thorax"] + 1
+    one[f"x{t}"], one[f"y{t}"] = one[f"x{s}"], one[f"y{s}"]
+    csv = tmp_path / "flat.csv"
+    contract.write_table(csv, one)
+    refused(capsys, ["animate", "--character", "pip", "--motion", csv, "--out", tmp_path / "a.gif"],
+            csv, f"{clip}: spine, thorax", "spine and thorax coincide", nothing=[tmp_path / "a.gif"])

@@ -34,6 +34,7 @@ from nnsf.animate.progress import phased
 from nnsf.datasets import contract
 from nnsf.io import atomic_path, check_writable
 from nnsf.reshape.character import Character
+from nnsf.skeleton.layout import BONE_NAMES, bone_lengths
 from nnsf.params import ARM_CHOICES, HEAD_CHOICES
 from nnsf.reshape.drive import read_motion, retarget
 from nnsf.reshape.render import MeshRenderer
@@ -102,6 +103,12 @@ def read_motion_spec(spec, view: str = "auto", fps: float | None = None, clip: s
                       view=picked, source=str(p), notes=list(clip_obj.notes))
     if p.suffix.lower() == ".csv":
         name, _, pts = read_motion(p, clip)
+        # Two connected key points at one place: the clip's problem, named (unifying it would fail).
+        short = np.flatnonzero(~(np.median(bone_lengths(pts), axis=0) > 0))
+        if short.size:
+            a, b = BONE_NAMES[short[0]].split("-")
+            raise InputError(p, f"{name}: {a}, {b}", "key points at distinct places",
+                             reason=f"{a} and {b} coincide in most frames")
         return Motion(name=name, points=pts, fps=float(fps) if fps else SYNTHETIC_FPS, source=str(p))
     raise InputError(p, "file", "a .bvh or .csv motion file", p.suffix or "no extension")
 
