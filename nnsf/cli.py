@@ -98,7 +98,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--data", type=Path, default=None,
                    help="a folder of labelled .bvh clips, or a features folder (features.csv, unifier.json); "
                         "default: data/features (the pipeline's configured dataset)")
-    p.add_argument("--out", type=Path, default=Path("models/styles.npz"), help="the model file to write")
+    p.add_argument("--out", type=Path, default=Path("models/styles.npz"),
+                   help="the model file to write (default: models/styles.npz)")
     p.add_argument("--joint-map", type=Path, default=None, metavar="FILE.yaml",
                    help="which joints make the 17 key points, for a skeleton no built-in family reads "
                         "(docs/formats.md §3.3); default: dataset.bvh.joint_map")

@@ -256,8 +256,6 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
     # ---- retarget
     ph.start("retarget", "fitting the motion to the drawing's proportions")
     kp = retarget(moved, ch.keypoints, source=mo.source or mo.name, arms=arms, body=ch.body, head=head)
-    if keypoints is not None:
-        write_keypoints(keypoints, kp, mo.name, style)
     # ---- mesh
     ph.start("mesh", f"meshing {ch.name} ({ch.shape[1]}x{ch.shape[0]} px)")
     rig = build_rig(ch, n_vertices=n_vertices)
@@ -302,6 +300,8 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
             if not cv2.imwrite(str(tmp), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR)):
                 raise OSError(f"could not write {targets['sheet']}")
         files["sheet"] = Path(targets["sheet"])
+    if keypoints is not None:       # last, beside finished videos: a failed encode leaves no table
+        write_keypoints(keypoints, kp[:len(images)], mo.name, style)
     ph.stop()
     seconds, cpu = dict(ph.seconds), dict(ph.cpu_seconds)
     seconds["total"], cpu["total"] = time.perf_counter() - t0, time.process_time() - c0
