@@ -331,3 +331,18 @@ def test_a_csv_motion_with_coinciding_key_points_is_named_not_a_value_error(tmp_
     contract.write_table(csv, one)
     refused(capsys, ["animate", "--character", "pip", "--motion", csv, "--out", tmp_path / "a.gif"],
             csv, f"{clip}: spine, thorax", "spine and thorax coincide", nothing=[tmp_path / "a.gif"])
+
+
+def test_styles_reads_a_folder_of_an_unknown_skeleton_with_a_joint_map(tmp_path, capsys, monkeypatch):
+    d = tmp_path / "clips"
+    d.mkdir()
+    for k, (m, s) in enumerate((m, s) for m in ("walk", "run", "jump") for s in ("happy", "sad")):
+        (d / f"ds_{m}_{s}_001.bvh").write_text(_tiny_human(ALIEN, variant=k))
+    jm = tmp_path / "alien.yaml"
+    jm.write_text(ALIEN_MAP)
+    monkeypatch.chdir(tmp_path)
+    # without the map every clip is skipped: one line naming the folder, the first reason given
+    refused(capsys, ["styles", "--data", d, "--out", "m.npz"], d, "clips", "joint names", nothing=["m.npz"])
+    code, out, err = run_cli(["styles", "--data", d, "--out", "m.npz", "--joint-map", jm], capsys)
+    assert code == 0, err
+    assert "styles: wrote m.npz (2 styles, 3 contents)" in out
