@@ -9,12 +9,17 @@
                                         one clip's motion performed in another style
     nnsf reshape [--motion CSV] [--clip CLIP] [--character NAME|FILE|FOLDER] [--joints FILE] [--out DIR]
                                         a drawn character performing a motion clip
-    nnsf styles [--data FOLDER] [--out FILE]
-                                        fit the style model and save it (default models/styles.npz)
+    nnsf styles [--data FOLDER] [--out FILE] [--joint-map FILE.yaml] [--alias NAME=STYLE ...]
+                                        fit the style model and save it (default models/styles.npz);
+                                        works in any folder (package defaults without a params.yaml)
     nnsf animate --character C --motion M [--style NAME|none] [--model FILE]
                  [--view front|side|three-quarter|auto] [--arms motion|drawing] [--head motion|torso]
-                 [--out FILE.mp4|FILE.gif|DIR] [--fps N] [--workers N]
+                 [--out FILE.mp4|FILE.gif|DIR] [--fps N] [--workers N] [--joint-map FILE.yaml]
+                 [--keypoints FILE.csv]
                                         your character performing your motion in a learned style
+    nnsf bvh-info FILE.bvh [--joint-map FILE.yaml]
+                                        a BVH file's hierarchy, frames, skeleton family, key points
+                                        and the view it moves most in
     nnsf reshape-eval --data DIR [--out DIR] [--workers N]
                                         the reshaping evaluation on drawn characters (AnimatedDrawings,
                                         Bandai-Namco, Kenney folders under DIR)
@@ -58,9 +63,10 @@ def _parser() -> argparse.ArgumentParser:
                                      formatter_class=argparse.RawDescriptionHelpFormatter,
                                      epilog=__doc__.split("\n\n", 1)[1])
     sub = parser.add_subparsers(dest="command", required=True, metavar="command")
+    params_help = "parameters file (default: params.yaml in the current folder)"
     for name in STAGES + ("sweep", "check"):
         p = sub.add_parser(name, help=f"the {name} stage" if name in STAGES else None)
-        p.add_argument("--params", default="params.yaml", help="parameters file (default: params.yaml)")
+        p.add_argument("--params", default="params.yaml", help=params_help)
         if name == "roto":
             p.add_argument("--corrections", type=Path, default=None, metavar="FILE.xml",
                            help="a CVAT for video 1.1 file of corrected tracks: its corrected frames "
@@ -70,7 +76,7 @@ def _parser() -> argparse.ArgumentParser:
                            help="also write DIR/<clip>.xml (CVAT for video 1.1) of every clip's tracks")
 
     p = sub.add_parser("translate", help="one clip's motion performed in another style")
-    p.add_argument("--params", default="params.yaml")
+    p.add_argument("--params", default="params.yaml", help=params_help)
     p.add_argument("--features", type=Path, default=Path("data/features/features.csv"),
                    help="unified feature table (its unifier.json beside it)")
     p.add_argument("--clip", default=None, help="the content clip (default: translation.content_clip)")
@@ -78,7 +84,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, default=Path("reports/translation"))
 
     p = sub.add_parser("reshape", help="a drawn character performing a motion clip")
-    p.add_argument("--params", default="params.yaml")
+    p.add_argument("--params", default="params.yaml", help=params_help)
     p.add_argument("--motion", type=Path, default=Path("reports/translation/translated_features.csv"),
                    help="a feature-matrix CSV (any 17-point clip: synthetic, BVH, tracked, translated)")
     p.add_argument("--clip", default=None, help="its clip (default: reshape.clip, else the first)")
@@ -90,11 +96,19 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, default=Path("reports/reshape"))
 
     p = sub.add_parser("styles", help="fit the style model and save it")
-    p.add_argument("--params", default="params.yaml")
+    p.add_argument("--params", default=None,
+                   help="parameters file (its dataset.bvh, unify, translation and seed settings); default: "
+                        "params.yaml in the current folder, else the package defaults (a note says so)")
     p.add_argument("--data", type=Path, default=None,
                    help="a folder of labelled .bvh clips, or a features folder (features.csv, unifier.json); "
                         "default: data/features (the pipeline's configured dataset)")
-    p.add_argument("--out", type=Path, default=Path("models/styles.npz"))
+    p.add_argument("--out", type=Path, default=Path("models/styles.npz"),
+                   help="the model file to write (default: models/styles.npz)")
+    p.add_argument("--joint-map", type=Path, default=None, metavar="FILE.yaml",
+                   help="which joints make the 17 key points, for a skeleton no built-in family reads "
+                        "(docs/formats.md §3.3); default: dataset.bvh.joint_map")
+    p.add_argument("--alias", action="append", default=[], metavar="NAME=STYLE",
+                   help="another name for a style, kept in the model (e.g. elderly=old); repeatable")
 
     p = sub.add_parser("animate", help="your character performing your motion in a learned style")
     p.add_argument("--character", required=True,
@@ -123,9 +137,19 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--vertices", type=int, default=800, help="mesh vertices (100..6000)")
     p.add_argument("--workers", type=int, default=None,
                    help="processes that render the frames (default: the CPUs available, at most 8)")
+    p.add_argument("--joint-map", type=Path, default=None, metavar="FILE.yaml",
+                   help="which joints of a BVH motion make the 17 key points (docs/formats.md §3.3)")
+    p.add_argument("--keypoints", type=Path, default=None, metavar="FILE.csv",
+                   help="also write the key points that drive the drawing (styled, in its pixels) as a "
+                        "feature-matrix CSV (docs/formats.md §3.1)")
+
+    p = sub.add_parser("bvh-info", help="what nnsf makes of a BVH file: hierarchy, family, key points, view")
+    p.add_argument("file", type=Path, metavar="FILE.bvh")
+    p.add_argument("--joint-map", type=Path, default=None, metavar="FILE.yaml",
+                   help="which joints make the 17 key points (docs/formats.md §3.3), instead of detection")
 
     p = sub.add_parser("reshape-eval", help="reshaping evaluation on drawn characters (docs/method.md §15.7)")
-    p.add_argument("--params", default="params.yaml")
+    p.add_argument("--params", default="params.yaml", help=params_help)
     p.add_argument("--data", type=Path, required=True,
                    help="folder holding animated-drawings/, bandai-namco-1/ and kenney-toon/")
     p.add_argument("--kenney", type=Path, default=Path("tests/data/kenney"),
@@ -135,7 +159,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="processes for the (character, motion) items (default 1; results are the same)")
 
     p = sub.add_parser("roto-real", help="the trackers on real cartoon frames (Kenney toon walk cycles)")
-    p.add_argument("--params", default="params.yaml")
+    p.add_argument("--params", default="params.yaml", help=params_help)
     p.add_argument("--data", type=Path, default=None,
                    help="the Kenney toon characters folder (female_adventurer/, robot/, ...); "
                         "required unless --lpc is given")
@@ -167,25 +191,54 @@ def _animate(args) -> int:
         raise InputError("--fps", "fps", "a number 1..120", args.fps)
     if not 100 <= args.vertices <= 6000:
         raise InputError("--vertices", "vertices", "an integer 100..6000", args.vertices)
+    joint_map = None
+    if args.joint_map is not None:
+        from nnsf.datasets.joint_map import read_joint_map
+
+        joint_map = read_joint_map(args.joint_map)
+    if args.keypoints is not None and args.keypoints.suffix.lower() != ".csv":
+        raise InputError(args.keypoints, "--keypoints", "a .csv file name", args.keypoints.suffix or "none")
     res = animate_files(args.character, args.motion, style=args.style, model=args.model, view=args.view,
                         out=args.out, fps=args.fps, joints=args.joints, source_style=args.source_style,
                         n_vertices=args.vertices, clip=args.clip, arms=args.arms, workers=args.workers,
-                        head=args.head)
+                        head=args.head, joint_map=joint_map, keypoints=args.keypoints)
     for note in res.notes:
         print(f"animate: note: {note}", file=sys.stderr)
     parts = ", ".join(f"{k} {v:.2f} s" for k, v in res.seconds.items() if k != "total")
     print(f"animate: {res.frames} frames at {res.fps:g} fps in {res.seconds['total']:.2f} s ({parts})")
     for kind, path in res.files.items():
-        if kind == "mp4":
-            from nnsf.reshape.video import mp4_codec
-
-            codec = mp4_codec()
-            print(f"animate: {kind}: {path}" + ("" if codec == "avc1" else
-                  " (MPEG-4 Part 2, mp4v: this OpenCV has no H.264 encoder; VLC and ffmpeg play it, "
-                  "browsers and QuickTime may not: use --out FILE.gif for those)"))
-        else:
-            print(f"animate: {kind}: {path}")
+        print(f"animate: {kind}: {path}" + (" (H.264)" if kind == "mp4" else ""))
+    if args.keypoints is not None:
+        print(f"animate: keypoints: {args.keypoints}")
     return 0
+
+
+def _bvh_info(args) -> int:
+    from nnsf.datasets.bvh_info import bvh_info
+
+    joint_map = None
+    if args.joint_map is not None:
+        from nnsf.datasets.joint_map import read_joint_map
+
+        joint_map = read_joint_map(args.joint_map)
+    info = bvh_info(args.file, joint_map=joint_map)
+    print("\n".join(info.lines), flush=True)
+    if info.error is not None:
+        raise info.error
+    return 0
+
+
+def _styles_params(args):
+    """The params ``nnsf styles`` runs with: ``--params``, else ./params.yaml, else the package defaults."""
+    from nnsf import params as params_mod
+
+    if args.params is not None or Path("params.yaml").is_file():
+        return params_mod.load(args.params or "params.yaml")
+    params = params_mod.load_defaults()
+    # Said with the reader's report once the model is written (a failure stays one line).
+    params.note = (f"no params.yaml in {Path.cwd()}; used the package defaults ({params.source}); "
+                   "--params FILE picks another")
+    return params
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -206,10 +259,12 @@ def _run(args) -> int:
         _settle_publications()
         if args.command == "animate":  # needs no params.yaml
             return _animate(args)
+        if args.command == "bvh-info":
+            return _bvh_info(args)
         from nnsf import params as params_mod
         from nnsf import pipeline, stages
 
-        params = params_mod.load(args.params)
+        params = _styles_params(args) if args.command == "styles" else params_mod.load(args.params)
         if args.command == "check":
             _check_stage_params(params)
             print(f"{args.params}: ok")
@@ -263,7 +318,16 @@ def _run(args) -> int:
         elif args.command == "styles":
             from nnsf.factor.stage import styles_by_hand
 
-            result = styles_by_hand(params, args.data, args.out)
+            aliases = {}
+            for text in args.alias:
+                name, sep, style = text.partition("=")
+                if not sep or not name.strip() or not style.strip():
+                    raise InputError("--alias", "alias", "NAME=STYLE, e.g. elderly=old", text)
+                aliases[name.strip()] = style.strip()
+            result, report = styles_by_hand(params, args.data, args.out, joint_map=args.joint_map,
+                                            aliases=aliases)
+            for line in ([params.note] if getattr(params, "note", None) else []) + report:
+                print(f"styles: {line}", file=sys.stderr)
             print(f"styles: wrote {args.out} ({result.metrics['styles']} styles, "
                   f"{result.metrics['contents']} contents)")
         elif args.command == "reshape-eval":

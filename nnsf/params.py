@@ -106,8 +106,9 @@ def _bool():
     return (lambda v: isinstance(v, bool)), "true or false"
 
 
-def _str(max_len: int = 500):
-    return (lambda v: isinstance(v, str) and 0 < len(v) <= max_len), "a non-empty string"
+def _str(max_len: int = 500, optional: bool = False):
+    return ((lambda v: (optional and v is None) or (isinstance(v, str) and 0 < len(v) <= max_len)),
+            "a non-empty string" + (" or null" if optional else ""))
 
 
 def _name(optional: bool = False):
@@ -216,6 +217,7 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "dataset.bvh.facing": _choice(FACINGS),
     "dataset.bvh.center": _bool(),
     "dataset.bvh.complete_grid": _bool(),
+    "dataset.bvh.joint_map": _str(optional=True),
     "frames.characters": _int(1, 12),
     "frames.motions": _motions(),
     "frames.clips_per_cell": _int(1, 100),
@@ -516,6 +518,17 @@ def load(path="params.yaml") -> dict:
     out = Params(validate(params if params is not None else {}, path))
     out.source = str(path)
     return out
+
+
+#: The package's own parameters for commands run outside a project (``nnsf styles`` with no
+#: params.yaml): the sections those commands read, equal to the project's params.yaml
+#: (tests/test_cli_styles.py checks that they agree).
+DEFAULTS_FILE = Path(__file__).with_name("defaults.yaml")
+
+
+def load_defaults() -> dict:
+    """:data:`DEFAULTS_FILE`, read and validated as :func:`load` does; its ``source`` names it."""
+    return load(DEFAULTS_FILE)
 
 
 def require(params: dict, key: str):

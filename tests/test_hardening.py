@@ -335,12 +335,11 @@ def test_a_bvh_link_leaving_the_dataset_folder_is_refused(tmp_path):
 
     folder = tmp_path / "clips"
     folder.mkdir()
-    for motion in ("walk", "run"):
-        for style in ("happy", "sad"):
-            (folder / f"ds_{motion}_{style}_001.bvh").write_text(_tiny_human())
+    for k, (motion, style) in enumerate((m, s) for m in ("walk", "run") for s in ("happy", "sad")):
+        (folder / f"ds_{motion}_{style}_001.bvh").write_text(_tiny_human(variant=k + 1))
     outside = tmp_path / "secret" / "capture.bvh"
     outside.parent.mkdir()
-    outside.write_text(_tiny_human())
+    outside.write_text(_tiny_human(variant=7))
     (folder / "ds_jump_happy_001.bvh").symlink_to(outside)
     inside = folder / "sub"
     inside.mkdir()

@@ -52,6 +52,7 @@ dataset:
     facing: normalise
     center: true
     complete_grid: true
+    joint_map: null
 frames:
   characters: 1
   motions: [walk, wave]

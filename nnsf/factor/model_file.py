@@ -37,6 +37,7 @@ import numpy as np
 
 from nnsf.errors import InputError, summarize
 from nnsf.factor.nnsf import NNSF
+from nnsf.factor.style_names import check_aliases
 from nnsf.io import read_npz, round_floats, write_npz
 from nnsf.schema import (Array, Bool, Context, Int, List, Map, Num, Opt, Optional, Record, Rule, Str, Tuple,
                          check)
@@ -212,6 +213,8 @@ META = Record({
     # The camera view of a motion-capture dataset (None: drawn/synthetic 2D data).
     "view": Opt(Str(max_len=100)),
     "state": _Encoded(),
+    # Other names of styles ({alias: style}, nnsf.factor.style_names), present when given.
+    "aliases": Optional(Map(Str(max_len=1000), max_len=10_000)),
 })
 
 #: The keys each kind of encoded value may have.
@@ -378,13 +381,16 @@ class _Scalar(Rule):
 
 # ----------------------------------------------------------------------------- files
 def save_model(translator, path, *, unifier=None, features_sha256: str | None = None,
-               source: str = "", view: str | None = None, digits: int | None = None) -> Path:
+               source: str = "", view: str | None = None, digits: int | None = None,
+               aliases: dict | None = None) -> Path:
     """Write a fitted translator (and the unifier of its training characters) to ``path``, atomically.
 
     ``digits=None`` keeps every bit, so a loaded model translates exactly as
     the fitted one.  The ``styles`` stage passes 6 significant digits
     (:data:`nnsf.io.DIGITS`) instead, so that the versioned file, and DVC's
     hash of it, is the same on every machine whatever BLAS noise the fit had.
+    ``aliases`` (``{alias: style}``, :mod:`nnsf.factor.style_names`) are other names of the
+    model's styles; stored only when given, so a model without them is unchanged.
     """
     from sklearn.utils.validation import check_is_fitted
 
@@ -404,6 +410,9 @@ def save_model(translator, path, *, unifier=None, features_sha256: str | None = 
         "view": view,
         "state": state,
     }
+    if aliases:
+        # Other names a user may give a style (elderly -> old): a flat {alias: style} of strings.
+        meta["aliases"] = check_aliases(aliases, meta["styles"], "--alias", "alias")
     if digits is not None:
         meta = round_floats(meta, digits)
     write_npz(path, digits=digits, meta=np.array(json.dumps(meta, sort_keys=True)), **w.arrays)
@@ -441,6 +450,9 @@ def read_meta(path) -> tuple[dict, dict]:
     for name in arrays:
         if not re.fullmatch(r"a\d{1,6}", name):
             raise InputError(path, f"array {name}", "arrays named a0, a1, ... (and meta)", "an unknown array")
+    if "aliases" in meta:
+        # The schema checks the shape; the targets must be this model's styles.
+        meta["aliases"] = check_aliases(meta["aliases"], meta["styles"], path, "meta.aliases")
     return meta, arrays
 
 

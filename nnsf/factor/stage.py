@@ -30,7 +30,8 @@ from nnsf.factor.style_model import (
 )
 from nnsf.factor.translate import StyleTranslator, to_character_points
 from nnsf.io import atomic_dir, read_json, write_json, write_npz
-from nnsf.params import require
+from nnsf.factor.style_names import check_aliases
+from nnsf.params import Params, require, source_of
 from nnsf.pipeline import (
     FEATURES_CSV, MODEL_PATH, REPORTS, STYLES_MODEL, TRANSLATION_DIR, StageResult, check_rank, label_column,
     nnsf_params, read_unifier,
@@ -70,7 +71,7 @@ def translate(params: dict, features_csv=FEATURES_CSV, out_dir=TRANSLATION_DIR,
                content_clip=clip, style=target, out_dir=out_dir)
 
 
-def styles(params: dict, features_csv=FEATURES_CSV, out=STYLES_MODEL) -> StageResult:
+def styles(params: dict, features_csv=FEATURES_CSV, out=STYLES_MODEL, aliases=None) -> StageResult:
     """Fit the style translator (``translation.*``) on every clip and save it (``models/styles.npz``).
 
     The model file (:mod:`nnsf.factor.style_model`) holds the translator,
@@ -85,7 +86,7 @@ def styles(params: dict, features_csv=FEATURES_CSV, out=STYLES_MODEL) -> StageRe
     unifier = read_unifier(features_csv.parent)
     started = time.perf_counter()
     tr = fit_model(table, unifier, tp, out, features_sha256=file_sha256(features_csv),
-                   source=str(features_csv), view=dataset_view(params))
+                   source=str(features_csv), view=dataset_view(params), aliases=aliases)
     seconds = time.perf_counter() - started
     return StageResult(
         params={f"translation_{k}": v for k, v in tp.items()},
@@ -166,32 +167,44 @@ def _macro_precision(y_true, y_pred) -> float:
 
 
 
-def styles_by_hand(params: dict, data=None, out=Path("models/styles.npz")):
+def styles_by_hand(params: dict, data=None, out=Path("models/styles.npz"), joint_map=None, aliases=None):
     """``nnsf styles``: fit and save a model from a features folder or a folder of BVH clips.
 
     ``data`` None reads ``data/features`` (the pipeline's configured
     dataset); a folder with ``features.csv`` and ``unifier.json`` is read as
     it is; any other folder is read as labelled BVH clips with the
-    ``dataset.bvh`` settings, unified with ``unify.margin``.  Returns the
-    stage's :class:`~nnsf.pipeline.StageResult`.
+    ``dataset.bvh`` settings (``joint_map``, a joint-map YAML, replaces
+    ``dataset.bvh.joint_map``), unified with ``unify.margin``.  ``aliases``
+    (``{name: style}``) go into the model (:mod:`nnsf.factor.style_names`).
+    Returns the stage's :class:`~nnsf.pipeline.StageResult` and the BVH
+    reader's report (skipped files, conflicts, duplicates, notes; one line each).
     """
     folder = Path("data/features") if data is None else Path(data)
     if not folder.is_dir():
         raise InputError(folder, "--data", "a folder of labelled .bvh clips or a features folder")
     if (folder / "features.csv").is_file():
-        return styles(params, features_csv=folder / "features.csv", out=out)
+        if aliases:
+            table = contract.read_table(folder / "features.csv")
+            check_aliases(aliases, table["character"], "--alias", "alias")
+        return styles(params, features_csv=folder / "features.csv", out=out, aliases=aliases), []
     tp = translator_params(params)
     check_translator(params, tp)
-    bvh_params = dict(params)
+    bvh_params = Params(params)
+    bvh_params.source = source_of(params)
     bvh_params["dataset"] = {**params.get("dataset", {}), "name": "bvh", "path": str(folder)}
+    if joint_map is not None:
+        bvh_params["dataset"]["bvh"] = {**bvh_params["dataset"].get("bvh", {}), "joint_map": str(joint_map)}
     with tempfile.TemporaryDirectory(prefix="nnsf-styles-") as tmp:
         data_stage(bvh_params, out_dir=Path(tmp) / "raw")
         raw = contract.read_table(Path(tmp) / "raw" / "keypoints.csv")
+        report = list(read_json(Path(tmp) / "raw" / "characters.json").get("report", []))
+    if aliases:
+        check_aliases(aliases, raw["character"], "--alias", "alias")
     table, unifier = unify_table(raw, float(require(params, "unify.margin")), folder)
-    tr = fit_model(table, unifier, tp, out, source=str(folder), view=dataset_view(bvh_params))
+    tr = fit_model(table, unifier, tp, out, source=str(folder), view=dataset_view(bvh_params), aliases=aliases)
     return StageResult(params={f"translation_{k}": v for k, v in tp.items()},
                        metrics={"styles": len(tr.styles_), "contents": len(tr.contents_),
-                                "frames": len(table)}, artifacts=[Path(out)])
+                                "frames": len(table)}, artifacts=[Path(out)]), report
 
 
 

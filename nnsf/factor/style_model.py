@@ -16,6 +16,7 @@ import numpy as np
 
 from nnsf.datasets import contract
 from nnsf.errors import InputError
+from nnsf.factor.style_names import resolve_style
 from nnsf.factor.model_file import file_sha256, load_model, read_meta, save_model  # noqa: F401  (re-exported)
 from nnsf.io import DIGITS
 from nnsf.factor.translate import StyleTranslator
@@ -40,10 +41,9 @@ class StyleModel:
         return cls(tr, unifier, meta, path)
 
     def check_style(self, style, field: str = "style") -> str:
-        """``style`` if the model knows it, else an :class:`InputError` listing the known ones."""
-        if str(style) not in self.styles:
-            raise InputError(self.path, field, "a style the model knows: " + ", ".join(self.styles), style)
-        return str(style)
+        """The model's name for ``style`` (any letter case, or one of the model's aliases), else an
+        :class:`InputError` listing the known ones (:func:`nnsf.factor.style_names.resolve_style`)."""
+        return resolve_style(style, self.styles, self.meta.get("aliases"), self.path, field)
 
 
 def unify_clip(points, unifier, margin: float | None = None) -> tuple[np.ndarray, object]:
@@ -117,7 +117,7 @@ def translate_features(content_clip, style, model, source_style=None):
         model = StyleModel(model, None)
     style = model.check_style(style)
     if source_style is not None:
-        model.check_style(source_style, "source_style")
+        source_style = model.check_style(source_style, "source_style")
     X, u = unify_clip(P, model.unifier)
     X_hat = model.translator.translate_clip(X, style, source_style)
     return u.inverse_transform(X_hat, "__clip__"), X_hat, u
@@ -125,7 +125,7 @@ def translate_features(content_clip, style, model, source_style=None):
 
 # ----------------------------------------------------------------------------- fitting one
 def fit_model(table, unifier, translator_params: dict, out, *, features_sha256=None, source="",
-              view=None):
+              view=None, aliases=None):
     """Fit a translator on a unified contract table and save it to ``out``; returns the translator.
 
     ``table``: the feature-matrix contract in template units (``features.csv``);
@@ -144,7 +144,7 @@ def fit_model(table, unifier, translator_params: dict, out, *, features_sha256=N
     with threadpool_limits(limits=1, user_api="blas"):
         tr = StyleTranslator(**translator_params).fit(X, motions, chars, clips)
     save_model(tr, out, unifier=unifier, features_sha256=features_sha256, source=source, view=view,
-               digits=DIGITS)
+               digits=DIGITS, aliases=aliases)
     return tr
 
 
