@@ -144,8 +144,14 @@ def animate(params: dict):
     return run_stage("animate", stages.animate, params)
 
 
+@flow(name="nnsf-results", **_OPTIONS)
+def results(params: dict):
+    """The results document: docs/results.md from the reports (docs/results.yaml lists its tables)."""
+    return run_stage("results", stages.results, params)
+
+
 #: The stage flows by DVC stage name (the sweep lives in :mod:`flows.sweep`).
 FLOWS = {f.fn.__name__: f for f in (data, features, factorize, evaluate, isomap, frames, roto, roto_eval,
-                                    heldout, translate, reshape, styles, animate)}
+                                    heldout, translate, reshape, styles, animate, results)}
 #: Stages that fan out on the configured task runner (flows.runners).
 FAN_OUT = {"evaluate", "frames", "roto", "roto_eval", "heldout"}

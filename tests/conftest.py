@@ -97,7 +97,20 @@ def _quick_tests_start_no_process(request):
 #: What a fresh clone holds that the pipeline needs (no data, models, reports,
 #: stores or environments).
 SOURCES = ("nnsf", "flows", "dvc.yaml", "params.yaml", "pyproject.toml", ".dvcignore",
-           ".gitignore", ".dvc/config", ".dvc/.gitignore")
+           ".gitignore", ".dvc/config", ".dvc/.gitignore", "docs/results.yaml")
+
+
+def committed_reports() -> list[str]:
+    """Reports a stage reads that no stage writes: the committed runs on data outside the
+    repository, which the ``results`` stage puts in the results document.  A fresh clone has them."""
+    import yaml
+
+    stages = yaml.safe_load((PROJECT / "dvc.yaml").read_text())["stages"].values()
+    name = lambda entry: next(iter(entry)) if isinstance(entry, dict) else entry  # noqa: E731
+    written = {name(e) for s in stages for key in ("outs", "metrics", "plots") for e in s.get(key) or []}
+    inside = lambda path: any(path == w or path.startswith(w.rstrip("/") + "/") for w in written)  # noqa: E731
+    return sorted({name(d) for s in stages for d in s.get("deps") or []
+                   if name(d).startswith("reports/") and not inside(name(d))})
 
 
 @pytest.fixture(scope="session")
@@ -123,7 +136,7 @@ def mlflow_template(tmp_path_factory) -> Path:
 def copy_project(dest: Path) -> Path:
     """Copy the project's sources to ``dest`` and commit them in a new git repo."""
     ignore = shutil.ignore_patterns("__pycache__", "*.pyc")
-    for name in SOURCES:
+    for name in SOURCES + tuple(committed_reports()):
         src = PROJECT / name
         if src.is_dir():
             shutil.copytree(src, dest / name, ignore=ignore)

@@ -30,7 +30,7 @@ pytestmark = pytest.mark.slow
 FLOWS = [sys.executable, "-m", "flows"]
 DVC = [sys.executable, "-m", "dvc"]
 ALL_STAGES = {"frames", "roto", "roto_eval", "data", "features", "factorize", "evaluate", "isomap", "sweep",
-              "heldout", "translate", "reshape", "styles", "animate"}
+              "heldout", "translate", "reshape", "styles", "animate", "results"}
 EXPERIMENT = "nnsf-e2e"
 
 #: Small enough for seconds per stage, big enough for 3 grouped folds.
@@ -280,7 +280,8 @@ def test_mlflow_has_stage_runs_and_nested_sweep_runs(pipeline):
     by_stage = runs.groupby("tags.nnsf.stage").size().to_dict()
     assert by_stage == {"frames": 1, "roto": 1, "roto_eval": 1, "data": 1, "features": 1, "factorize": 1,
                         "evaluate": 1, "isomap": 1, "sweep": 1, "sweep-point": 4, "heldout": 1,
-                        "heldout-run": 5, "translate": 1, "reshape": 1, "styles": 1, "animate": 1}
+                        "heldout-run": 5, "translate": 1, "reshape": 1, "styles": 1, "animate": 1,
+                        "results": 1}
     experiment = mlflow.get_experiment_by_name(EXPERIMENT)
     assert experiment.artifact_location == (pipeline.root / "mlartifacts").as_uri()
 
@@ -426,12 +427,13 @@ def test_changing_alpha_reruns_only_its_dependents(pipeline):
     params["nnsf"]["alpha"] = 0.05
     (pipeline.root / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     # Directly out of date: the stages that read nnsf.alpha.  isomap follows
-    # because the model it reads changes; data, features and sweep stay.
+    # because the model it reads changes, and results because their reports do;
+    # data, features and sweep stay.
     status = run(DVC + ["status", "--json"], pipeline.root, pipeline.env)
     assert set(json.loads(status.stdout)) == {"factorize", "evaluate"}
     rerun = run(FLOWS + ["repro"], pipeline.root, pipeline.env, timeout=600)
     assert rerun.returncode == 0, rerun.stdout[-3000:] + rerun.stderr[-3000:]
-    assert stages_run(rerun.stdout) == {"factorize", "evaluate", "isomap"}
+    assert stages_run(rerun.stdout) == {"factorize", "evaluate", "isomap", "results"}
 
 
 def test_pipeline_flow_fails_cleanly_on_bad_input_without_retrying(pipeline):
