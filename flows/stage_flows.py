@@ -44,7 +44,7 @@ def run_stage(stage: str, fn: Callable[[dict], StageResult], params: dict):
         # comparison view.
         child_id = log.start_run(name, {"nnsf.stage": f"{stage}-run", "nnsf.run": name},
                                  parent_id=run_id)
-        log.log(child_id, child.params, child.metrics, child.artifacts)
+        log.log(child_id, child.params, child.metrics, child.artifacts, group=stage)
         log.end_run(child_id)
     shown = ", ".join(f"{k}={_short(v)}" for k, v in list(result.metrics.items())[:8])
     logger.info("%s done in %.1f s; MLflow run %s; %s", stage, seconds, run_id, shown)

@@ -284,12 +284,15 @@ def test_mlflow_has_stage_runs_and_nested_sweep_runs(pipeline):
                         "results": 1}
     experiment = mlflow.get_experiment_by_name(EXPERIMENT)
     assert experiment.artifact_location == (pipeline.root / "mlartifacts").as_uri()
+    # MLflow 3's UI opens an experiment of this kind on its runs (not on the GenAI pages)
+    assert experiment.tags["mlflow.experimentKind"] == "custom_model_development"
 
     client = MlflowClient(pipeline.mlflow_uri)
     for stage in ("factorize", "evaluate"):
         row = runs[runs["tags.nnsf.stage"] == stage].iloc[0]
         assert row.filter(like="params.").notna().any(), stage
-        assert row.filter(like="metrics.").notna().any(), stage
+        metrics = row.filter(like="metrics.").dropna().index
+        assert len(metrics) and all(m.startswith(f"metrics.{stage}/") for m in metrics), stage
         assert row["tags.prefect.flow_run_id"], stage
     evaluate_id = runs.loc[runs["tags.nnsf.stage"] == "evaluate", "run_id"].iloc[0]
     assert _artifact_files(client, evaluate_id, ".png"), "evaluate logged no figure"
@@ -306,13 +309,14 @@ def test_mlflow_has_stage_runs_and_nested_sweep_runs(pipeline):
     assert points == {(a, b, 4) for a in (0.0, 0.01) for b in (0.0, 1.0)}
     for child in children["run_id"]:
         assert _artifact_files(client, child, ".png"), f"sweep point {child} logged no figure"
+    assert _artifact_files(client, parent, "precision_vs_alpha_beta_rank.png"), "the sweep run has no chart"
 
     # The comparison table is what MLflow holds for the nested runs (without
     # run ids or wall times, which would make the versioned file vary).
     table = pd.read_csv(pipeline.root / "reports/sweep.csv")
     assert "run_id" not in table and "seconds" not in table
     from_runs = {(float(a), float(b), int(k)): float(p) for a, b, k, p in children[
-        ["params.alpha", "params.beta", "params.rank", "metrics.precision_mean"]].itertuples(index=False)}
+        ["params.alpha", "params.beta", "params.rank", "metrics.sweep/precision_mean"]].itertuples(index=False)}
     from_table = {(float(a), float(b), int(k)): float(p) for a, b, k, p in table[
         ["alpha", "beta", "rank", "precision_mean"]].itertuples(index=False)}
     assert from_table == pytest.approx(from_runs, rel=5.1e-6)  # the CSV keeps 6 significant digits
