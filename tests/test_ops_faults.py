@@ -132,5 +132,6 @@ def test_a_sweep_killed_halfway_resumes_without_recomputing_finished_points(
         assert row.precision_mean == pytest.approx(fresh.metrics["precision_mean"],
                                                     rel=5.1e-6)  # the CSV keeps 6 digits
     figures = sorted(p.name for p in (root / "reports" / "figures" / "sweep").iterdir())
-    assert len(figures) == total  # reused points got their figures back from MLflow
+    assert len(figures) == total + 1  # reused points got their figures back from MLflow; the chart
+    assert "precision_vs_alpha_beta_rank.png" in figures
     assert not [f for f in figures if f.startswith(".")]  # the killed run's temporary files are gone

@@ -35,7 +35,7 @@ import numpy as np
 from nnsf.errors import InputError
 from nnsf.frames.annotation import read_annotation
 from nnsf.frames.clips import read_clip
-from nnsf.frames.cvat import _meta, _parse_points
+from nnsf.frames.cvat import task_meta, parse_points
 from nnsf.frames.clips import read_index
 from nnsf.roto.tracks import read_tracks
 from nnsf.io import atomic_path, read_npz, write_npz
@@ -141,7 +141,7 @@ def read_cvat_curves(path, clip: str, names: list[str], n_points, n_frames: int
     if root.tag != "annotations" or (root.findtext("version") or "").strip() != "1.1":
         raise InputError(path, "<version>", '"1.1" under <annotations> (CVAT for video 1.1)',
                          (root.findtext("version") or "").strip() or root.tag)
-    meta = _meta(root)
+    meta = task_meta(root)
     if meta.get("name") != clip:
         raise InputError(path, "<meta><task><name>", f"the clip {clip!r} (corrections of that clip)",
                          meta.get("name"))
@@ -162,7 +162,7 @@ def read_cvat_curves(path, clip: str, names: list[str], n_points, n_frames: int
             if shape.get("outside", "0") != "0":
                 continue
             f = int(fr)
-            pts = _parse_points(shape.get("points"), path, f"track id={tid} frame={f}",
+            pts = parse_points(shape.get("points"), path, f"track id={tid} frame={f}",
                                 n=count[label])
             out.setdefault(f, {})[label] = np.array(pts, np.float64)
             for a in shape.findall("attribute"):
@@ -381,7 +381,7 @@ def apply_corrections(params: dict, xml_path, frames_dir, tracks_dir, clip: str 
         if not xml_path.is_file():
             raise InputError(xml_path, "file", "an existing CVAT XML file (CVAT for video 1.1)")
         try:
-            clip = _meta(ET.fromstring(xml_path.read_bytes())).get("name")
+            clip = task_meta(ET.fromstring(xml_path.read_bytes())).get("name")
         except ET.ParseError as exc:
             raise InputError(xml_path, f"line {exc.position[0]}", "well-formed XML",
                              str(exc)) from None

@@ -33,7 +33,7 @@ from nnsf.frames.annotation import read_annotation
 from nnsf.io import write_csv, write_json
 from nnsf.params import TRACKERS
 from nnsf.roto.figures import roto_overlay
-from nnsf.roto.metrics import _project, length_ratio
+from nnsf.roto.metrics import polyline_projection, length_ratio
 from nnsf.roto.snap import resolve_target
 from nnsf.roto.solve import interpolate_clip, keyframe_curves, track_clip
 
@@ -108,7 +108,7 @@ def covered_boundary(control: np.ndarray, alpha: np.ndarray, tol: float = 1.5,
         lo, hi = poly.min(0) - tol, poly.max(0) + tol
         box = np.flatnonzero(((pts >= lo) & (pts <= hi)).all(1) & ~near)
         if box.size:
-            d = _project(pts[box], poly)[0]
+            d = polyline_projection(pts[box], poly)[0]
             near[box[d <= tol]] = True
     return float(ds[near].sum())
 
