@@ -6,8 +6,9 @@
   interrupted.
 - Two cold repros of the small pipeline (test_pipeline.SMALL_PARAMS, every
   stage) in separate git clones of HEAD give identical dvc.lock output hashes,
-  the second under another machine's BLAS and SIMD set-up (two OpenBLAS
-  threads, Haswell kernels, no AVX-512: test_determinism.SETUPS).
+  the first with one OpenBLAS thread, the second with two: on one machine the
+  outputs are the same bytes whatever the thread count (what other machines
+  reproduce, and to what tolerance: test_determinism).
 
 Every project here is a clone of HEAD with the small params committed; the
 uninterrupted cold repro is made once per session (conftest.small_pipeline, a
@@ -131,12 +132,10 @@ def _clone_head(dest: Path) -> Path:
     return dest
 
 
-def test_two_cold_repros_in_clones_on_two_blas_setups_give_identical_hashes(
+def test_two_cold_repros_with_one_and_two_blas_threads_give_identical_hashes(
         tmp_path, mlflow_template, prefect_api, reference):
-    from test_determinism import SETUPS
-
     root, env = _small_clone(tmp_path, "second", mlflow_template, prefect_api,
-                             SETUPS["avx2-two-threads"])
+                             {"OPENBLAS_NUM_THREADS": "2"})
     result = run(FLOWS + ["repro"], root, env, timeout=1800)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     assert lock_hashes(root) == reference
