@@ -39,7 +39,7 @@ for _handler in logging.getLogger("mlflow").handlers:
 
 #: The experiment tag MLflow 3's UI reads to choose an experiment's pages, and the kind that
 #: opens on the runs table and charts (without it the UI may open the GenAI pages: traces,
-#: sessions, prompts).  The value is one of the UI's ``ExperimentKind`` names.
+#: prompts).  The value is one of the UI's ``ExperimentKind`` names.
 EXPERIMENT_KIND_TAG, EXPERIMENT_KIND = "mlflow.experimentKind", "custom_model_development"
 #: MLflow's per-request limits for ``log_batch``.
 _MAX_PARAMS, _MAX_METRICS = 100, 1000
