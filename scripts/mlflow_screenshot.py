@@ -14,7 +14,6 @@ The server is stopped afterwards.  Needs Chromium (Debian: ``apt-get install chr
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import shutil
 import signal
@@ -23,13 +22,12 @@ import subprocess
 import sys
 import tempfile
 import time
-import urllib.parse
 import urllib.request
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-QUIET = {"MLFLOW_SERVER_ENABLE_JOB_EXECUTION": "false", "MLFLOW_DISABLE_TELEMETRY": "true",
-         "DO_NOT_TRACK": "1"}
+sys.path.insert(0, str(ROOT))
+from flows.mlflow_ui import QUIET, compare_url  # noqa: E402
 CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                   "--disable-background-networking", "--disable-component-update", "--disable-sync",
                   "--hide-scrollbars"]
@@ -112,9 +110,7 @@ def main(argv=None) -> int:
                               stderr=subprocess.DEVNULL, start_new_session=True)
     try:
         _wait_healthy(base, server)
-        query = urllib.parse.urlencode({"runs": json.dumps(children), "experiments": json.dumps([exp_id])})
-        url = f"{base}/#/compare-runs?{query}"
-        screenshot(url, a.out, tuple(a.size), a.budget)
+        screenshot(compare_url(base, exp_id, children), a.out, tuple(a.size), a.budget)
     finally:
         os.killpg(server.pid, signal.SIGTERM)
         try:

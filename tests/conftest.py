@@ -36,7 +36,7 @@ def _spawn_audit(event: str, args) -> None:
         what = " ".join(str(a) for a in list(args[1])[:3])
     _GUARDED["started"].append(what)
     raise RuntimeError(f"{test} starts a process ({what}) but is not marked slow: mark it "
-                       "@pytest.mark.slow (README, Tests), or run the code in this process")
+                       "@pytest.mark.slow (docs/operations.md, Tests), or run the code in this process")
 
 
 # Three libraries ask the system by running a command: joblib counts the physical cores

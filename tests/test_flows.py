@@ -254,7 +254,7 @@ def test_task_runner_is_chosen_in_one_place(monkeypatch):
 
 
 def test_each_fan_out_gets_its_runner_and_the_environment_overrides_the_rule(monkeypatch):
-    """The rule (flows/runners.py, README): processes for the held-out cells (few, large items),
+    """The rule (flows/runners.py, docs/operations.md): processes for the held-out cells (few, large items),
     threads for every other fan-out; NNSF_TASK_RUNNER, when set, decides for all of them."""
     from prefect.task_runners import ProcessPoolTaskRunner, ThreadPoolTaskRunner
 

@@ -1,4 +1,4 @@
-"""Hostile and careless input (issue 18): no hang, no silent typo, one bad file fails alone.
+"""Hostile and careless input: no hang, no silent typo, one bad file fails alone.
 
 One test (or a few) per class of the bad-input probe:
 1 alias bomb, 2 unreadable annotation, 3 misspelt keys, 4 infinite/absurd
