@@ -1,6 +1,6 @@
 """The ``nnsf`` command: each pipeline stage as a plain command, without orchestration.
 
-    nnsf frames|roto|roto_eval|data|features|factorize|evaluate|isomap|heldout [--params FILE]
+    nnsf frames|roto|roto_eval|data|features|factorize|evaluate|isomap|heldout|results [--params FILE]
     nnsf roto [--export-cvat DIR] [--corrections FILE.xml [--clip CLIP]]
                                         tracks out to CVAT; corrected frames back in as keyframes
     nnsf sweep [--params FILE]          every sweep point in turn, a CSV on stdout
