@@ -14,6 +14,7 @@ import dataclasses
 import functools
 import json
 import re
+import string
 from pathlib import Path
 
 import pytest
@@ -161,3 +162,15 @@ def test_rows_are_selected_ordered_split_and_pivoted(tmp_path):
     assert tables[1] == [["1", "50.0%", "25.0%"], ["2", "50.0%*", results.MISSING]]
     assert "Source: `reports/p.csv`, made by `make p`." in text
     assert {(p.table, p.row, p.column, p.text) for p in printed} >= {(0, 0, 1, "2.50"), (1, 1, 1, "50.0%")}
+
+
+def test_the_spec_types_no_result_by_hand():
+    """Titles, captions and headers hold no decimal number (section marks such as §15.6 aside):
+    every measured value of the document comes from a report."""
+    typed = re.compile(r"(?<![§\d.])\d+\.\d+")
+    for table in results.read_spec(ROOT / results.SPEC):
+        texts = [table["title"], table.get("caption", "")]
+        texts += [h for h, _ in table.get("columns", [])]
+        texts += [literal for _, template in table.get("columns", []) for literal, *_ in
+                  string.Formatter().parse(template)]
+        assert not [t for t in texts if typed.search(t)], table["title"]
