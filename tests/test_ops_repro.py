@@ -27,7 +27,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from conftest import PROJECT, git, lock_hashes, project_env, run
+from conftest import PROJECT, committed_reports, git, lock_hashes, project_env, run
 from test_ops_support import process_group, wait_for
 
 pytestmark = pytest.mark.slow
@@ -122,6 +122,7 @@ def _clone_head(dest: Path) -> Path:
     out = run(["git", "clone", "-q", "--no-hardlinks", str(PROJECT), str(dest)], PROJECT.parent,
               dict(os.environ))
     assert out.returncode == 0, out.stderr
+    kept = {dest / name: (dest / name).read_bytes() for name in committed_reports()}
     for generated in ("dvc.lock", "reports", "data", "models"):
         # Drop committed results so the run below is cold, as on a fresh machine.
         path = dest / generated
@@ -129,6 +130,9 @@ def _clone_head(dest: Path) -> Path:
             shutil.rmtree(path)
         elif path.exists():
             path.unlink()
+    for path, data in kept.items():  # the runs on outside data: inputs of the results stage
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(data)
     return dest
 
 
