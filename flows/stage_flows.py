@@ -46,7 +46,7 @@ def run_stage(stage: str, fn: Callable[[dict], StageResult], params: dict):
             # comparison view.
             child_id = log.start_run(name, {"nnsf.stage": f"{stage}-run", "nnsf.run": name},
                                      parent_id=run_id)
-            log.log(child_id, child.params, child.metrics, child.artifacts)
+            log.log(child_id, child.params, child.metrics, child.artifacts, group=stage)
             log.end_run(child_id)
     shown = ", ".join(f"{k}={_short(v)}" for k, v in list(result.metrics.items())[:8])
     logger.info("%s done in %.1f s; MLflow run %s; %s", stage, seconds, run_id, shown)
@@ -146,8 +146,14 @@ def animate(params: dict):
     return run_stage("animate", stages.animate, params)
 
 
+@flow(name="nnsf-results", **_OPTIONS)
+def results(params: dict):
+    """The results document: docs/results.md from the reports (docs/results.yaml lists its tables)."""
+    return run_stage("results", stages.results, params)
+
+
 #: The stage flows by DVC stage name (the sweep lives in :mod:`flows.sweep`).
 FLOWS = {f.fn.__name__: f for f in (data, features, factorize, evaluate, isomap, frames, roto, roto_eval,
-                                    heldout, translate, reshape, styles, animate)}
+                                    heldout, translate, reshape, styles, animate, results)}
 #: Stages that fan out on the configured task runner (flows.runners).
 FAN_OUT = {"evaluate", "frames", "roto", "roto_eval", "heldout"}

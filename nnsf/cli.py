@@ -1,6 +1,6 @@
 """The ``nnsf`` command: each pipeline stage as a plain command, without orchestration.
 
-    nnsf frames|roto|roto_eval|data|features|factorize|evaluate|isomap|heldout [--params FILE]
+    nnsf frames|roto|roto_eval|data|features|factorize|evaluate|isomap|heldout|results [--params FILE]
     nnsf roto [--export-cvat DIR] [--corrections FILE.xml [--clip CLIP]]
                                         tracks out to CVAT; corrected frames back in as keyframes
     nnsf sweep [--params FILE]          every sweep point in turn, a CSV on stdout
@@ -23,9 +23,9 @@
     nnsf reshape-eval --data DIR [--out DIR] [--workers N]
                                         the reshaping evaluation on drawn characters (AnimatedDrawings,
                                         Bandai-Namco, Kenney folders under DIR)
-    nnsf roto-real --data DIR [--out DIR] [--lpc DIR]
-                                        the trackers on the Kenney toon walk cycles (or the LPC
-                                        sprite sheets' walk rows) vs their silhouettes
+    nnsf roto-real --data DIR --annotations DIR [--format frames|lpc] [--name STEM] [--out DIR]
+                                        the trackers on annotated real frames (folders of RGBA
+                                        frames, or LPC sprite sheets) vs their silhouettes
 
 The same stages run as Prefect flows with MLflow logging through
 ``python -m flows <stage>`` (what ``dvc repro`` calls).  Exit codes: 0 done,
@@ -92,7 +92,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="a built-in character name, or an AnimatedDrawings folder (extra arms and "
                         "quadrupeds too), joints YAML beside its PNG or character JSON (default: reshape.character)")
     p.add_argument("--joints", type=Path, default=None,
-                   help="joints YAML (or Kenney nnsf.keypoints JSON) for a PNG --character")
+                   help="joints YAML (or nnsf.keypoints JSON) for a PNG --character")
     p.add_argument("--out", type=Path, default=Path("reports/reshape"))
 
     p = sub.add_parser("styles", help="fit the style model and save it")
@@ -115,7 +115,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="AnimatedDrawings folder or char_cfg.yaml, RGBA PNG (+ --joints), joints YAML, "
                         "character JSON, or a built-in character name")
     p.add_argument("--joints", type=Path, default=None,
-                   help="joints YAML (or Kenney nnsf.keypoints JSON) for a PNG character")
+                   help="joints YAML (or nnsf.keypoints JSON) for a PNG character")
     p.add_argument("--motion", required=True,
                    help="a .bvh, a feature-matrix .csv, or synthetic:<character>/<motion>[/<frames>]")
     p.add_argument("--clip", default=None, help="the clip of a multi-clip CSV (default: the first)")
@@ -158,21 +158,21 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=1,
                    help="processes for the (character, motion) items (default 1; results are the same)")
 
-    p = sub.add_parser("roto-real", help="the trackers on real cartoon frames (Kenney toon walk cycles)")
+    p = sub.add_parser("roto-real", help="the trackers on annotated real frames, scored against their silhouettes")
     p.add_argument("--params", default="params.yaml", help=params_help)
-    p.add_argument("--data", type=Path, default=None,
-                   help="the Kenney toon characters folder (female_adventurer/, robot/, ...); "
-                        "required unless --lpc is given")
-    p.add_argument("--annotations", type=Path, default=Path("tests/data/kenney"),
-                   help="hand-made keyframe annotations, <character>.annotation.json")
+    p.add_argument("--data", type=Path, required=True,
+                   help="frames: a folder of <character>/ folders of RGBA PNG frames; "
+                        "lpc: a folder of LPC sprite sheets <body>.png")
+    p.add_argument("--annotations", type=Path, required=True,
+                   help="hand-made keyframe annotations, <character>.annotation.json (each one is tracked)")
+    p.add_argument("--format", choices=("frames", "lpc"), default="frames",
+                   help="how --data holds the frames (default: frames)")
+    p.add_argument("--name", default=None,
+                   help="the report's file stem (default: roto_<format>)")
     p.add_argument("--out", type=Path, default=Path("reports"))
     p.add_argument("--tol", type=float, default=None,
                    help="px from the silhouette boundary that counts as on it "
-                        "(default 1.5 for Kenney, 1.0 for the LPC pixel art)")
-    p.add_argument("--lpc", type=Path, default=None, metavar="DIR",
-                   help="instead: the LPC sprite sheets' walk rows in DIR (the lpc-bodies folder)")
-    p.add_argument("--lpc-annotations", type=Path, default=Path("tests/data/lpc"),
-                   help="hand-made LPC keyframe annotations, <body>.annotation.json")
+                        "(default 1.5 for frames, 1.0 for the 64-px LPC tiles)")
     return parser
 
 
@@ -348,22 +348,17 @@ def _run(args) -> int:
             result = reshape_eval(params, data_root=args.data, out_dir=args.out,
                                   kenney_annotations=args.kenney, mapper=mapper)
         elif args.command == "roto-real":
-            from nnsf.roto.real import kenney_report
+            from nnsf.roto import lpc, real
             from nnsf.roto.options import track_options
 
-            if args.lpc is None and args.data is None:
-                raise InputError("nnsf roto-real", "--data",
-                                 "the Kenney toon characters folder (or --lpc DIR for the LPC sheets)")
-            if args.lpc is not None:
-                from nnsf.roto.lpc import TOL, lpc_report
-
-                args.tol = TOL if args.tol is None else args.tol
-                summary = lpc_report(args.lpc, args.lpc_annotations, args.out, tol=args.tol,
-                                     **track_options(params))
-            else:
-                args.tol = 1.5 if args.tol is None else args.tol
-                summary = kenney_report(args.data, args.annotations, args.out, tol=args.tol,
-                                        **track_options(params))
+            report, tol = ((lpc.lpc_report, lpc.TOL) if args.format == "lpc"
+                           else (real.frames_report, real.TOL))
+            args.tol = tol if args.tol is None else args.tol
+            stem = args.name or f"roto_{args.format}"
+            if not stem.replace("_", "").replace("-", "").isalnum():
+                raise InputError("nnsf roto-real", "--name", "a file stem of letters, digits, - and _", stem)
+            summary = report(args.data, args.annotations, args.out, stem=stem, tol=args.tol,
+                             **track_options(params))
             for tracker, score in summary["trackers"].items():
                 extra = ""
                 if tracker in summary.get("coverage", {}):
@@ -374,9 +369,8 @@ def _run(args) -> int:
             if summary.get("snap"):
                 print("roto-real: ours ended with snap " + ", ".join(
                     f"{c} {t}" for c, t in sorted(summary["snap"].items())))
-            name = "roto_lpc.json" if args.lpc is not None else "roto_kenney.json"
             print(f"roto-real: keyframe ceiling = {summary['ceiling']:.3f}; "
-                  f"wrote {args.out / name}")
+                  f"wrote {args.out / (stem + '.json')}")
             return 0
         elif args.command == "roto" and (args.corrections or args.export_cvat):
             from nnsf.roto.correct import apply_corrections, export_clips
@@ -432,7 +426,7 @@ def _check_stage_params(params: dict) -> None:
     """
     from nnsf.factor.style_model import check_translator, translator_params
     from nnsf.frames.stage import frames_params
-    from nnsf.reshape.stage import _params as reshape_params
+    from nnsf.reshape.stage import stage_params as reshape_params
 
     if "frames" in params:
         frames_params(params)

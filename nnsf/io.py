@@ -8,10 +8,12 @@ Every floating-point number these writers put in a file is rounded to
 :data:`DIGITS` significant digits (JSON, CSV and the float arrays of ``.npz``).
 Sums and products come out in the last bits differently on another CPU, BLAS
 kernel or thread count (a metric of 0.07895747601148273 on one machine,
-...272 on the next); rounded, they are the same bytes, so DVC's hashes, the
-committed reports and ``dvc.lock`` do not change between machines.  A value
-changes only if BLAS noise (about 1e-16 relative) carries it across a
-rounding boundary of the 6th digit: about one value in 10^10.
+...272 on the next); rounded, most of them are the same bytes.  Rounding
+cannot make that certain: a value next to a boundary of its last digit, or a
+fit whose stopping tolerance lets the noise change its iteration count, still
+differs in its last digits on another machine.  What is reproducible, and to
+what tolerance, is stated in docs/operations.md ("Reproducibility") and
+tested by tests/test_determinism.py.
 
 Reports (JSON, CSV, annotations) also write any value below :data:`ZERO` in
 magnitude as 0: such a value is what is left of an exact zero after
@@ -55,7 +57,7 @@ class WriteError(InputError):
     """
 
 
-def _write_error(path: Path, exc: OSError) -> WriteError:
+def write_error(path: Path, exc: OSError) -> WriteError:
     code = errno.errorcode.get(exc.errno, "") if exc.errno else ""
     what = {"ENOSPC": "free space on its disk", "EDQUOT": "free space in the disk quota",
             "EFBIG": "a file size the system allows", "EACCES": "permission to write it",
@@ -212,7 +214,7 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
         os.replace(tmp, path)
     except OSError as exc:
         tmp.unlink(missing_ok=True)
-        raise _write_error(path, exc) from None
+        raise write_error(path, exc) from None
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
@@ -256,7 +258,7 @@ def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
             else:
                 os.replace(tmp, path)
         except OSError as exc:
-            raise _write_error(path, exc) from None
+            raise write_error(path, exc) from None
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

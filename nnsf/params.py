@@ -35,7 +35,7 @@ AMPLITUDES = ("restore", "style", "none")
 RESHAPE_FORMATS = ("png", "gif", "mp4")
 #: The pipeline's stages, in dvc.yaml order (nnsf.stages maps each to its function).
 STAGE_NAMES = ("frames", "roto", "roto_eval", "data", "features", "factorize", "evaluate", "isomap", "sweep",
-               "heldout", "translate", "reshape", "styles", "animate")
+               "heldout", "translate", "reshape", "styles", "animate", "results")
 #: Camera views of projected motion capture (nnsf.datasets.views).
 VIEW_CHOICES = ("front", "side", "three-quarter", "auto")
 #: How a drawn character's arms follow a motion (:func:`nnsf.reshape.drive.retarget`).

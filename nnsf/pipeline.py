@@ -71,6 +71,7 @@ OUTPUT_FOLDERS = {
     "reshape": (RESHAPE_DIR,),
     "styles": (MODEL_PATH.parent,),
     "animate": (ANIMATE_DIR,),
+    "results": (Path("docs"),),
 }
 
 

@@ -44,7 +44,7 @@ from pathlib import Path
 from typing import Iterator
 
 from nnsf.errors import InputError
-from nnsf.io import WriteError, _write_error, read_json, renamed_write_error, write_json
+from nnsf.io import WriteError, write_error, read_json, renamed_write_error, write_json
 from nnsf.schema import Map, Optional, Record, Str
 
 JOURNAL = ".commit.json"
@@ -155,7 +155,7 @@ def _move(src: Path, dst: Path) -> None:
         os.replace(src, dst)
     except OSError as exc:
         if exc.errno != errno.EXDEV:
-            raise _write_error(dst, exc) from None
+            raise write_error(dst, exc) from None
         # Another file system (a linked folder): copy beside the target, then rename.
         fd, tmp = tempfile.mkstemp(prefix=f".{dst.name}.", dir=dst.parent)
         os.close(fd)
@@ -269,7 +269,7 @@ def publishing(reports, stage: str, root=None) -> Iterator[Path]:
         # is never visible unlocked while its run lives.
         new = Path(tempfile.mkdtemp(prefix=staging.name + ".", dir=reports))
     except OSError as exc:
-        raise _write_error(staging, exc) from None
+        raise write_error(staging, exc) from None
     fd = _lock(new, wait=False)
     try:
         try:

@@ -1,4 +1,4 @@
-"""Saved style models, `nnsf translate()`, views, `nnsf styles` and `nnsf animate` (issue 13).
+"""Saved style models, `nnsf translate()`, views, `nnsf styles` and `nnsf animate`.
 
 Self-contained: the model is fitted on a small embedded synthetic set, the
 drawn character is the built-in stick figure written out in AnimatedDrawings'

@@ -189,7 +189,7 @@ def test_infinite_and_out_of_range_numbers_fail_the_check(tmp_path, key, value):
 
 
 def test_the_stage_applies_the_same_range_as_the_check():
-    from nnsf.reshape.stage import _params
+    from nnsf.reshape.stage import stage_params as _params
 
     for fps in (500, float("inf"), 0.5):
         params = Params(with_value("reshape.fps", fps))
@@ -234,7 +234,7 @@ def test_sizes_within_their_bounds_but_too_big_together_are_refused():
 
 @pytest.mark.slow  # starts `nnsf` as a process
 def test_reshape_errors_name_the_params_file_given(tmp_path):
-    from nnsf.reshape.stage import _params
+    from nnsf.reshape.stage import stage_params as _params
 
     other = write_params(tmp_path / "other.yaml", with_value("reshape.mesh", "layered"))
     params = load(other)

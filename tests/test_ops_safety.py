@@ -228,16 +228,18 @@ def _help_default_host(command: str) -> str | None:
 
 @pytest.mark.slow  # runs each server command's --help
 def test_every_documented_server_command_binds_to_loopback():
-    """Each server command in the README's code blocks binds to loopback, explicitly or by default.
+    """Each server command in the code blocks of the README and docs/ binds to loopback,
+    explicitly or by default.
 
     (The commands the code itself runs are checked live below.)
     """
-    readme = (PROJECT / "README.md").read_text()
-    blocks = re.findall(r"```[a-z]*\n(.*?)```", readme, re.DOTALL)
-    lines = [("README.md", line.strip()) for block in blocks
-             for line in block.replace("\\\n", " ").splitlines()
-             if SERVER_COMMANDS.search(line) and not line.lstrip().startswith("#")]
-    assert lines, "expected the README's server commands"
+    lines = []
+    for path in [PROJECT / "README.md", *sorted((PROJECT / "docs").glob("*.md"))]:
+        blocks = re.findall(r"```[a-z]*\n(.*?)```", path.read_text(), re.DOTALL)
+        lines += [(path.name, line.strip()) for block in blocks
+                  for line in block.replace("\\\n", " ").splitlines()
+                  if SERVER_COMMANDS.search(line) and not line.lstrip().startswith("#")]
+    assert {doc for doc, _ in lines} >= {"README.md", "operations.md"}, "expected documented server commands"
     defaults: dict[str, str | None] = {}
     for doc, line in lines:
         host = re.search(r"--host[ =]+[\"']?([^\s\"']+)", line)

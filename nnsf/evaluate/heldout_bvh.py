@@ -1,6 +1,6 @@
-"""Held-out translation on a motion-capture folder, outside the DVC pipeline (issue 11).
+"""Held-out translation on a motion-capture folder, outside the DVC pipeline.
 
-``python -m nnsf.evaluate.heldout_bvh --data FOLDER --out reports/heldout_bandai_namco_1_all150``
+``python -m nnsf.evaluate.heldout_bvh --data FOLDER --out reports/heldout_<name>``
 reads every labelled ``.bvh`` clip of ``FOLDER`` with the ``dataset.bvh``
 settings of ``params.yaml`` (keeping the motions every style performs),
 holds out every (style, content) cell (or ``--cells N`` of them, spread
@@ -86,7 +86,7 @@ def markdown(summary: dict, key: str = "methods", only=None) -> str:
 
 
 def target_check(results: pd.DataFrame, method: str = "nnsf") -> dict:
-    """Issue 11's targets for ``method`` on these results
+    """The translation targets for ``method`` on these results
     (:func:`nnsf.evaluate.translation._target_check`)."""
     cols = ["dtw_error", *[c for c in results.columns if c.startswith(("style_", "content_"))]]
     means = results.groupby("method")[cols].mean()

@@ -180,7 +180,8 @@ def _metric_name(check: str) -> str:
 
 
 def _target_check(per_method: dict, method: str = "nnsf") -> dict:
-    """Issue 11's targets for ``method``, each recorded as passed or not.
+    """The translation targets (:data:`nnsf.evaluate.translation.TARGET_DTW` and the others) for
+    ``method``, each recorded as passed or not.
 
     ``checks``: ``dtw_error <= 0.17`` and, for every judge family, ``style_<f> >= 0.45`` and
     ``content_<f> >= 0.70`` -- each ``{"value", "target", "met"}``.  ``met`` is true only when

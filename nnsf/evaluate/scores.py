@@ -100,11 +100,11 @@ class ClipClassifiers:
     in style s?"): ``predict_style(F, content)`` first subtracts the mean
     training vector of that content, ``predict_content(F, style)`` the mean
     training vector of that style, so each judges how a clip departs from
-    the average of the known label.  On the real Bandai-Namco clips
-    (leave-one-cell-out, real hidden clips) conditioning raised the content
-    accuracy from 76 % to 80 % and left the style accuracy unchanged; LDA with
-    shrinkage beat logistic regression and 1-NN on these features, and the
-    four feature groups beat any subset.  ``condition_content=False`` gives
+    the average of the known label.  On real motion capture (leave one cell
+    out, real hidden clips) conditioning raised the content accuracy and left
+    the style accuracy as it was; LDA with shrinkage did better than logistic
+    regression and 1-NN on these features, and the four feature groups better
+    than any subset.  ``condition_content=False`` gives
     the unconditioned content classifier.
     """
 

@@ -83,16 +83,18 @@ def evaluate(params: dict, features_csv=FEATURES_CSV, reports=REPORTS, mapper=No
         raise
     summary = summarise(folds_table)
     reports = Path(reports)
-    # Wall times vary from run to run; they go to MLflow, not into the
-    # versioned tables (whose hashes must depend on the inputs only).
+    # Wall times vary from run to run, and iteration counts with the float noise of
+    # another CPU wherever a tolerance stops a fit: both go to MLflow, not into the
+    # versioned tables.
     fit_seconds = float(folds_table["seconds"].sum())
+    iterations = folds_table.groupby("method", sort=False)["n_iter"].mean()
     chance = 1.0 / len(np.unique(y))
     metrics = _evaluate_metrics(summary, nnsf_rank, label, n_splits, chance)
     # The files are published as one set (nnsf.publish: staged, committed,
     # moved, manifest reports/evaluate.manifest.json last): a killed run
     # never leaves some new files beside old ones.
     with publishing(reports, "evaluate") as out:
-        write_csv(out / "cv_folds.csv", folds_table.drop(columns=["seconds"]))
+        write_csv(out / "cv_folds.csv", folds_table.drop(columns=["seconds", "n_iter"]))
         write_csv(out / "precision_vs_rank.csv", summary.drop(columns=["seconds_mean"], errors="ignore"))
         write_csv(out / "plots" / "precision_vs_rank.csv", wide(summary, "precision_mean"))
         write_csv(out / "plots" / "recon_error_vs_rank.csv", wide(summary, "recon_error_mean"))
@@ -107,6 +109,7 @@ def evaluate(params: dict, features_csv=FEATURES_CSV, reports=REPORTS, mapper=No
     flat = {f"{m}_{k}": v for m, d in metrics["methods"].items() for k, v in d.items()
             if isinstance(v, (int, float))}
     flat["cv_fit_seconds"] = round(fit_seconds, 3)
+    flat.update({f"{m}_iterations_mean": float(n) for m, n in iterations.items()})
     return StageResult(
         params={"ranks": ",".join(map(str, ranks)), "methods": ",".join(methods), "folds": n_splits,
                 "max_iter": max_iter, "seed": seed, "label": label, "rank": nnsf_rank, **kw,

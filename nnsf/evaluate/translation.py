@@ -569,7 +569,9 @@ def _pick(cells, n):
     return [cells[i] for i in np.unique(np.linspace(0, len(cells) - 1, n).round().astype(int))]
 
 
-#: Issue 11's targets for the default translation (``nnsf``), on every judge family.
+#: What the default translation (``nnsf``) is held to, on every judge family: close to the hidden
+#: clip, and recognised in the target style and in its content by judges that share nothing
+#: with it.
 TARGET_DTW: float = 0.17            # DTW error ≤ 17 % of the torso (template units: torso = 1)
 TARGET_STYLE: float = 0.45          # style accuracy ≥ 0.45
 TARGET_CONTENT: float = 0.70        # content accuracy ≥ 0.70

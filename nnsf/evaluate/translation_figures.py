@@ -33,7 +33,7 @@ TRANSLATION_STYLE: dict[str, dict] = {
     "bilinear": {"color": "#9467bd", "label": "Bilinear (T&F), per-frame"},
     "bilinear_template": {"color": "#c5b0d5", "label": "Bilinear (T&F), cell template"},
     "nnsf_nosmooth": {"color": "#e377c2", "label": "NNSF without the smoothness term"},
-    "nnsf_restore": {"color": "#f7b6d2", "label": "NNSF, content amplitude only (previous default)"},
+    "nnsf_restore": {"color": "#f7b6d2", "label": "NNSF, content amplitude only"},
     "mgpm": {"color": "#ff7f0e", "label": "MGPM (Wang et al. 2007)"},
     "cbgpm": {"color": "#8c564b", "label": "CBGPM (after Ma et al. 2009)"},
     "offset": {"color": "#bcbd22", "label": "Source clip + the style's mean pose offset"},

@@ -148,8 +148,10 @@ def factorize(params: dict, features_csv=FEATURES_CSV, model=MODEL_PATH, reports
             objective_figure(est.objective_, staged / "figures" / "objective.png"),
             basis_figure(U, V, staged / "figures" / "basis.png"),
         ]
-        # Files hold only what the inputs determine; wall time goes to MLflow.
-        write_json(staged / "factorize.json", {"rank": rank, "label": label, **metrics})
+        # Files hold only what the inputs determine: wall time, and the iteration count
+        # a tolerance decides (float noise of another CPU can move it), go to MLflow.
+        write_json(staged / "factorize.json",
+                   {"rank": rank, "label": label, **{k: v for k, v in metrics.items() if k != "n_iter"}})
         return StageResult(
             params={"rank": rank, "max_iter": max_iter, "seed": seed, "label": label, **kw},
             metrics={**metrics, "fit_seconds": round(seconds, 3)}, artifacts=figs,

@@ -54,7 +54,7 @@ SHAPES = ("polyline", "points")
 CVAT_FRAME_PATTERN = "frame_{:06d}.png"
 
 
-def _parse_points(text, path, where: str, n: int | None = None) -> list[list[float]]:
+def parse_points(text, path, where: str, n: int | None = None) -> list[list[float]]:
     pts = []
     try:
         for pair in (text or "").strip().split(";"):
@@ -70,7 +70,7 @@ def _parse_points(text, path, where: str, n: int | None = None) -> list[list[flo
     return pts
 
 
-def _meta(root) -> dict:
+def task_meta(root) -> dict:
     out = {}
     meta = root.find("meta")
     node = None
@@ -118,7 +118,7 @@ def read_cvat_video(path, clip: str | None = None, character: str = "unknown",
     version = (root.findtext("version") or "").strip()
     if version != "1.1":
         raise InputError(path, "<version>", '"1.1" (export format "CVAT for video 1.1")', version)
-    meta = _meta(root)
+    meta = task_meta(root)
 
     curves: dict[int, dict[str, list]] = {}          # frame -> curve name -> points
     joints: dict[int, dict[str, list]] = {}          # frame -> joint name -> [x, y]
@@ -157,7 +157,7 @@ def read_cvat_video(path, clip: str | None = None, character: str = "unknown",
             if shape.get("keyframe", "0") != "1" or shape.get("outside", "0") != "0":
                 continue
             f = int(fr)
-            pts = _parse_points(shape.get("points"), path, f"{where} frame={f}",
+            pts = parse_points(shape.get("points"), path, f"{where} frame={f}",
                                 n=1 if kind == "points" else None)
             slot = target.setdefault(f, {})
             if label in slot:

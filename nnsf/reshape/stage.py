@@ -205,7 +205,7 @@ def canvas(character: Character, frames: np.ndarray, margin: int = 16) -> tuple[
 
 # --------------------------------------------------------------------------- the stage
 
-def _params(params: dict) -> dict:
+def stage_params(params: dict) -> dict:
     """The ``reshape`` section, each field checked by the params schema (defaults when absent).
 
     The ranges are :data:`nnsf.params.SCHEMA`'s, the ones ``nnsf check``
@@ -230,7 +230,7 @@ def reshape(params: dict, motion_csv=TRANSLATION_DIR / "translated_features.csv"
     reads; ``joints``: the joints file of a PNG) overrides ``reshape.character``.  Writes PNG frames, GIF, MP4, a contact
     sheet and ``metrics.json`` (docs/method.md §10-§14).
     """
-    p = _params(params)
+    p = stage_params(params)
     source = source_of(params)
     character = (read_character(character_path, joints) if character_path is not None
                  else resolve_character(p["character"], p["character_size"], source=source))

@@ -35,7 +35,7 @@ import numpy as np
 from nnsf.errors import InputError
 from nnsf.frames.annotation import read_annotation
 from nnsf.frames.clips import read_clip
-from nnsf.frames.cvat import _meta, _parse_points
+from nnsf.frames.cvat import task_meta, parse_points
 from nnsf.frames.clips import read_index
 from nnsf.roto.tracks import TRACKS, read_tracks
 from nnsf.io import atomic_path, read_bytes, read_npz, write_npz
@@ -154,7 +154,7 @@ def read_cvat_curves(path, clip: str, names: list[str], n_points, n_frames: int
     if root.find("image") is not None:
         raise InputError(path, "<image>", "a CVAT for video 1.1 export (<track> elements); this is a "
                          '"CVAT for images" export: export the task again as CVAT for video 1.1')
-    meta = _meta(root)
+    meta = task_meta(root)
     if meta.get("name") != clip:
         raise InputError(path, "<meta><task><name>", f"the clip {clip!r} (corrections of that clip)",
                          meta.get("name"))
@@ -187,7 +187,7 @@ def read_cvat_curves(path, clip: str, names: list[str], n_points, n_frames: int
             if shape.get("outside", "0") != "0":
                 continue
             f = int(fr)
-            pts = _parse_points(shape.get("points"), path, f"track id={tid} frame={f}",
+            pts = parse_points(shape.get("points"), path, f"track id={tid} frame={f}",
                                 n=count[label])
             out.setdefault(f, {})[label] = np.array(pts, np.float64)
             for a in shape.findall("attribute"):
@@ -407,7 +407,7 @@ def apply_corrections(params: dict, xml_path, frames_dir, tracks_dir, clip: str 
     xml_path, frames_dir, tracks_dir = Path(xml_path), Path(frames_dir), Path(tracks_dir)
     index = read_index(frames_dir)
     if clip is None:
-        clip = _meta(_parse(xml_path)).get("name")
+        clip = task_meta(_parse(xml_path)).get("name")
     rows = [r for r in index.itertuples() if r.clip == clip]
     if not rows:
         raise InputError(xml_path, "<meta><task><name>", "a clip of " + str(frames_dir / "index.csv")

@@ -27,13 +27,13 @@ from nnsf.roto.figures import roto_overlay
 from nnsf.roto.keypoints import fit_keypoint_model, keypoints_from_curves
 from nnsf.roto.metrics import curve_errors, edit_ratio, error_summary, length_ratio, pck, reverse_errors, symmetric_summary
 from nnsf.roto.options import track_options
-from nnsf.roto.stage import _load
+from nnsf.roto.stage import load_clip
 
 def _evaluate_item(item: dict) -> dict:
     """All metrics of one (clip, tracker) pair (module-level, picklable)."""
     clip, method = item["clip"], item["method"]
     try:
-        ann, frames = _load(item)
+        ann, frames = load_clip(item)
         truth = read_truth(Path(item["frames_dir"]) / item["folder"])
         side_names = [str(n) for n in truth["side_names"]]
         res = edit_ratio(frames, ann, truth["sides"], side_names, method, tol=item["tol"],

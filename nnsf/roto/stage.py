@@ -35,7 +35,7 @@ from nnsf.roto.options import track_options
 from nnsf.roto.solve import keyframe_curves, track_clip
 from nnsf.roto.tracks import read_tracks
 
-def _load(item: dict):
+def load_clip(item: dict):
     """(annotation, frames) of one indexed clip; InputError on bad input."""
     folder = Path(item["frames_dir"]) / item["folder"]
     ann = read_annotation(folder / "annotation.json")
@@ -50,7 +50,7 @@ def _track_item(item: dict) -> dict:
     clip = item["clip"]
     out = inside(item["out"], clip, source=Path(item["frames_dir"]) / "index.csv", field="clip")
     try:
-        ann, frames = _load(item)
+        ann, frames = load_clip(item)
         names, _ = keyframe_curves(ann)
         if not names:
             raise InputError(ann.source, "keyframes[0].curves", "at least one curve to track")

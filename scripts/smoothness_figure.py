@@ -1,6 +1,6 @@
 """Figure: a wrist and an ankle over time in held-out Bandai-Namco-1 cells, real vs three smoothness settings.
 
-    .venv/bin/python benchmarks/smoothness_figure.py --data ../shared/data/bandai-namco-1 \\
+    .venv/bin/python scripts/smoothness_figure.py --data ../shared/data/bandai-namco-1 \\
         --out reports/figures/translation_smoothness.png
 
 For each cell (hidden as in the held-out evaluation), the default synthesis (params.yaml) and
