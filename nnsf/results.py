@@ -50,11 +50,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pandas as pd
-import yaml
-
-from nnsf.errors import InputError, read_text
+from nnsf.errors import InputError
 from nnsf.io import atomic_path, read_json
 from nnsf.pipeline import REPORTS, StageResult, check_outputs
+from nnsf.safe_yaml import read_yaml
 
 SPEC = Path("docs/results.yaml")
 DOCUMENT = Path("docs/results.md")
@@ -96,11 +95,7 @@ class Printed:
 # ---------------------------------------------------------------- the spec
 def read_spec(path: Path = SPEC) -> list[dict]:
     """The table entries of a results spec, checked (one line naming the entry on failure)."""
-    text = read_text(path, MAX_SPEC_BYTES, "a YAML results spec")
-    try:
-        spec = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise InputError(path, "file", "plain YAML", reason=str(exc)) from None
+    spec = read_yaml(path, MAX_SPEC_BYTES, "a YAML results spec")
     tables = spec.get("tables") if isinstance(spec, dict) else None
     if not isinstance(tables, list) or not tables:
         raise InputError(path, "tables", "a list of table entries", spec)
