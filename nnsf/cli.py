@@ -42,7 +42,7 @@ import sys
 import threading
 from pathlib import Path
 
-from nnsf.errors import InputError, exception_line, terminate_as_interrupt
+from nnsf.errors import InputError, exception_line, one_line, terminate_as_interrupt
 from nnsf.io import read_json
 from nnsf.params import STAGE_NAMES
 from nnsf.schema import List, Optional, Record, Str
@@ -247,10 +247,32 @@ def main(argv: list[str] | None = None) -> int:
     if threading.current_thread() is threading.main_thread():
         old = signal.signal(signal.SIGTERM, terminate_as_interrupt)
     try:
-        return _run(args)
+        return _quiet_warnings(_run, args)
     finally:
         if old is not None:
             signal.signal(signal.SIGTERM, old)
+
+
+#: Warnings repeated on stderr after a command that succeeded (one line each).
+MAX_WARNINGS_SHOWN = 5
+
+
+def _quiet_warnings(run, args) -> int:
+    """``run(args)`` with Python warnings (numpy's overflow, a library's deprecation) kept off the
+    error path: a failure is its one ``error:`` line alone; after a success each distinct warning
+    is one ``nnsf: warning:`` line (at most :data:`MAX_WARNINGS_SHOWN`)."""
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("default")
+        code = run(args)
+    if code == 0:
+        seen = list(dict.fromkeys(f"{w.category.__name__}: {one_line(w.message, 300)}" for w in caught))
+        for text in seen[:MAX_WARNINGS_SHOWN]:
+            print(f"nnsf: warning: {text}", file=sys.stderr)
+        if len(seen) > MAX_WARNINGS_SHOWN:
+            print(f"nnsf: warning: {len(seen) - MAX_WARNINGS_SHOWN} more not shown", file=sys.stderr)
+    return code
 
 
 def _run(args) -> int:

@@ -33,9 +33,11 @@ Shapes: F frames, J nodes (joints plus End Sites), C channels, K points.
 """
 from __future__ import annotations
 
+import codecs
 import io
 import math
 import re
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -137,6 +139,50 @@ class BVH:
 
 #: Largest .bvh file read (bytes); an hour of 60 fps capture is about 200 MB.
 MAX_BVH_BYTES = 512_000_000
+#: Most nodes (joints and End Sites) of a hierarchy: real skeletons, fingers and face bones
+#: included, have a few hundred.
+MAX_NODES = 10_000
+#: Longest HIERARCHY section (characters): :data:`MAX_NODES` nodes of 1 000 characters each.
+MAX_HIERARCHY_CHARS = 10_000_000
+#: Most motion values (``Frames`` x channels) read, checked on the header before any is parsed:
+#: 400 MB of float64, an hour of 60 fps capture of over 200 channels.
+MAX_MOTION_VALUES = 50_000_000
+#: Shortest ``Frame Time`` (s): 10 000 frames per second, beyond any capture system.
+MIN_FRAME_TIME = 1e-4
+#: Characters of the motion block handed to the numeric parser at once (bounds its memory).
+_CHUNK_CHARS = 8_000_000
+
+#: Byte-order marks and the encodings they announce (UTF-32 first: its LE mark starts with UTF-16's).
+_BOMS = ((codecs.BOM_UTF32_LE, "utf-32"), (codecs.BOM_UTF32_BE, "utf-32"), (codecs.BOM_UTF8, "utf-8-sig"),
+         (codecs.BOM_UTF16_LE, "utf-16"), (codecs.BOM_UTF16_BE, "utf-16"))
+
+
+def decode_bvh(data: bytes, source="<bytes>") -> str:
+    """The text of a BVH file's bytes, with ``\n`` line ends.
+
+    A byte-order mark picks the encoding (UTF-8, UTF-16 or UTF-32, as Windows
+    tools write); without one the bytes are UTF-8, else Latin-1 (every byte
+    decodes: old exporters write Latin-1 names).  Windows (``\r\n``) and
+    old Mac (``\r``) line ends become ``\n``, so line numbers in messages
+    are the ones an editor shows.
+    """
+    for bom, encoding in _BOMS:
+        if data.startswith(bom):
+            try:
+                text = data.decode(encoding)
+            except UnicodeDecodeError as exc:
+                raise InputError(source, "file", f"a text file in the {encoding.upper()} its byte-order mark "
+                                 "announces", reason=f"bytes at offset {exc.start} cannot be decoded") from None
+            break
+    else:
+        try:
+            text = data.decode("utf-8", errors="strict")
+        except UnicodeDecodeError:
+            text = data.decode("latin-1")
+    text = text.lstrip("\ufeff")
+    if "\r" in text:
+        text = text.replace("\r\n", "\n").replace("\r", "\n")
+    return text
 
 
 def read_bvh(path) -> BVH:
@@ -146,11 +192,7 @@ def read_bvh(path) -> BVH:
         raise InputError(path, "file", "an existing .bvh file")
 
     data = read_bytes(path, MAX_BVH_BYTES, "a readable .bvh file")
-    try:
-        text = data.decode("utf-8", errors="strict")
-    except UnicodeDecodeError:
-        text = data.decode("latin-1")  # every byte decodes: old exporters write Latin-1 names
-    return parse_bvh(text, source=path)
+    return parse_bvh(decode_bvh(data, path), source=path)
 
 
 def _tokens(lines: list[str], start: int, stop: int):
@@ -173,6 +215,10 @@ def parse_bvh(text: str, source="<string>") -> BVH:
     if m is None:
         raise InputError(source, f"line {text.count(chr(10)) + 1}",
                          "a MOTION section after the HIERARCHY", "end of file")
+    if m.start() > MAX_HIERARCHY_CHARS:
+        # Checked before the hierarchy is split into tokens (a Python object each).
+        raise InputError(source, "HIERARCHY", f"a hierarchy of at most {MAX_HIERARCHY_CHARS} characters "
+                         f"(at most {MAX_NODES} joints and End Sites)", f"{m.start()} characters")
     head = text[:m.start()].splitlines()
     toks = _tokens(head, 0, len(head))
     names, parents, offsets, ends, chans, ch_node, ch_axis, ch_rot = _parse_hierarchy(toks, source)
@@ -188,9 +234,14 @@ def parse_bvh(text: str, source="<string>") -> BVH:
     frame_time, pos, line_no = _header_value(text, pos, line_no, "frame time", source, float)
     if n_frames <= 0:
         raise InputError(source, f"line {frames_line}", "Frames: at least 1", n_frames)
-    if not (frame_time > 0 and math.isfinite(frame_time)):
-        raise InputError(source, f"line {line_no - 1}", "Frame Time: a positive number of seconds",
-                         frame_time)
+    if not (frame_time >= MIN_FRAME_TIME and math.isfinite(frame_time)):
+        raise InputError(source, f"line {line_no - 1}", f"Frame Time: a number of seconds >= {MIN_FRAME_TIME:g} "
+                         f"(at most {1 / MIN_FRAME_TIME:g} frames per second)", frame_time)
+    if n_frames * max(len(ch_node), 1) > MAX_MOTION_VALUES:
+        # Checked on the header, before any row is parsed: the rows would be allocated first.
+        raise InputError(source, f"line {frames_line}", f"Frames x channels of at most {MAX_MOTION_VALUES} "
+                         f"values (with {len(ch_node)} channels, at most "
+                         f"{MAX_MOTION_VALUES // max(len(ch_node), 1)} frames)", n_frames)
     motion = _parse_motion(text[pos:], line_no, n_frames, len(ch_node), source)
     notes = []
     if len(motion) != n_frames:
@@ -208,6 +259,7 @@ def parse_bvh(text: str, source="<string>") -> BVH:
 
 def _parse_hierarchy(toks, source):
     names, parents, offsets, ends, chans = [], [], [], [], []
+    taken: set[str] = set()         # the names, for O(1) look-ups
     ch_node, ch_axis, ch_rot = [], [], []
     stack: list[int] = []           # open nodes
     pending: int | None = None      # node declared, waiting for its "{"
@@ -241,9 +293,13 @@ def _parse_hierarchy(toks, source):
             if not parts:
                 raise InputError(source, f"line {line}", f"a name after {tok}")
             name = " ".join(parts)
-            if name in names:
+            if not name.isprintable():
+                raise InputError(source, f"line {line}", "a joint name of printable characters", name)
+            if name in taken:
                 raise InputError(source, f"line {line}", "unique joint names", name)
             seen_root = True
+            _room(names, source, line)
+            taken.add(name)
             pending = _new_node(names, parents, offsets, ends, chans, name,
                                 stack[-1] if stack else -1, False)
         elif up == "END":
@@ -256,8 +312,10 @@ def _parse_hierarchy(toks, source):
             base = f"{names[parent]}_end"
             name = base
             c = 2
-            while name in names:
+            while name in taken:
                 name, c = f"{base}{c}", c + 1
+            _room(names, source, line)
+            taken.add(name)
             pending = _new_node(names, parents, offsets, ends, chans, name, parent, True)
             k += 2
         elif tok == "{":
@@ -323,6 +381,12 @@ def _parse_hierarchy(toks, source):
     return names, parents, offsets, ends, chans, ch_node, ch_axis, ch_rot
 
 
+def _room(names, source, line) -> None:
+    if len(names) >= MAX_NODES:
+        raise InputError(source, f"line {line}", f"a hierarchy of at most {MAX_NODES} joints and End Sites",
+                         "more")
+
+
 def _new_node(names, parents, offsets, ends, chans, name, parent, end):
     names.append(name)
     parents.append(parent)
@@ -375,29 +439,57 @@ def _parse_motion(block: str, first_line: int, n_frames, n_channels, source) -> 
     ``first_line`` of the file): ``n_frames`` of them, or up to
     :data:`FRAME_COUNT_SLACK` more or fewer (every complete row is kept).
 
-    The fast path hands the whole block to ``np.loadtxt`` (C parser); any
-    problem falls back to a line-by-line pass that finds the line to blame.
+    The block goes to ``np.loadtxt`` (C parser) in pieces of about
+    :data:`_CHUNK_CHARS` characters, written into one array allocated for
+    the rows the header announces (the caller bounded it), so memory stays
+    that array plus one piece whatever the file's size.  A piece that does
+    not parse is passed again line by line, to name the line to blame.
     """
     if n_channels == 0:
         raise InputError(source, "CHANNELS", "at least one channel in the hierarchy", 0)
     lo, hi = max(n_frames - FRAME_COUNT_SLACK, 1), n_frames + FRAME_COUNT_SLACK
+    out = np.empty((hi, n_channels))
+    rows, pos, line = 0, 0, first_line
+    while pos < len(block):
+        end = block.find("\n", min(pos + _CHUNK_CHARS, len(block)))
+        end = len(block) if end < 0 else end + 1
+        piece = block[pos:end]
+        part = _piece_rows(piece, n_channels)
+        if part is None or rows + len(part) > hi:
+            _blame(piece, line, rows, n_frames, hi, n_channels, source)
+        out[rows:rows + len(part)] = part
+        rows += len(part)
+        line += piece.count("\n")
+        pos = end
+    if rows < lo:
+        raise InputError(source, f"line {line}",
+                         f"{n_frames} motion lines as Frames: says (file truncated?)", rows)
+    return out[:rows]
+
+
+def _piece_rows(piece: str, n_channels: int) -> np.ndarray | None:
+    """``piece`` parsed as rows of ``n_channels`` finite numbers, or None."""
+    if not piece.strip():
+        return np.empty((0, n_channels))
     try:
-        data = np.loadtxt(io.StringIO(block), dtype=np.float64, ndmin=2, comments=None)
-        ok = (lo <= data.shape[0] <= hi and data.shape[1] == n_channels
-              and bool(np.isfinite(data).all()))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            part = np.loadtxt(io.StringIO(piece), dtype=np.float64, ndmin=2, comments=None)
     except ValueError:
-        ok = False
-    if ok:
-        return data
-    # Slow pass: find the first offending line.
-    rows = 0
-    last = first_line - 1
-    for i, line in enumerate(block.splitlines()):
+        return None
+    if part.shape[1] != n_channels or not np.isfinite(part).all():
+        return None
+    return part
+
+
+def _blame(piece: str, first_line: int, rows: int, n_frames: int, hi: int, n_channels: int, source):
+    """Raise the :class:`InputError` naming the first bad line of ``piece`` (line ``first_line``),
+    ``rows`` rows having been read before it."""
+    for i, line in enumerate(piece.splitlines()):
         vals = line.split()
         if not vals:
             continue
         lineno = first_line + i
-        last = lineno
         rows += 1
         if rows > hi:
             raise InputError(source, f"line {lineno}", f"{n_frames} motion lines as Frames: says "
@@ -412,10 +504,7 @@ def _parse_motion(block: str, first_line: int, n_frames, n_channels, source) -> 
                 raise InputError(source, f"line {lineno}", "numeric motion values", v) from None
             if not math.isfinite(x):
                 raise InputError(source, f"line {lineno}", "finite motion values", v)
-    if rows < lo:
-        raise InputError(source, f"line {last + 1}",
-                         f"{n_frames} motion lines as Frames: says (file truncated?)", rows)
-    raise InputError(source, "MOTION", "a readable motion block")  # pragma: no cover
+    raise InputError(source, f"line {first_line}", "a readable motion block")  # pragma: no cover
 
 
 # --------------------------------------------------------------------------- kinematics

@@ -27,6 +27,8 @@ __all__ = ["BVHInfo", "bvh_info"]
 
 #: Depth of the hierarchy printed (deeper joints, e.g. finger tips, are counted, not listed).
 MAX_DEPTH_SHOWN = 12
+#: Joints listed at most (a skeleton with fingers and face bones has a few hundred).
+MAX_JOINTS_SHOWN = 400
 
 
 @dataclass
@@ -43,19 +45,22 @@ def _hierarchy(bvh) -> list[str]:
     depth = np.zeros(len(bvh.names), dtype=int)
     for j, p in enumerate(bvh.parents):
         depth[j] = 0 if p < 0 else depth[p] + 1
+    parents = np.asarray(bvh.parents)
+    ends_of = np.bincount(parents[bvh.is_end_site & (parents >= 0)], minlength=len(bvh.names))
     out, hidden = [], 0
     for j, name in enumerate(bvh.names):
         if bvh.is_end_site[j]:
             continue
-        if depth[j] > MAX_DEPTH_SHOWN:
+        if depth[j] > MAX_DEPTH_SHOWN or len(out) >= MAX_JOINTS_SHOWN:
             hidden += 1
             continue
-        ends = sum(1 for k, p in enumerate(bvh.parents) if p == j and bvh.is_end_site[k])
+        ends = ends_of[j]
         chans = len(bvh.channels[j])
         out.append(f"  {'  ' * depth[j]}{name}  [{chans} channel{'s' if chans != 1 else ''}"
                    + (", End Site" if ends else "") + "]")
     if hidden:
-        out.append(f"  ({hidden} joints deeper than {MAX_DEPTH_SHOWN} levels not shown)")
+        out.append(f"  ({hidden} joints deeper than {MAX_DEPTH_SHOWN} levels or beyond the first "
+                   f"{MAX_JOINTS_SHOWN} not shown)")
     return out
 
 

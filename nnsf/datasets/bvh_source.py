@@ -226,6 +226,29 @@ def check_duration(bvh, fps: float | None, source=None) -> int:
     return int(n)
 
 
+#: Node-frames (nodes x frames) of one block of forward kinematics: each holds about 60
+#: float64 of rotations, positions and their temporaries, so a block takes about 120 MB.
+FK_BLOCK = 250_000
+
+
+def keypoints_of(bvh, family: SkeletonFamily) -> np.ndarray:
+    """The 17 key points in 3D ``(F, 17, 3)`` (:func:`keypoints_3d`), forward kinematics run over
+    blocks of frames so that its ``(F, J, 3, 3)`` arrays never exceed :data:`FK_BLOCK` node-frames
+    (a long clip of a large skeleton would otherwise need gigabytes)."""
+    step = max(FK_BLOCK // max(len(bvh.names), 1), 1)
+    out = np.empty((bvh.n_frames, N_JOINTS, 3))
+    with np.errstate(over="ignore", invalid="ignore"):      # overflow is refused below, in one line
+        for start in range(0, bvh.n_frames, step):
+            P, G = forward_kinematics(bvh, end_sites=True, return_rotations=True,
+                                      motion=bvh.motion[start:start + step])
+            out[start:start + step] = keypoints_3d(bvh, P, G, family)
+    if not np.isfinite(out).all():
+        frame = int(np.flatnonzero(~np.isfinite(out).all(axis=(1, 2)))[0])
+        raise InputError(bvh.source, "OFFSET", "offsets and motion values small enough for finite joint "
+                         f"positions (overflow from frame {frame} on)")
+    return out
+
+
 def load_clip(path, fps: float | None = 30, azimuth: float = 0.0, elevation: float = 0.0,
               facing: str = "normalise", center: bool = True, up: str = "auto",
               family: str | SkeletonFamily | None = None, window: float = 1.0,
@@ -241,8 +264,7 @@ def load_clip(path, fps: float | None = 30, azimuth: float = 0.0, elevation: flo
     fam = family_for(bvh, family, path)
     out_fps = bvh.fps if fps is None else float(fps)
     check_duration(bvh, fps, path)
-    P, G = forward_kinematics(bvh, end_sites=True, return_rotations=True)
-    K = keypoints_3d(bvh, P, G, fam)
+    K = keypoints_of(bvh, fam)
     check_bones(K, fam, bvh.names, path, bvh.site_kinds)
     if up == "auto":
         up = detect_up_axis(K, JOINT_INDEX["head_top"], (JOINT_INDEX["l_ankle"], JOINT_INDEX["r_ankle"]))
