@@ -43,7 +43,7 @@ import threading
 from pathlib import Path
 
 from nnsf.errors import InputError, exception_line, one_line, terminate_as_interrupt
-from nnsf.io import read_json
+from nnsf.io import check_replaceable, read_json
 from nnsf.params import STAGE_NAMES
 from nnsf.schema import List, Optional, Record, Str
 
@@ -58,8 +58,16 @@ UNWRITABLE = {errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOTDIR, errno.EISDI
 STAGES = tuple(s for s in STAGE_NAMES if s not in ("sweep", "translate", "reshape", "styles", "animate"))
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with the project's one-line errors: a bad option is ``error: <command>: <what>``
+    and exit 2, without the usage block (``--help`` shows it)."""
+
+    def error(self, message):
+        self.exit(2, f"error: {self.prog}: {one_line(message)} (see {self.prog} --help)\n")
+
+
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="nnsf", description=__doc__.split("\n\n")[0],
+    parser = _Parser(prog="nnsf", description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter,
                                      epilog=__doc__.split("\n\n", 1)[1])
     sub = parser.add_subparsers(dest="command", required=True, metavar="command")
@@ -198,6 +206,7 @@ def _animate(args) -> int:
         joint_map = read_joint_map(args.joint_map)
     if args.keypoints is not None and args.keypoints.suffix.lower() != ".csv":
         raise InputError(args.keypoints, "--keypoints", "a .csv file name", args.keypoints.suffix or "none")
+    _check_animate_paths(args)
     res = animate_files(args.character, args.motion, style=args.style, model=args.model, view=args.view,
                         out=args.out, fps=args.fps, joints=args.joints, source_style=args.source_style,
                         n_vertices=args.vertices, clip=args.clip, arms=args.arms, workers=args.workers,
@@ -211,6 +220,40 @@ def _animate(args) -> int:
     if args.keypoints is not None:
         print(f"animate: keypoints: {args.keypoints}")
     return 0
+
+
+def _check_animate_paths(args) -> None:
+    """Before any work: every output of ``nnsf animate`` can be written where it is named, and none
+    of them is (or, for a folder of frames, holds) one of the command's input files.
+
+    An output file may not be an existing folder; a frames folder must be new, empty or an
+    earlier run's frames (:func:`nnsf.reshape.video.check_frames_folder`: it is replaced whole);
+    two outputs may not share a path (``--keypoints`` onto the video would leave one of them).
+    """
+    from nnsf.animate.animation import output_targets
+    from nnsf.reshape.video import check_frames_folder
+
+    outputs = {("--out (its contact sheet)" if kind == "sheet" else "--out"): (Path(path), kind)
+               for kind, path in output_targets(args.out).items()}
+    if args.keypoints is not None:
+        outputs["--keypoints"] = (Path(args.keypoints), "csv")
+    inputs = {"--motion": args.motion, "--character": args.character, "--joints": args.joints,
+              "--model": args.model if str(args.style).strip().lower() != "none" else None,
+              "--joint-map": args.joint_map}
+    inputs = {k: Path(v).resolve() for k, v in inputs.items() if v is not None and Path(v).exists()}
+    taken: dict[Path, str] = {}
+    for field, (path, kind) in outputs.items():
+        if kind == "png":
+            check_frames_folder(path, field=field)
+        elif path.is_dir():
+            raise InputError(path, field, f"a {kind.upper()} file name (a folder is in the way)")
+        where = path.resolve()
+        for name, given in inputs.items():
+            if where == given or (kind == "png" and given.is_relative_to(where)):
+                raise InputError(path, field, f"an output path apart from the {name} input", str(given))
+        if where in taken:
+            raise InputError(path, field, f"a path of its own ({taken[where]} names it too)")
+        taken[where] = field
 
 
 def _bvh_info(args) -> int:
@@ -295,6 +338,10 @@ def _run(args) -> int:
         # permission or a read-only disk fails here in one line, and nothing is written.
         if args.command in ("translate", "reshape"):
             pipeline.check_outputs(args.command, [args.out])
+            # The folder is swapped in whole: never one that holds the user's own files.
+            marker = {"translate": "translation.json", "reshape": "metrics.json"}[args.command]
+            check_replaceable(args.out, "--out", f"an earlier `nnsf {args.command}` output ({marker})",
+                              marker=marker)
         elif args.command in ("reshape-eval", "roto-real"):
             pipeline.check_outputs(args.command, [args.out, args.out / "figures"])
         elif args.command == "styles":

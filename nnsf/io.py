@@ -182,6 +182,32 @@ def check_writable(folder: str | os.PathLike) -> Path:
     return folder
 
 
+def check_replaceable(folder: str | os.PathLike, field: str, earlier: str, marker: str | None = None,
+                      pattern: str | None = None) -> Path:
+    """Fail with one line unless the output folder ``folder`` may be replaced whole (:func:`atomic_dir`).
+
+    A folder a user names (``--out DIR``) is swapped out as a whole, so it
+    must not hold the user's own files: it is accepted when absent or empty,
+    when it holds the file ``marker`` (an earlier run's output, e.g.
+    ``metrics.json``), or when every entry's name matches the regular
+    expression ``pattern`` (e.g. ``frame_\\d{4}\\.png``).  ``earlier`` says what
+    such a folder holds, for the message.  A file or a link in the way is
+    refused too.  Reads at most one entry beyond the first foreign one.
+    """
+    folder = Path(folder)
+    expected = f"a new or empty folder, or one holding only {earlier} (it is replaced whole)"
+    if folder.is_symlink() or (folder.exists() and not folder.is_dir()):
+        raise InputError(folder, field, expected, "a link" if folder.is_symlink() else "a file")
+    if not folder.is_dir() or (marker is not None and (folder / marker).is_file()):
+        return folder
+    rule = re.compile(pattern) if pattern is not None else None
+    with os.scandir(folder) as entries:
+        for entry in entries:
+            if rule is None or not rule.fullmatch(entry.name) or not entry.is_file(follow_symlinks=False):
+                raise InputError(folder, field, expected, f"it holds {entry.name}")
+    return folder
+
+
 def _unwritable(path: Path, exc: OSError) -> InputError:
     """The one-line error for an output that cannot be created (permissions, a file in the way)."""
     return WriteError(path.parent, "output folder", "a folder that can be created and written",
@@ -404,6 +430,38 @@ def read_npz(path, schema: Mapping | None = None, max_bytes: int = MAX_NPZ_BYTES
 MAX_JSON_BYTES = 64_000_000
 
 
+class _DuplicateKey(ValueError):
+    pass
+
+
+def _unique_keys(pairs: list) -> dict:
+    seen = {}
+    for key, value in pairs:
+        if key in seen:
+            raise _DuplicateKey(key)
+        seen[key] = value
+    return seen
+
+
+def parse_json(text: str, source, field: str = "file"):
+    """``json.loads(text)`` with every failure an :class:`InputError` naming ``source``.
+
+    Beyond ``json.loads``: a key given twice in one object is refused (Python
+    would keep the last one silently), and so are numbers Python will not
+    convert and nesting beyond its recursion limit.
+    """
+    try:
+        return json.loads(text, object_pairs_hook=_unique_keys)
+    except json.JSONDecodeError as exc:
+        raise InputError(source, f"line {exc.lineno}", "valid JSON", reason=exc.msg) from None
+    except _DuplicateKey as exc:
+        raise InputError(source, field, "JSON objects with each key once", str(exc)) from None
+    except ValueError as exc:      # a number Python will not convert (an integer of 5000 digits)
+        raise InputError(source, field, "valid JSON numbers", reason=str(exc)) from None
+    except RecursionError:
+        raise InputError(source, field, "JSON nested at most a few hundred levels deep") from None
+
+
 def read_json(path, rule: Rule | None = None) -> dict:
     """Read a JSON object, naming the file on failure; checked against ``rule`` when given.
 
@@ -415,15 +473,7 @@ def read_json(path, rule: Rule | None = None) -> dict:
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "file", "an existing JSON file")
-    text = read_text(path, MAX_JSON_BYTES, "a JSON file")
-    try:
-        obj = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise InputError(path, f"line {exc.lineno}", "valid JSON", reason=exc.msg) from None
-    except ValueError as exc:      # a number Python will not convert (an integer of 5000 digits)
-        raise InputError(path, "file", "valid JSON numbers", reason=str(exc)) from None
-    except RecursionError:
-        raise InputError(path, "file", "JSON nested at most a few hundred levels deep") from None
+    obj = parse_json(read_text(path, MAX_JSON_BYTES, "a JSON file"), path)
     if not isinstance(obj, dict):
         raise InputError(path, "top level", "a JSON object", type(obj).__name__)
     return obj if rule is None else check(path, rule, obj)

@@ -12,7 +12,8 @@ before any Python value exists):
 * at most :data:`MAX_NODES` nodes once every alias is expanded (counted on
   the graph with shared nodes counted once per use, so the check itself costs
   the document's size, not its expansion);
-* no alias inside its own anchor (a recursive structure).
+* no alias inside its own anchor (a recursive structure);
+* no key twice in one mapping (PyYAML would keep the last one silently).
 
 Every failure of :func:`parse_yaml` / :func:`read_yaml` is one
 :class:`~nnsf.errors.InputError` naming the file, the line or key path, and
@@ -24,7 +25,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import yaml
-from yaml.nodes import MappingNode, Node, SequenceNode
+from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 
 from nnsf.errors import InputError, exception_line, read_text
 
@@ -75,6 +76,22 @@ class BoundedLoader(yaml.SafeLoader):
             return super().construct_object(node, deep)
         except (ValueError, TypeError, AttributeError, OverflowError) as exc:
             raise _Refused(_line(node), "valid YAML values", exception_line(exc)) from None
+
+    def construct_mapping(self, node, deep=False):
+        # PyYAML keeps the last of two equal keys without a word: a key point mapped twice, a
+        # parameter set twice, would silently lose one.  Keys merged in with ``<<`` may still be
+        # overridden by the mapping's own keys (YAML's merge semantics).
+        if isinstance(node, MappingNode):
+            seen: dict = {}
+            for key_node, _ in node.value:
+                if not isinstance(key_node, ScalarNode) or key_node.tag == "tag:yaml.org,2002:merge":
+                    continue
+                key = (key_node.tag, key_node.value)
+                if key in seen:
+                    raise _Refused(_line(key_node), f"each key once in a mapping (it is also on {seen[key]})",
+                                   repr(key_node.value))
+                seen[key] = _line(key_node)
+        return super().construct_mapping(node, deep)
 
     def compose_document(self):
         node = super().compose_document()

@@ -436,6 +436,8 @@ def rule_from_value(value, key: str = "key point") -> PointRule:
     if isinstance(value, (list, tuple)):
         if len(value) != 2 or not all(isinstance(x, str) and x.strip() for x in value):
             raise ValueError(f"{key}: a list must hold two joint names (their midpoint), got {value!r}")
+        if value[0].strip() == value[1].strip():
+            raise ValueError(f"{key}: a midpoint needs two different joints, got {value[0].strip()!r} twice")
         return mid(value[0].strip(), value[1].strip())
     if isinstance(value, str):
         return parse_rule(value)

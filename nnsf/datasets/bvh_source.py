@@ -29,7 +29,6 @@ read.
 from __future__ import annotations
 
 import hashlib
-import json
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -44,7 +43,7 @@ from nnsf.datasets.bvh_skeletons import FAMILIES, SkeletonFamily, check_bones, k
 from nnsf.datasets.contract import validate
 from nnsf.datasets.joint_map import check_joint_map
 from nnsf.errors import InputError
-from nnsf.io import read_bytes, read_text
+from nnsf.io import parse_json, read_bytes, read_text
 from nnsf.skeleton.layout import FEATURE_COLUMNS, JOINT_INDEX, N_JOINTS
 
 __all__ = [
@@ -152,12 +151,7 @@ def labels_from_json(path, root, lists: LabelLists | None) -> tuple[ClipLabels, 
     if not _inside(root, path):
         raise InputError(path, "file", f"a label file inside the dataset folder {root} "
                          "(symbolic links included)")
-    try:
-        obj = json.loads(read_text(path, 10_000_000, "a JSON label file"))
-    except json.JSONDecodeError as exc:
-        raise InputError(path, f"line {exc.lineno}", "a JSON label object", reason=exc.msg) from None
-    except RecursionError:
-        raise InputError(path, "file", "JSON nested at most a few hundred levels deep") from None
+    obj = parse_json(read_text(path, 10_000_000, "a JSON label file"), path)
     if not isinstance(obj, dict):
         raise InputError(path, "top level", "a JSON object", type(obj).__name__)
 

@@ -17,6 +17,8 @@ from nnsf.skeleton.layout import FEATURE_COLUMNS
 
 LABEL_COLUMNS: tuple[str, ...] = ("clip", "frame", "character", "motion")
 COLUMNS: tuple[str, ...] = LABEL_COLUMNS + FEATURE_COLUMNS
+#: Largest frame number (a year of frames at 30 fps): larger ones would not fit the int64 column.
+MAX_FRAME = 10**9
 
 
 def validate(table: pd.DataFrame, source, non_negative: bool = False) -> pd.DataFrame:
@@ -36,8 +38,11 @@ def validate(table: pd.DataFrame, source, non_negative: bool = False) -> pd.Data
     for col in ("clip", "character", "motion"):
         table[col] = table[col].astype(str)
     frame = pd.to_numeric(table["frame"], errors="coerce")
-    if frame.isna().any() or (frame % 1 != 0).any() or (frame < 0).any():
-        raise InputError(source, "frame", "whole numbers >= 0")
+    bad_frame = frame.isna() | (frame % 1 != 0) | (frame < 0) | (frame > MAX_FRAME)
+    if bad_frame.any():
+        r = int(np.flatnonzero(bad_frame.to_numpy())[0])
+        raise InputError(source, "frame", f"whole numbers from 0 to {MAX_FRAME}",
+                         f"{table['frame'].iloc[r]!r} at row {r + 1}")
     table["frame"] = frame.astype(np.int64)
     values = table.loc[:, list(FEATURE_COLUMNS)].apply(pd.to_numeric, errors="coerce")
     arr = values.to_numpy(dtype=float)

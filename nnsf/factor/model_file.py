@@ -38,7 +38,7 @@ import numpy as np
 from nnsf.errors import InputError, summarize
 from nnsf.factor.nnsf import NNSF
 from nnsf.factor.style_names import check_aliases
-from nnsf.io import read_npz, round_floats, write_npz
+from nnsf.io import parse_json, read_npz, round_floats, write_npz
 from nnsf.schema import (Array, Bool, Context, Int, List, Map, Num, Opt, Optional, Record, Rule, Str, Tuple,
                          check)
 from nnsf.skeleton import Unifier
@@ -435,12 +435,7 @@ def read_meta(path) -> tuple[dict, dict]:
     if meta_array.dtype.kind != "U" or meta_array.shape != ():
         raise InputError(path, "array meta", "a 0-d unicode array (JSON text)",
                          f"{meta_array.dtype} of shape {meta_array.shape}")
-    try:
-        meta = json.loads(str(meta_array[()]))
-    except (json.JSONDecodeError, TypeError, ValueError) as exc:
-        raise InputError(path, "meta", "JSON metadata", str(exc)) from None
-    except RecursionError:
-        raise InputError(path, "meta", "JSON metadata nested at most a few hundred levels deep") from None
+    meta = parse_json(str(meta_array[()]), path, "meta")
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         raise InputError(path, "meta.format", repr(FORMAT),
                          meta.get("format") if isinstance(meta, dict) else type(meta).__name__)

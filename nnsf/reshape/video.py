@@ -15,22 +15,31 @@ write error.
 from __future__ import annotations
 
 import errno
+import re
 from fractions import Fraction
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from nnsf.io import atomic_dir, atomic_path
+from nnsf.io import atomic_dir, atomic_path, check_replaceable
 
 def _bgr(img: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(img, cv2.COLOR_RGBA2BGRA if img.shape[2] == 4 else cv2.COLOR_RGB2BGR)
+
+
+def check_frames_folder(folder, prefix: str = "frame", field: str = "folder") -> Path:
+    """``folder`` if :func:`write_png_frames` may replace it: absent, empty, or holding only
+    ``<prefix>_NNNN.png`` frames (an earlier run's); a folder of anything else is refused in one line."""
+    return check_replaceable(folder, field, f"{prefix}_NNNN.png frames of an earlier run",
+                             pattern=re.escape(prefix) + r"_\d{4,}\.png")
 
 
 def write_png_frames(folder, images, prefix: str = "frame") -> list[Path]:
     """Write images ``(T, H, W, 3|4)`` (RGB[A]) as ``<folder>/<prefix>_0000.png`` …, atomically as a folder."""
     folder = Path(folder)
     names = [f"{prefix}_{t:04d}.png" for t in range(len(images))]
+    check_frames_folder(folder, prefix)
     with atomic_dir(folder) as tmp:
         for name, img in zip(names, images):
             if not cv2.imwrite(str(tmp / name), _bgr(np.asarray(img))):
