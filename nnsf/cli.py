@@ -231,6 +231,7 @@ def _check_animate_paths(args) -> None:
     two outputs may not share a path (``--keypoints`` onto the video would leave one of them).
     """
     from nnsf.animate.animation import output_targets
+    from nnsf.names import real
     from nnsf.reshape.video import check_frames_folder
 
     outputs = {("--out (its contact sheet)" if kind == "sheet" else "--out"): (Path(path), kind)
@@ -240,14 +241,14 @@ def _check_animate_paths(args) -> None:
     inputs = {"--motion": args.motion, "--character": args.character, "--joints": args.joints,
               "--model": args.model if str(args.style).strip().lower() != "none" else None,
               "--joint-map": args.joint_map}
-    inputs = {k: Path(v).resolve() for k, v in inputs.items() if v is not None and Path(v).exists()}
+    inputs = {k: real(v) for k, v in inputs.items() if v is not None and Path(v).exists()}
     taken: dict[Path, str] = {}
     for field, (path, kind) in outputs.items():
         if kind == "png":
             check_frames_folder(path, field=field)
         elif path.is_dir():
             raise InputError(path, field, f"a {kind.upper()} file name (a folder is in the way)")
-        where = path.resolve()
+        where = real(path)
         for name, given in inputs.items():
             if where == given or (kind == "png" and given.is_relative_to(where)):
                 raise InputError(path, field, f"an output path apart from the {name} input", str(given))
@@ -346,6 +347,9 @@ def _run(args) -> int:
             pipeline.check_outputs(args.command, [args.out, args.out / "figures"])
         elif args.command == "styles":
             pipeline.check_outputs(args.command, [Path(args.out).parent])
+            if Path(args.out).suffix.lower() != ".npz" or Path(args.out).is_dir():
+                raise InputError(args.out, "--out", "a .npz file name for the model (not a folder)",
+                                 Path(args.out).suffix or "no extension")
         elif args.command != "sweep":  # `nnsf sweep` writes its table to stdout only
             pipeline.check_outputs(args.command)
             if args.command == "roto" and args.export_cvat is not None:
@@ -392,6 +396,10 @@ def _run(args) -> int:
                 name, sep, style = text.partition("=")
                 if not sep or not name.strip() or not style.strip():
                     raise InputError("--alias", "alias", "NAME=STYLE, e.g. elderly=old", text)
+                same = [a for a in aliases if a.casefold() == name.strip().casefold()]
+                if same:
+                    raise InputError("--alias", name.strip(), "each alias once (letter case ignored)",
+                                     f"{same[0]}={aliases[same[0]]} and {text}")
                 aliases[name.strip()] = style.strip()
             result, report = styles_by_hand(params, args.data, args.out, joint_map=args.joint_map,
                                             aliases=aliases)

@@ -58,6 +58,17 @@ def safe_name(value, source, field: str) -> str:
     return value
 
 
+def real(path) -> Path:
+    """``path`` with every symbolic link resolved (``os.path.realpath``), made absolute.
+
+    Unlike ``Path.resolve()`` (Python 3.11), a link loop is no ``RuntimeError``:
+    its path comes back as it is, and the caller's next check (``is_file``,
+    "inside the folder") refuses it with one line.  Every check of a user's
+    path against its folder goes through here.
+    """
+    return Path(os.path.realpath(path))
+
+
 def inside(folder, *names: str, source=None, field: str = "path") -> Path:
     """``folder / name / ...`` checked to stay inside ``folder`` once symbolic links are resolved.
 
@@ -71,8 +82,8 @@ def inside(folder, *names: str, source=None, field: str = "path") -> Path:
     for name in names:
         safe_name(name, where, field)
     path = folder.joinpath(*names)
-    root = folder.resolve()
-    if not path.resolve().is_relative_to(root):
+    root = real(folder)
+    if not real(path).is_relative_to(root):
         raise InputError(where, field, f"a path that stays inside {folder} (symbolic links resolved)",
                          os.fspath(path))
     return path

@@ -141,7 +141,7 @@ def project_path(value, source, field: str, root=".") -> Path | None:
     p = Path(text)
     try:
         outside = (p.is_absolute() or text.startswith(("/", "\\", "~")) or ".." in parts
-                   or not (root / p).resolve().is_relative_to(root.resolve()))
+                   or not names.real(root / p).is_relative_to(names.real(root)))
     except (OSError, RuntimeError) as exc:   # a loop of symbolic links
         raise InputError(source, field, PROJECT_PATH, text, reason=str(exc)) from None
     if outside:

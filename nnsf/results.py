@@ -52,6 +52,7 @@ from pathlib import Path
 import pandas as pd
 from nnsf.errors import InputError
 from nnsf.io import atomic_path, read_json
+from nnsf.names import real
 from nnsf.pipeline import REPORTS, StageResult, check_outputs
 from nnsf.safe_yaml import read_yaml
 
@@ -62,6 +63,9 @@ MAX_SPEC_BYTES = 1_000_000
 #: What an empty cell shows: the field is missing from its row, or not a number.
 MISSING = "—"
 _FIELD = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
+#: The format specs a template may use: an optional sign, grouping, a precision of at most two
+#: digits and a type (no fill, no width: a cell is as wide as its number).
+_SPEC = re.compile(r"[+\- ]?,?(\.\d{1,2})?[eEfFgG%d]?")
 _OPS = {"<": lambda a, b: a < b, ">": lambda a, b: a > b, "==": lambda a, b: a == b,
         "!=": lambda a, b: a != b}
 _TABLE_KEYS = {"section", "title", "source", "command", "caption", "records", "depth", "split_key",
@@ -164,6 +168,10 @@ def fields(template: str) -> list[tuple[str, str]]:
             continue
         if not _FIELD.match(name) or conversion is not None or "{" in (spec or ""):
             raise ValueError(f"{{{name}}}: expected a plain field name")
+        if not _SPEC.fullmatch(spec or ""):
+            # A width or precision of a billion would build a string of a billion characters.
+            raise ValueError(f"{{{name}:{spec}}}: expected a number format such as .3f, +.2f, .1% or g "
+                             "(sign, precision of at most 2 digits, type)")
         out.append((name, spec or ""))
     return out
 
@@ -172,6 +180,9 @@ def fields(template: str) -> list[tuple[str, str]]:
 def read_rows(root: Path, table: dict) -> list[Row]:
     """The rows of a table's source, filtered and ordered by its ``where``."""
     path = root / table["source"]
+    if not real(path).is_relative_to(real(root / REPORTS.name)):
+        raise InputError(path, "source", f"a report file inside {REPORTS.name}/ (symbolic links resolved)",
+                         str(real(path)))
     if path.suffix == ".csv":
         rows = _csv_rows(path)
     else:
@@ -279,7 +290,11 @@ def _cell(template: str, row: Row, where: str, source: str) -> tuple[str, list[t
                 raise InputError(source, name, f"a number (the table {where!r} formats it as {spec!r})", value)
             out.append(str(value))
             continue
-        text = format(value, spec)
+        try:
+            text = format(value, spec)
+        except ValueError as exc:       # e.g. "d" for a float
+            raise InputError(source, name, f"a value the table {where!r} can format as {spec!r}", value,
+                             reason=str(exc)) from None
         out.append(text)
         if name in row.where:
             printed.append((text, row.where[name], spec))

@@ -170,8 +170,9 @@ def parse_yaml(text: str, source, what: str = "YAML"):
     invalid YAML, a tag that would build a Python object, several documents,
     or a bound of :class:`BoundedLoader` exceeded.
     """
-    loader = BoundedLoader(text)
+    loader = None
     try:
+        loader = BoundedLoader(text)      # its reader already refuses control characters (a NUL)
         return loader.get_single_data()
     except _Refused as exc:
         raise InputError(source, exc.where, exc.expected, reason=exc.got) from None
@@ -188,7 +189,8 @@ def parse_yaml(text: str, source, what: str = "YAML"):
     except RecursionError:  # a bound above Python's recursion limit: never with MAX_DEPTH
         raise InputError(source, "file", f"{what} nested at most {MAX_DEPTH} levels deep") from None
     finally:
-        loader.dispose()
+        if loader is not None:
+            loader.dispose()
 
 
 def read_yaml(path, max_bytes: int = MAX_YAML_BYTES, what: str = "a YAML file"):

@@ -44,6 +44,7 @@ from nnsf.datasets.contract import validate
 from nnsf.datasets.joint_map import check_joint_map
 from nnsf.errors import InputError
 from nnsf.io import parse_json, read_bytes, read_text
+from nnsf.names import EXPECTED as NAME_EXPECTED, is_safe_name, real
 from nnsf.skeleton.layout import FEATURE_COLUMNS, JOINT_INDEX, N_JOINTS
 
 __all__ = [
@@ -130,12 +131,21 @@ def labels_from_name(path) -> ClipLabels:
     if m is None:
         raise InputError(path, "file name", "{dataset}_{motion}_{style}_{id}.bvh (e.g. "
                          "dataset-1_walk_happy_001.bvh) or a <stem>.json label beside it", path.name)
-    return ClipLabels(m.group("motion"), m.group("style"), "name")
+    return ClipLabels(_label(m.group("motion"), path, "file name (motion)"),
+                      _label(m.group("style"), path, "file name (style)"), "name")
+
+
+def _label(value: str, source, field: str) -> str:
+    """A content or style label: an id, so a safe name (:mod:`nnsf.names`): it names the model's
+    styles, is printed in messages and may become a file name."""
+    if not is_safe_name(value):
+        raise InputError(source, field, "a label that is " + NAME_EXPECTED, value)
+    return value
 
 
 def _inside(root: Path, p: Path) -> bool:
     try:
-        p.resolve().relative_to(root.resolve())
+        real(p).relative_to(real(root))
         return True
     except ValueError:
         return False
@@ -168,9 +178,9 @@ def labels_from_json(path, root, lists: LabelLists | None) -> tuple[ClipLabels, 
                                  "up an index)", v)
             if not 0 <= v < len(names):
                 raise InputError(path, key, f"an index 0..{len(names) - 1} into the {what} list", v)
-            return names[v]
+            return _label(names[v], lists.source, f"{what} label {v}")
         if isinstance(v, str) and v.strip():
-            return _strip_dataset(v.strip()) if v.startswith("dataset-") else v.strip()
+            return _label(_strip_dataset(v.strip()) if v.startswith("dataset-") else v.strip(), path, key)
         raise InputError(path, key, f"a {what} name or index", v)
 
     motion = pick(("content", "motion"), lists.contents if lists else None, "content/motion")
@@ -395,10 +405,15 @@ def read_folder(path, fps: float | None = 30, azimuth: float = 0.0, elevation: f
             report.append(f"skipped label: {js}: bvh: expected an existing motion file for "
                           f"{labels.motion}/{labels.style}, got {bvh_path.name!r} (missing)")
             continue
-        labelled.setdefault(bvh_path.resolve(), []).append((labels, js))
+        labelled.setdefault(real(bvh_path), []).append((labels, js))
 
     # 2) every clip's labels: from its JSON, else from its name
-    clips = {p.resolve(): p for p in sorted(data.glob("*.bvh"))}
+    clips = {}
+    for p in sorted(data.glob("*.bvh")):
+        if p.is_file():
+            clips[real(p)] = p
+        else:   # a folder, a FIFO, a dangling link or a link loop named *.bvh
+            report.append(f"skipped: {p}: file: expected a regular .bvh file")
     for p in labelled:
         clips.setdefault(p, p)
     chosen: dict[Path, ClipLabels] = {}

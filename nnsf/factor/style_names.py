@@ -15,6 +15,7 @@ import difflib
 from typing import Iterable, Mapping
 
 from nnsf.errors import InputError
+from nnsf.names import EXPECTED, is_safe_name
 
 __all__ = ["resolve_style", "check_aliases"]
 
@@ -61,6 +62,8 @@ def check_aliases(aliases: Mapping, styles: Iterable[str], source="aliases", fie
         if not (isinstance(alias, str) and alias.strip() and isinstance(style, str) and style.strip()):
             raise InputError(source, field, "alias and style names (non-empty strings)", {alias: style})
         alias, style = alias.strip(), style.strip()
+        if not is_safe_name(alias):       # a name a user types and a message prints: one line, no path
+            raise InputError(source, f"{field}", "an alias that is " + EXPECTED, alias)
         if style not in styles:
             raise InputError(source, f"{field}.{alias}", "a style of the model: " + ", ".join(styles), style)
         if alias.casefold() in folded or alias.casefold() in seen:

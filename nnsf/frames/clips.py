@@ -10,7 +10,7 @@ import pandas as pd
 from nnsf.errors import InputError
 from nnsf.frames.annotation import Annotation, check_relative, read_annotation
 from nnsf.io import PNG_SIGNATURE, decode_image, png_header, read_npz
-from nnsf.names import safe_name
+from nnsf.names import real, safe_name
 from nnsf.schema import Array
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".webp")
@@ -87,12 +87,12 @@ def frame_paths(folder, annotation: Annotation | None = None) -> list[Path]:
                          "an empty folder" if not any(folder.iterdir()) else "no image files")
     if annotation is None:
         return images
-    root = folder.resolve()
+    root = real(folder)
     paths = []
     for i, rel in enumerate(annotation.frames):
         check_relative(rel, source, f"frames[{i}]")
         p = (folder / rel)
-        if not p.resolve().is_relative_to(root):
+        if not real(p).is_relative_to(root):
             raise InputError(source, f"frames[{i}]", "a path that stays inside the clip's folder "
                              "(symbolic links included)", rel)
         if not p.is_file():
@@ -151,12 +151,12 @@ def read_index(frames_dir) -> pd.DataFrame:
     dup = index["clip"].duplicated()
     if dup.any():
         raise InputError(path, "clip", "each clip once", index["clip"][dup].iloc[0])
-    root = Path(frames_dir).resolve()
+    root = real(frames_dir)
     for i, (clip, f) in enumerate(zip(index["clip"], index["folder"])):
         # A clip id names the stages' output files (<tracks>/<clip>/curves.npz, <clip>.xml).
         safe_name(clip, path, f"clip (row {i + 1})")
         check_relative(f, path, f"folder (row {i + 1})")
-        if not (Path(frames_dir) / f).resolve().is_relative_to(root):
+        if not real(Path(frames_dir) / f).is_relative_to(root):
             raise InputError(path, f"folder (row {i + 1})", "a folder inside the frame set "
                              "(symbolic links resolved)", f)
     return index
