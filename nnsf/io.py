@@ -616,6 +616,41 @@ def decode_image(data: bytes, source, field: str = "file", flags: int | None = N
     return img
 
 
+def encode_image(img: np.ndarray, suffix: str = ".png") -> bytes:
+    """An image ``(H, W[, 3|4])`` (OpenCV's BGR[A] order) encoded in memory in the format of
+    ``suffix``; ``ValueError`` if OpenCV cannot.  Encoding in memory keeps the encoder's own
+    messages off stderr and leaves every write error to Python, which names the file."""
+    import cv2
+
+    with captured_stderr() as noise:
+        ok, buf = cv2.imencode(suffix, np.ascontiguousarray(img))
+    if not ok:
+        raise ValueError(f"OpenCV cannot encode a {img.dtype} image of shape {img.shape} as {suffix}"
+                         + (f" ({'; '.join(noise)})" if noise else ""))
+    return buf.tobytes()
+
+
+def write_bytes(path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` (not atomic by itself: inside :func:`atomic_path` or
+    :func:`atomic_dir`); an ``OSError`` becomes the :class:`WriteError` naming ``path``."""
+    path = Path(path)
+    try:
+        path.write_bytes(data)
+    except OSError as exc:
+        raise write_error(path, exc) from None
+    return path
+
+
+def write_image(path, img: np.ndarray) -> Path:
+    """Write an image (OpenCV's BGR[A] order) to ``path``, atomically, in the format of its suffix
+    (:func:`encode_image`); a full disk or a size limit is one :class:`WriteError` naming ``path``."""
+    path = Path(path)
+    data = encode_image(img, path.suffix or ".png")
+    with atomic_path(path) as tmp:
+        write_bytes(tmp, data)
+    return path
+
+
 #: Largest image file read (bytes).
 MAX_IMAGE_BYTES = 512_000_000
 

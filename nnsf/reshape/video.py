@@ -22,7 +22,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from nnsf.io import atomic_dir, atomic_path, check_replaceable
+from nnsf.io import atomic_dir, atomic_path, check_replaceable, encode_image, write_bytes
 
 def _bgr(img: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(img, cv2.COLOR_RGBA2BGRA if img.shape[2] == 4 else cv2.COLOR_RGB2BGR)
@@ -42,8 +42,7 @@ def write_png_frames(folder, images, prefix: str = "frame") -> list[Path]:
     check_frames_folder(folder, prefix)
     with atomic_dir(folder) as tmp:
         for name, img in zip(names, images):
-            if not cv2.imwrite(str(tmp / name), _bgr(np.asarray(img))):
-                raise OSError(f"could not write {folder / name}")
+            write_bytes(tmp / name, encode_image(_bgr(np.asarray(img)), ".png"))
     return [folder / n for n in names]
 
 
