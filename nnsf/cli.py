@@ -390,12 +390,14 @@ def _run(args) -> int:
             print(f"reshape: wrote {args.out}/" + (f"; open {shown[0]}" if shown else ""))
         elif args.command == "styles":
             from nnsf.factor.stage import styles_by_hand
+            from nnsf.factor.style_names import check_alias_name
 
             aliases = {}
             for text in args.alias:
                 name, sep, style = text.partition("=")
                 if not sep or not name.strip() or not style.strip():
                     raise InputError("--alias", "alias", "NAME=STYLE, e.g. elderly=old", text)
+                check_alias_name(name.strip(), "--alias", "alias")
                 same = [a for a in aliases if a.casefold() == name.strip().casefold()]
                 if same:
                     raise InputError("--alias", name.strip(), "each alias once (letter case ignored)",

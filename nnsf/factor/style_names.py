@@ -17,7 +17,7 @@ from typing import Iterable, Mapping
 from nnsf.errors import InputError
 from nnsf.names import EXPECTED, is_safe_name
 
-__all__ = ["resolve_style", "check_aliases"]
+__all__ = ["resolve_style", "check_aliases", "check_alias_name"]
 
 
 def resolve_style(name, styles: Iterable[str], aliases: Mapping[str, str] | None = None,
@@ -45,6 +45,14 @@ def resolve_style(name, styles: Iterable[str], aliases: Mapping[str, str] | None
                      reason=("did you mean " + " or ".join(known[n] for n in near) + "?") if near else None)
 
 
+def check_alias_name(alias, source="aliases", field: str = "aliases") -> str:
+    """``alias`` if it is a safe name (:mod:`nnsf.names`): a name a user types and a message
+    prints, so one line and no path; else :class:`InputError` naming ``source`` and ``field``."""
+    if not is_safe_name(alias):
+        raise InputError(source, field, "an alias that is " + EXPECTED, alias)
+    return alias
+
+
 def check_aliases(aliases: Mapping, styles: Iterable[str], source="aliases", field: str = "aliases") -> dict[str, str]:
     """``aliases`` as ``{alias: style}`` once checked against the model's ``styles``.
 
@@ -62,8 +70,7 @@ def check_aliases(aliases: Mapping, styles: Iterable[str], source="aliases", fie
         if not (isinstance(alias, str) and alias.strip() and isinstance(style, str) and style.strip()):
             raise InputError(source, field, "alias and style names (non-empty strings)", {alias: style})
         alias, style = alias.strip(), style.strip()
-        if not is_safe_name(alias):       # a name a user types and a message prints: one line, no path
-            raise InputError(source, f"{field}", "an alias that is " + EXPECTED, alias)
+        check_alias_name(alias, source, field)
         if style not in styles:
             raise InputError(source, f"{field}.{alias}", "a style of the model: " + ", ".join(styles), style)
         if alias.casefold() in folded or alias.casefold() in seen:
