@@ -20,7 +20,6 @@ the traceback), 130 interrupted.
 """
 from __future__ import annotations
 
-import argparse
 import os
 import sys
 from pathlib import Path
@@ -28,7 +27,7 @@ from pathlib import Path
 import flows  # noqa: F401  (telemetry switches, before any heavy import)
 from flows import project
 from flows.console import error_line
-from nnsf.errors import exception_line
+from nnsf.errors import OneLineParser, exception_line
 from nnsf.params import STAGE_NAMES
 
 # nnsf's stages are imported only by the commands that run them: they pull in
@@ -118,7 +117,7 @@ def _is_input_error(err: BaseException) -> bool:
 
 def run_stage_command(stage: str, args: list[str]) -> int:
     """Validate params, then run the stage's flow; map its final state to an exit code."""
-    parser = argparse.ArgumentParser(prog=f"python -m flows {stage}")
+    parser = OneLineParser(prog=f"python -m flows {stage}")
     parser.add_argument("--params", default="params.yaml", help="the params file")
     opts = parser.parse_args(args)
     root = project.root()

@@ -8,13 +8,13 @@ its charts, and on the comparison of runs.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import sys
 import urllib.parse
 
 from flows import project
+from nnsf.errors import OneLineParser
 
 #: The UI's query parameter and value for its "Model training" pages.
 WORKFLOW = {"workflowType": "machine_learning"}
@@ -52,7 +52,7 @@ def command(uri: str, port: int) -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     from nnsf.params import load, require
 
-    parser = argparse.ArgumentParser(prog="python -m flows ui", description=__doc__.split("\n\n")[0])
+    parser = OneLineParser(prog="python -m flows ui", description=__doc__.split("\n\n")[0])
     parser.add_argument("--port", type=int, default=5000)
     parser.add_argument("--params", default="params.yaml", help="names the experiment (mlflow.experiment)")
     opts = parser.parse_args(argv)

@@ -9,7 +9,6 @@ metrics that changed against the last commit).
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import re
@@ -20,7 +19,7 @@ from prefect import flow, get_run_logger, task
 from prefect.artifacts import create_markdown_artifact
 from prefect.cache_policies import NO_CACHE
 
-from nnsf.errors import InputError
+from nnsf.errors import InputError, OneLineParser
 
 from flows import project
 from flows.repro import dvc, stage_env
@@ -162,7 +161,7 @@ def _run_once(root: Path, args: list[str]) -> int:
 
 def serve_main(args: list[str]) -> int:
     """``python -m flows serve``: serve the pipeline deployment on a cron schedule."""
-    parser = argparse.ArgumentParser(prog="python -m flows serve")
+    parser = OneLineParser(prog="python -m flows serve")
     parser.add_argument("--cron", default=DEFAULT_CRON, help=f"schedule (default {DEFAULT_CRON!r})")
     parser.add_argument("--name", default=DEPLOYMENT, help="deployment name")
     opts = parser.parse_args(args)

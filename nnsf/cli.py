@@ -42,7 +42,7 @@ import sys
 import threading
 from pathlib import Path
 
-from nnsf.errors import InputError, exception_line, one_line, terminate_as_interrupt
+from nnsf.errors import InputError, OneLineParser, exception_line, one_line, terminate_as_interrupt
 from nnsf.io import check_replaceable, read_json
 from nnsf.params import STAGE_NAMES
 from nnsf.schema import List, Optional, Record, Str
@@ -58,16 +58,8 @@ UNWRITABLE = {errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOTDIR, errno.EISDI
 STAGES = tuple(s for s in STAGE_NAMES if s not in ("sweep", "translate", "reshape", "styles", "animate"))
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse with the project's one-line errors: a bad option is ``error: <command>: <what>``
-    and exit 2, without the usage block (``--help`` shows it)."""
-
-    def error(self, message):
-        self.exit(2, f"error: {self.prog}: {one_line(message)} (see {self.prog} --help)\n")
-
-
 def _parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="nnsf", description=__doc__.split("\n\n")[0],
+    parser = OneLineParser(prog="nnsf", description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter,
                                      epilog=__doc__.split("\n\n", 1)[1])
     sub = parser.add_subparsers(dest="command", required=True, metavar="command")

@@ -19,6 +19,7 @@ only, so that checking ``params.yaml`` imports nothing heavy
 """
 from __future__ import annotations
 
+import argparse
 import numbers
 from pathlib import Path
 
@@ -99,6 +100,14 @@ def exception_line(exc: BaseException, with_type: bool = True) -> str:
     if not msg:
         return type(exc).__name__
     return f"{type(exc).__name__}: {msg[0]}" if with_type else msg[0]
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """``argparse`` with the project's one-line errors: a bad option is ``error: <prog>: <what>``
+    and exit 2, without the usage block (``--help`` shows it).  Sub-parsers inherit it."""
+
+    def error(self, message):
+        self.exit(2, f"error: {self.prog}: {one_line(message)} (see {self.prog} --help)\n")
 
 
 class InputError(ValueError):
