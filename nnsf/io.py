@@ -359,13 +359,16 @@ def _npy_header(fh) -> tuple[np.dtype, tuple, bool, int]:
 
 
 def read_npz(path, schema: Mapping | None = None, max_bytes: int = MAX_NPZ_BYTES,
-             what: str = "file of arrays without pickled objects") -> dict[str, np.ndarray]:
+             what: str = "file of arrays without pickled objects",
+             limits: Mapping[str, int] | None = None) -> dict[str, np.ndarray]:
     """Read every array of an ``.npz`` into memory, checked before anything is allocated.
 
     The zip directory and every member's ``.npy`` header are read first: each
     member must be one ``.npy`` array without Python objects (never
     unpickled), whose header's dtype and shape account for exactly the bytes
     the member holds, and all of them together at most ``max_bytes``.  With
+    ``limits`` (``{name: bytes}``) bounds single arrays the same way (a JSON
+    text array that is parsed next, e.g.).  With
     a ``schema`` (``{name: nnsf.schema.Array}``), names it does not list are
     refused, required ones must be present, and each header must follow its
     rule (dtype kind, shape, named sizes shared between arrays); after
@@ -397,6 +400,8 @@ def read_npz(path, schema: Mapping | None = None, max_bytes: int = MAX_NPZ_BYTES
                 if info.file_size - offset != nbytes:
                     raise InputError(path, name, f"the {nbytes} data bytes its header ({dtype}, shape {shape}) "
                                      "declares", f"{info.file_size - offset} bytes")
+                if limits is not None and name in limits and nbytes > limits[name]:
+                    raise InputError(path, name, f"an array of at most {limits[name]} bytes", f"{nbytes} bytes")
                 total += nbytes
                 if total > max_bytes:
                     raise InputError(path, "file", f"an .npz of at most {max_bytes} bytes of arrays",

@@ -135,6 +135,9 @@ ESTIMATORS = {"nnsf.factor.nnsf.NNSF": NNSF}
 #: Largest total of array bytes a model file may declare (a model of 100 styles x 100
 #: contents with their training clips holds a few MB).
 MAX_MODEL_BYTES = 256_000_000
+#: Largest ``meta`` array (bytes, 4 per character): the JSON describes the arrays, it does not
+#: hold them (a model of 100 styles x 100 contents has well under 1 MB of it).
+MAX_META_BYTES = 64_000_000
 #: Named sizes shared by every array of a model: features, atoms, styles, contents.
 D, K = "n_features", "n_components"
 
@@ -428,7 +431,8 @@ def read_meta(path) -> tuple[dict, dict]:
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "file", "an existing style model (.npz written by `nnsf styles`)")
-    arrays = read_npz(path, max_bytes=MAX_MODEL_BYTES, what="style model (written by `nnsf styles`)")
+    arrays = read_npz(path, max_bytes=MAX_MODEL_BYTES, what="style model (written by `nnsf styles`)",
+                      limits={"meta": MAX_META_BYTES})
     if "meta" not in arrays:
         raise InputError(path, "array meta", "the model's JSON metadata", "missing")
     meta_array = arrays.pop("meta")
