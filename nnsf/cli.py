@@ -249,6 +249,26 @@ def _check_animate_paths(args) -> None:
         taken[where] = field
 
 
+#: Lines of one kind (``skipped``, ``skipped label``, ``note``, ``warning``) of a reader's report
+#: printed; the rest are counted in one line.
+MAX_REPORT_LINES = 20
+
+
+def capped(report: list[str], per_kind: int = MAX_REPORT_LINES) -> list[str]:
+    """``report`` with at most ``per_kind`` lines of each kind (the text before its first ``:``);
+    the others become one line ``<kind>: N more not shown``, so a folder of ten thousand
+    unreadable files is twenty lines and a count, not ten thousand lines."""
+    shown: list[str] = []
+    hidden: dict[str, int] = {}
+    for line in report:
+        kind = line.split(":", 1)[0]
+        if sum(1 for s in shown if s.split(":", 1)[0] == kind) < per_kind:
+            shown.append(line)
+        else:
+            hidden[kind] = hidden.get(kind, 0) + 1
+    return shown + [f"{kind}: {n} more not shown" for kind, n in hidden.items()]
+
+
 def _bvh_info(args) -> int:
     from nnsf.datasets.bvh_info import bvh_info
 
@@ -397,7 +417,7 @@ def _run(args) -> int:
                 aliases[name.strip()] = style.strip()
             result, report = styles_by_hand(params, args.data, args.out, joint_map=args.joint_map,
                                             aliases=aliases)
-            for line in ([params.note] if getattr(params, "note", None) else []) + report:
+            for line in ([params.note] if getattr(params, "note", None) else []) + capped(report):
                 print(f"styles: {line}", file=sys.stderr)
             print(f"styles: wrote {args.out} ({result.metrics['styles']} styles, "
                   f"{result.metrics['contents']} contents)")

@@ -419,3 +419,12 @@ def test_a_frame_past_the_file_size_limit_names_the_frame_and_leaves_no_folder(t
                                      "allows (File too large [EFBIG])")
     assert "libpng" not in capfd.readouterr().err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_folder_of_thousands_of_bad_files_is_a_capped_report():
+    from nnsf.cli import MAX_REPORT_LINES, capped
+
+    report = [f"skipped: bad_{i}.bvh: file name: expected ..." for i in range(2000)] + ["warning: style 'x'"]
+    lines = capped(report)
+    assert len(lines) == MAX_REPORT_LINES + 2
+    assert lines[-1] == f"skipped: {2000 - MAX_REPORT_LINES} more not shown" and "warning: style 'x'" in lines
