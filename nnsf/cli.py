@@ -525,6 +525,12 @@ def _check_stage_params(params: dict) -> None:
         reshape_params(params)
     if "translation" in params:
         check_translator(params, translator_params(params))
+    joint_map = params.get("dataset", {}).get("bvh", {}).get("joint_map") if isinstance(
+        params.get("dataset"), dict) and isinstance(params["dataset"].get("bvh"), dict) else None
+    if joint_map is not None:
+        from nnsf.datasets.joint_map import read_joint_map
+
+        read_joint_map(joint_map)           # what the data stage reads (a missing or bad map: one line)
 
 
 def _settle_publications() -> None:

@@ -428,3 +428,20 @@ def test_a_folder_of_thousands_of_bad_files_is_a_capped_report():
     lines = capped(report)
     assert len(lines) == MAX_REPORT_LINES + 2
     assert lines[-1] == f"skipped: {2000 - MAX_REPORT_LINES} more not shown" and "warning: style 'x'" in lines
+
+
+@pytest.mark.parametrize("value, words", [
+    ("nope.yaml", "nope.yaml: file: expected an existing joint-map YAML"),
+    ("plain.yaml", "plain.yaml: top level: expected a mapping with a 'joints' mapping, got 'a str'"),
+])
+def test_nnsf_check_reads_the_joint_map_the_data_stage_reads(tmp_path, capsys, monkeypatch, value, words):
+    import yaml
+
+    project = Path(__file__).resolve().parents[1]
+    params = yaml.safe_load((project / "params.yaml").read_text())
+    params["dataset"]["bvh"]["joint_map"] = value
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "plain.yaml").write_text("secret-looking text, not a map\n")
+    (tmp_path / "p.yaml").write_text(yaml.safe_dump(params))
+    line = _one_line(*_run(capsys, "check", "--params", "p.yaml"), words)
+    assert "secret" not in line                      # a file named by mistake is not quoted

@@ -42,7 +42,9 @@ def read_joint_map(path) -> SkeletonFamily:
         raise InputError(path, "file", "an existing joint-map YAML (docs/formats.md §3.3)")
     doc = read_yaml(path, MAX_JOINT_MAP_BYTES, "a joint-map YAML")
     if not isinstance(doc, dict):
-        raise InputError(path, "top level", "a mapping with a 'joints' mapping", doc)
+        # Its type, not its text: a path named by mistake (or by a shared params.yaml) is not quoted.
+        raise InputError(path, "top level", "a mapping with a 'joints' mapping",
+                         "an empty file" if doc is None else f"a {type(doc).__name__}")
     extra = sorted(str(k) for k in doc if k not in _KEYS)
     if extra:
         raise InputError(path, extra[0], "only the keys " + ", ".join(sorted(_KEYS)), extra[0])
