@@ -445,3 +445,13 @@ def test_nnsf_check_reads_the_joint_map_the_data_stage_reads(tmp_path, capsys, m
     (tmp_path / "p.yaml").write_text(yaml.safe_dump(params))
     line = _one_line(*_run(capsys, "check", "--params", "p.yaml"), words)
     assert "secret" not in line                      # a file named by mistake is not quoted
+
+
+@pytest.mark.parametrize("frames", ["1" + "0" * 30, "-5", "²"])
+def test_a_frame_set_index_with_an_impossible_frame_count_is_refused(tmp_path, frames):
+    from nnsf.frames.clips import read_index
+
+    (tmp_path / "c1").mkdir()
+    (tmp_path / "index.csv").write_text(f"clip,character,motion,folder,frames\nc1,bruno,walk,c1,{frames}\n")
+    with pytest.raises(InputError, match=r"index\.csv: frames \(row 1\): expected a frame count from 1 to"):
+        read_index(tmp_path)

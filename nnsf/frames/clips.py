@@ -151,6 +151,13 @@ def read_index(frames_dir) -> pd.DataFrame:
     dup = index["clip"].duplicated()
     if dup.any():
         raise InputError(path, "clip", "each clip once", index["clip"][dup].iloc[0])
+    if "frames" in index.columns:
+        # The frame count, for whoever reads the index: a whole number, or left empty.
+        bad = [i for i, n in enumerate(index["frames"])
+               if n and not (n.isascii() and n.isdigit() and 1 <= int(n) <= 10**9)]
+        if bad:
+            raise InputError(path, f"frames (row {bad[0] + 1})", "a frame count from 1 to 1000000000, or empty",
+                             index["frames"].iloc[bad[0]])
     root = real(frames_dir)
     for i, (clip, f) in enumerate(zip(index["clip"], index["folder"])):
         # A clip id names the stages' output files (<tracks>/<clip>/curves.npz, <clip>.xml).
