@@ -9,8 +9,9 @@
                                         one clip's motion performed in another style
     nnsf reshape [--motion CSV] [--clip CLIP] [--character NAME|FILE|FOLDER] [--joints FILE] [--out DIR]
                                         a drawn character performing a motion clip
-    nnsf styles [--data FOLDER] [--out FILE]
-                                        fit the style model and save it (default models/styles.npz)
+    nnsf styles [--data FOLDER] [--out FILE] [--neutral STYLE] [--views front,side,three-quarter]
+                                        fit the style model and save it (default models/styles.npz);
+                                        motion capture is learned in every view
     nnsf animate --character C --motion M [--style NAME|none] [--model FILE]
                  [--view front|side|three-quarter|auto] [--arms motion|drawing] [--head motion|torso]
                  [--out FILE.mp4|FILE.gif|DIR] [--fps N] [--workers N]
@@ -91,6 +92,11 @@ def _parser() -> argparse.ArgumentParser:
                    help="a folder of labelled .bvh clips, or a features folder (features.csv, unifier.json); "
                         "default: data/features (the pipeline's configured dataset)")
     p.add_argument("--out", type=Path, default=Path("models/styles.npz"))
+    p.add_argument("--neutral", default=None,
+                   help="the style a motion of unknown style is read as (e.g. normal); default: "
+                        "translation.neutral of params.yaml")
+    p.add_argument("--views", default="front,side,three-quarter",
+                   help="the camera views a folder of motion capture is learned in (comma-separated)")
 
     p = sub.add_parser("animate", help="your character performing your motion in a learned style")
     p.add_argument("--character", required=True,
@@ -167,8 +173,7 @@ def _animate(args) -> int:
                         out=args.out, fps=args.fps, joints=args.joints, source_style=args.source_style,
                         n_vertices=args.vertices, clip=args.clip, arms=args.arms, workers=args.workers,
                         head=args.head)
-    for note in res.notes:
-        print(f"animate: note: {note}", file=sys.stderr)
+    # The notes were said before rendering (animate_files, progress on).
     parts = ", ".join(f"{k} {v:.2f} s" for k, v in res.seconds.items() if k != "total")
     print(f"animate: {res.frames} frames at {res.fps:g} fps in {res.seconds['total']:.2f} s ({parts})")
     for kind, path in res.files.items():
@@ -258,9 +263,13 @@ def _run(args) -> int:
         elif args.command == "styles":
             from nnsf.factor.stage import styles_by_hand
 
-            result = styles_by_hand(params, args.data, args.out)
+            if args.neutral is not None:
+                params = {**params, "translation": {**params.get("translation", {}), "neutral": args.neutral}}
+            result = styles_by_hand(params, args.data, args.out,
+                                    views=tuple(v for v in args.views.split(",") if v))
             print(f"styles: wrote {args.out} ({result.metrics['styles']} styles, "
-                  f"{result.metrics['contents']} contents)")
+                  f"{result.metrics['contents']} contents, "
+                  f"{result.metrics.get('views', 1)} view(s))")
         elif args.command == "reshape-eval":
             from nnsf.reshape.evaluation import reshape_eval
 

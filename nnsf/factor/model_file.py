@@ -1,16 +1,22 @@
-"""The file of a fitted :class:`~nnsf.factor.translate.StyleTranslator`: one ``.npz``, written and read.
+"""The file of fitted :class:`~nnsf.factor.translate.StyleTranslator` s: one ``.npz``, written and read.
 
 File format (``nnsf.style_model``, version :data:`VERSION`): an uncompressed
 ``.npz`` read with ``allow_pickle=False``, holding
 
 * ``meta``: a 0-d string array, JSON with ``format``, ``version``, ``styles``,
-  ``contents``, ``params`` (the translator's ``get_params()``), ``unifier``
-  (the template unification of the training characters,
-  :meth:`nnsf.skeleton.Unifier.to_dict`), ``features_sha256`` (hash of the
-  feature table the model was fitted on, or null), ``source`` (free text)
-  and ``state``: a description of every fitted attribute (``name_``) of the
-  translator and of its pooled :class:`~nnsf.factor.nnsf.NNSF`;
-* one array per fitted array, named ``a<N>`` and referenced from ``state``.
+  ``contents``, ``features_sha256`` (hash of the feature table the model was
+  fitted on, or null), ``source`` (free text) and ``views``: one entry per
+  camera view the styles were learned in, each with
+
+  - ``view``: the view's name (``front``, ``side``, ``three-quarter``,
+    ``azimuth N``) or null for 2D data with no camera;
+  - ``params``: that view's translator's ``get_params()``;
+  - ``unifier``: the template unification of its training characters
+    (:meth:`nnsf.skeleton.Unifier.to_dict`), or null;
+  - ``state``: a description of every fitted attribute (``name_``) of the
+    translator and of its pooled :class:`~nnsf.factor.nnsf.NNSF`;
+
+* one array per fitted array, named ``a<N>`` and referenced from a ``state``.
 
 Fitted attributes are stored generically -- arrays, numbers, strings, lists,
 dicts with string or tuple-of-string keys and nested estimators -- so that a
@@ -24,6 +30,7 @@ import hashlib
 import importlib
 import json
 import zipfile
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +40,7 @@ from nnsf.io import round_floats, write_npz
 from nnsf.skeleton import Unifier
 
 FORMAT = "nnsf.style_model"
-VERSION = 1
+VERSION = 2
 
 
 def file_sha256(path) -> str:
@@ -148,32 +155,52 @@ class _Reader:
 
 
 # ----------------------------------------------------------------------------- files
-def save_model(translator, path, *, unifier=None, features_sha256: str | None = None,
-               source: str = "", view: str | None = None, digits: int | None = None) -> Path:
-    """Write a fitted translator (and the unifier of its training characters) to ``path``, atomically.
+@dataclass(frozen=True)
+class ModelView:
+    """One view of a model file: its name (None: no camera), fitted translator and unifier (or None)."""
 
-    ``digits=None`` keeps every bit, so a loaded model translates exactly as
-    the fitted one.  The ``styles`` stage passes 6 significant digits
-    (:data:`nnsf.io.DIGITS`) instead, so that the versioned file, and DVC's
-    hash of it, is the same on every machine whatever BLAS noise the fit had.
+    view: str | None
+    translator: object
+    unifier: Unifier | None = None
+
+
+def save_model(views, path, *, features_sha256: str | None = None, source: str = "",
+               digits: int | None = None) -> Path:
+    """Write fitted translators, one per view (a list of :class:`ModelView`), to ``path``, atomically.
+
+    Every view must know the same styles.  ``digits=None`` keeps every bit,
+    so a loaded model translates exactly as the fitted one.  The ``styles``
+    stage passes 6 significant digits (:data:`nnsf.io.DIGITS`) instead, so
+    that the versioned file, and DVC's hash of it, is the same on every
+    machine whatever BLAS noise the fit had.
     """
     from sklearn.utils.validation import check_is_fitted
 
-    check_is_fitted(translator, "style_bases_")
+    views = list(views)
+    if not views:
+        raise ValueError("save_model: no view to save")
+    names = [v.view for v in views]
+    if len(set(names)) != len(names):
+        raise ValueError(f"save_model: each view once, got {names}")
+    first = views[0].translator
     w = _Writer()
-    state = fitted_state(translator, w)
+    entries = []
+    for v in views:
+        check_is_fitted(v.translator, "style_bases_")
+        if list(v.translator.styles_) != list(first.styles_):
+            raise ValueError(f"save_model: view {v.view!r} has styles {list(v.translator.styles_)}, "
+                             f"view {views[0].view!r} {list(first.styles_)}")
+        entries.append({"view": v.view, "params": w.value(v.translator.get_params(deep=False)),
+                        "unifier": v.unifier.to_dict() if v.unifier is not None else None,
+                        "state": fitted_state(v.translator, w)})
     meta = {
         "format": FORMAT, "version": VERSION,
-        "class": f"{type(translator).__module__}.{type(translator).__qualname__}",
-        "styles": [str(s) for s in translator.styles_],
-        "contents": [str(c) for c in translator.contents_],
-        "params": w.value(translator.get_params(deep=False)),
-        "unifier": unifier.to_dict() if unifier is not None else None,
+        "class": f"{type(first).__module__}.{type(first).__qualname__}",
+        "styles": [str(s) for s in first.styles_],
+        "contents": [str(c) for c in first.contents_],
         "features_sha256": features_sha256,
         "source": str(source),
-        # The camera view of a motion-capture dataset (None: drawn/synthetic 2D data).
-        "view": view,
-        "state": state,
+        "views": entries,
     }
     if digits is not None:
         meta = round_floats(meta, digits)
@@ -203,27 +230,40 @@ def read_meta(path) -> tuple[dict, dict]:
                          meta.get("format") if isinstance(meta, dict) else type(meta).__name__)
     if meta.get("version") != VERSION:
         raise InputError(path, "meta.version", f"format version {VERSION} (this nnsf)", meta.get("version"))
-    for key in ("styles", "contents", "params", "state"):
+    for key in ("styles", "contents", "views"):
         if key not in meta:
             raise InputError(path, f"meta.{key}", "present", "missing")
+    views = meta["views"]
+    if not isinstance(views, list) or not views:
+        raise InputError(path, "meta.views", "a non-empty list of fitted views", type(views).__name__)
+    for i, v in enumerate(views):
+        for key in ("view", "params", "unifier", "state"):
+            if not isinstance(v, dict) or key not in v:
+                raise InputError(path, f"meta.views[{i}].{key}", "present", "missing")
     return meta, arrays
 
 
-def load_model(path, translator_class):
-    """Read a model file: ``(translator, unifier or None, meta)``; the translator is a ``translator_class``."""
+def load_model(path, translator_class) -> tuple[list[ModelView], dict]:
+    """Read a model file: ``(views, meta)``, each view's translator a ``translator_class``."""
     path = Path(path)
     meta, arrays = read_meta(path)
     r = _Reader(arrays, path)
-    try:
-        tr = translator_class(**r.value(meta["params"]))
-        for k, v in meta["state"].items():
-            setattr(tr, k, r.value(v))
-        unifier = Unifier.from_dict(meta["unifier"]) if meta.get("unifier") else None
-    except InputError:
-        raise
-    except (KeyError, TypeError, ValueError) as exc:
-        raise InputError(path, "meta.state", "a style model this nnsf can read",
-                         f"{type(exc).__name__}: {exc}") from None
-    if not hasattr(tr, "style_bases_"):
-        raise InputError(path, "meta.state.style_bases_", "the fitted per-style bases", "missing")
-    return tr, unifier, meta
+    out = []
+    for i, entry in enumerate(meta["views"]):
+        try:
+            tr = translator_class(**r.value(entry["params"]))
+            for k, v in entry["state"].items():
+                setattr(tr, k, r.value(v))
+            unifier = Unifier.from_dict(entry["unifier"]) if entry.get("unifier") else None
+        except InputError:
+            raise
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(path, f"meta.views[{i}].state", "a style model this nnsf can read",
+                             f"{type(exc).__name__}: {exc}") from None
+        if not hasattr(tr, "style_bases_"):
+            raise InputError(path, f"meta.views[{i}].state.style_bases_", "the fitted per-style bases", "missing")
+        view = entry["view"]
+        if view is not None and not isinstance(view, str):
+            raise InputError(path, f"meta.views[{i}].view", "a view name or null", view)
+        out.append(ModelView(view, tr, unifier))
+    return out, meta
