@@ -48,7 +48,7 @@ from nnsf.factor.style_model import StyleModel, fit_model, translate_features, u
 from nnsf.params import CONTENT_OUT_METHODS as METHODS
 
 __all__ = ["METHODS", "RESULT_COLUMNS", "content_folds", "evaluate_content", "leave_one_content_out",
-           "summary_tables", "target_check", "lean_degrees"]
+           "summary_tables", "target_check", "lean_degrees", "relative_clips", "baseline_transfer"]
 
 #: The public call and the variants it is scored with: method -> ``transfer`` setting (None: the model's).
 _API: dict[str, str | None] = {"api": None, "api_source": None, "api_offset_swing": "offset_swing",
@@ -77,6 +77,29 @@ def _clips(table):
         out.append((str(name), str(g["character"].iloc[0]), str(g["motion"].iloc[0]),
                     features(g).reshape(len(g), 17, 2)))
     return out
+
+
+def relative_clips(table) -> dict:
+    """``{style: {content: [root-relative pose (n, 32), ...]}}`` of a unified contract table (template units)."""
+    rel: dict = {}
+    for _, g in table.groupby("clip", sort=True):
+        Q = features(g).reshape(len(g), 17, 2)
+        R = (Q[:, 1:] - Q[:, :1]).reshape(len(g), -1)
+        rel.setdefault(str(g["character"].iloc[0]), {}).setdefault(str(g["motion"].iloc[0]), []).append(R)
+    return rel
+
+
+def baseline_transfer(name: str, P, unifier, rel: dict, source: str, target: str) -> np.ndarray:
+    """The ``offset`` or ``spectral`` baseline on key points ``P`` ``(n, 17, 2)`` of style ``source``:
+    the clip unified with its own proportions (as :func:`nnsf.translate` does), its root-relative pose
+    transferred (:mod:`nnsf.evaluate.content_baselines`, training clips ``rel`` from
+    :func:`relative_clips`), mapped back to the clip's coordinates."""
+    X, u = unify_clip(P, unifier)
+    Q = X.reshape(len(X), 17, 2)
+    R = (Q[:, 1:] - Q[:, :1]).reshape(len(X), -1)
+    fn = content_baselines.offset_transfer if name == "offset" else content_baselines.spectral_transfer
+    R2 = fn(R, rel[target], rel[source]).reshape(len(X), 16, 2) + Q[:, :1]
+    return u.inverse_transform(np.concatenate([Q[:, :1], R2], axis=1).reshape(len(X), 34), "__clip__")
 
 
 def content_folds(table: pd.DataFrame, source_style: str | None = None) -> list[str]:
@@ -143,22 +166,7 @@ def evaluate_content(table: pd.DataFrame, content: str, *, translator_params: di
     tr = model.translator
     transfer = tr.transfer
 
-    # Training clips of the baselines: root-relative template pose per (style, content).
-    rel = {}
-    for name, g in ft.groupby("clip", sort=True):
-        X = features(g)
-        R = (X.reshape(len(X), 17, 2)[:, 1:] - X.reshape(len(X), 17, 2)[:, :1]).reshape(len(X), -1)
-        rel.setdefault(str(g["character"].iloc[0]), {}).setdefault(str(g["motion"].iloc[0]), []).append(R)
-
-    def baseline(name, P, src, target):
-        X, u = unify_clip(P, unifier)
-        Q = X.reshape(len(X), 17, 2)
-        R = (Q[:, 1:] - Q[:, :1]).reshape(len(X), -1)
-        fn = content_baselines.offset_transfer if name == "offset" else content_baselines.spectral_transfer
-        R2 = fn(R, rel[target], rel[src]).reshape(len(X), 16, 2) + Q[:, :1]
-        Xo = np.concatenate([Q[:, :1], R2], axis=1).reshape(len(X), 34)
-        return u.inverse_transform(Xo, "__clip__")
-
+    rel = relative_clips(ft)
     styles = sorted({s for _, s, c, _ in clips if c == content})
     targets = [s for s in styles if s != source_style and s in rel]
     rows, translate_seconds = [], 0.0
@@ -186,7 +194,7 @@ def evaluate_content(table: pd.DataFrame, content: str, *, translator_params: di
                     if m == "api":
                         translate_seconds += time.perf_counter() - t
                 elif m in ("offset", "spectral"):
-                    out = baseline(m, P, src, s)
+                    out = baseline_transfer(m, P, unifier, rel, src, s)
                 elif m == "identity":
                     out = P
                 else:
