@@ -1,4 +1,4 @@
-"""The baselines of the leave-one-content-out evaluation: a pose offset and spectral style transfer (docs/method.md §15.5).
+"""Baselines of the leave-one-content-out evaluation: pose offset, spectral transfer (docs/method.md §15.5).
 
 Both transfer a style onto a clip of an action the style was never seen in,
 from examples of the style and of the clip's own (source) style performing

@@ -32,6 +32,7 @@ import pandas as pd
 
 from nnsf.datasets import bvh_source
 from nnsf.datasets.stage import complete_grid as _complete_grid
+from nnsf.datasets.views import VIEWS
 from nnsf.errors import InputError
 from nnsf.evaluate import content_out
 from nnsf.evaluate.gp_translation import GP_TRANSLATION_METHODS, translation_gp_params
@@ -117,6 +118,8 @@ def main(argv=None) -> int:
     ap.add_argument("--data", help="folder of labelled .bvh clips")
     ap.add_argument("--out", required=True, help="output path without suffix (.csv and .json are written)")
     ap.add_argument("--params", default="params.yaml")
+    ap.add_argument("--view", choices=("front", "side", "three-quarter"), default=None,
+                    help="project the clips in this view (default: dataset.bvh.azimuth)")
     ap.add_argument("--cells", type=int, default=0, help="cells to hold out, spread evenly (0: all)")
     ap.add_argument("--methods", default=",".join(STAGE_METHODS),
                     help="comma-separated methods of nnsf.evaluate.translation (default: every method "
@@ -140,7 +143,7 @@ def main(argv=None) -> int:
     try:
         params = load(a.params)
         kw = {"fps": float(require(params, "dataset.bvh.fps")),
-              "azimuth": float(require(params, "dataset.bvh.azimuth")),
+              "azimuth": VIEWS[a.view] if a.view else float(require(params, "dataset.bvh.azimuth")),
               "elevation": float(require(params, "dataset.bvh.elevation")),
               "facing": require(params, "dataset.bvh.facing"),
               "center": bool(require(params, "dataset.bvh.center"))}

@@ -43,6 +43,7 @@ from sklearn.preprocessing import StandardScaler
 from nnsf.datasets import bvh_source
 from nnsf.datasets.contract import features
 from nnsf.datasets.stage import complete_grid
+from nnsf.datasets.views import VIEWS
 from nnsf.errors import InputError
 from nnsf.factor import style_transfer as st
 from nnsf.io import write_json
@@ -124,10 +125,13 @@ def main(argv=None) -> int:
     ap.add_argument("--source", required=True, help="the style the effects are measured from (e.g. normal)")
     ap.add_argument("--out", required=True, help="output path without suffix (.json is written)")
     ap.add_argument("--params", default="params.yaml")
+    ap.add_argument("--view", choices=("front", "side", "three-quarter"), default=None,
+                    help="project the clips in this view (default: dataset.bvh.azimuth)")
     a = ap.parse_args(argv)
     try:
         params = load(a.params)
-        bvh = {"fps": float(require(params, "dataset.bvh.fps")), "azimuth": float(require(params, "dataset.bvh.azimuth")),
+        bvh = {"fps": float(require(params, "dataset.bvh.fps")),
+               "azimuth": VIEWS[a.view] if a.view else float(require(params, "dataset.bvh.azimuth")),
                "elevation": float(require(params, "dataset.bvh.elevation")),
                "facing": require(params, "dataset.bvh.facing"), "center": bool(require(params, "dataset.bvh.center"))}
         table, _ = bvh_source.read_folder(a.data, **bvh)

@@ -46,6 +46,7 @@ from sklearn.svm import SVC
 from nnsf.datasets import bvh_source
 from nnsf.datasets.contract import features
 from nnsf.datasets.stage import complete_grid
+from nnsf.datasets.views import VIEWS
 from nnsf.errors import InputError
 from nnsf.evaluate import judges as J
 from nnsf.evaluate.content_out import baseline_transfer, lean_degrees, relative_clips
@@ -132,10 +133,13 @@ def main(argv=None) -> int:
     ap.add_argument("--source", required=True, help="the library's neutral style the motions are read as")
     ap.add_argument("--out", required=True, help="output path without suffix (.csv and .json are written)")
     ap.add_argument("--params", default="params.yaml")
+    ap.add_argument("--view", choices=("front", "side", "three-quarter"), default=None,
+                    help="project the clips in this view (default: dataset.bvh.azimuth)")
     a = ap.parse_args(argv)
     try:
         params = load(a.params)
-        bvh = {"fps": float(require(params, "dataset.bvh.fps")), "azimuth": float(require(params, "dataset.bvh.azimuth")),
+        bvh = {"fps": float(require(params, "dataset.bvh.fps")),
+               "azimuth": VIEWS[a.view] if a.view else float(require(params, "dataset.bvh.azimuth")),
                "elevation": float(require(params, "dataset.bvh.elevation")),
                "facing": require(params, "dataset.bvh.facing"), "center": bool(require(params, "dataset.bvh.center"))}
         library, _ = bvh_source.read_folder(a.styles, **bvh)
