@@ -646,6 +646,37 @@ def test_a_model_keeps_one_translator_per_view_and_picks_the_motions(model_file,
 
 
 @needs_shared
+def test_styles_on_a_bvh_folder_learns_every_view_without_a_params_edit(tmp_path, capsys):
+    """``nnsf styles --data FOLDER`` on motion capture: one translator per view in one file, the
+    neutral style recorded; ``--neutral`` names a style of the folder or is refused in one line."""
+    from nnsf.factor.style_model import StyleModel
+
+    folder = tmp_path / "bandai"
+    shutil.copytree(BN.parent / "cfg", folder / "cfg")
+    (folder / "data").mkdir()
+    for stem in BN_CLIPS:
+        for suffix in (".bvh", ".json"):
+            shutil.copy2(BN / (stem + suffix), folder / "data" / (stem + suffix))
+    p = yaml.safe_load((Path(__file__).resolve().parents[1] / "params.yaml").read_text())
+    p["dataset"]["bvh"]["fps"] = 10
+    p["translation"].update(rank=4, max_iter=30, align_iter=10)
+    (tmp_path / "params.yaml").write_text(yaml.safe_dump(p))
+    out = tmp_path / "styles.npz"
+    code, stdout, err = run_cli(["styles", "--params", tmp_path / "params.yaml", "--data", folder, "--out", out,
+                                 "--neutral", "angry"], capsys)
+    assert code == 0, err
+    assert "3 view(s)" in stdout
+    model = StyleModel.load(out)
+    assert model.view_names == ["front", "side", "three-quarter"]
+    assert all(v.translator.neutral == "angry" and v.translator.fps_ == 10.0 for v in model.views)
+    assert model.pick_view("side")[0].view == "side"
+    code, _, err = run_cli(["styles", "--params", tmp_path / "params.yaml", "--data", folder, "--out",
+                            tmp_path / "x.npz", "--neutral", "calm", "--views", "side"], capsys)
+    assert code == 2 and err.count("\n") == 1 and "translation.neutral" in err and "calm" in err
+    assert not (tmp_path / "x.npz").exists()
+
+
+@needs_shared
 def test_animate_says_the_view_mismatch_before_rendering(model_file, tmp_path, capsys):
     """A model learned from 2D key points and a BVH motion seen from the side: the note is on
     stderr before the first rendered frame."""
