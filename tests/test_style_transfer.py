@@ -63,8 +63,8 @@ def test_band_amplitudes_share_out_the_variance_and_land_in_the_right_octave():
     assert A.shape == (st.N_BANDS, 3)
     # Parseval: the squares over the bands are the variance (of the mirrored clip, i.e. of the clip).
     np.testing.assert_allclose((A ** 2).sum(axis=0), R.var(axis=0), rtol=1e-10, atol=1e-20)
-    e = st.band_edges(fps)
-    band = int(np.searchsorted(e, 1.3) - 1)                    # 1.3 Hz lies in (0.94, 1.875]
+    band = int(np.searchsorted(st.BAND_EDGES, 1.3) - 1)        # 1.3 Hz lies in (1, 2]
+    assert band == 2
     assert A[band, 0] ** 2 > 0.95 * R[:, 0].var()
     assert A[:, 2].max() == 0.0
 
@@ -86,10 +86,18 @@ def test_swing_gains_weighted_ratio_and_clip():
     r = np.ones((2, st.N_BANDS, 3))
     t[1, :, 1] = 40.0                                     # a content where the target moves 40x
     r[:, :, 2] = 0.0                                      # a coordinate the reference never moves
+    swing = st.SWING_BANDS
+    assert list(swing) == [False, True, True, True, True, False]      # 0.5-8 Hz only
     g = st.swing_gains(t, r, [1.0, 0.0])
-    np.testing.assert_allclose(g[:, 0], 2.0)
+    np.testing.assert_allclose(g[swing, 0], 2.0)
+    np.testing.assert_allclose(g[~swing], 1.0)            # drift and noise bands are kept as they are
     np.testing.assert_allclose(g[:, 2], 1.0)
-    np.testing.assert_allclose(st.swing_gains(t, r, [0.5, 0.5])[:, 1], 4.0)     # 21 clipped to 4
+    np.testing.assert_allclose(st.swing_gains(t, r, [0.5, 0.5])[swing, 1], 4.0)     # 21 clipped to 4
+    # a band one content could not measure (NaN: its takes were too short) comes from the other
+    t2, r2 = t.copy(), r.copy()
+    t2[0, 1, 0] = r2[0, 1, 0] = np.nan
+    np.testing.assert_allclose(st.swing_gains(t2, r2, [0.5, 0.5])[1, 0], 2.0)
+    assert list(st.resolved_bands(20, 30.0)) == [False, True, True, True, True, True]   # 20 frames: no drift
     w = st.content_weights(np.zeros(3), np.array([[0.0, 0, 0], [1.0, 0, 0], [10.0, 0, 0]]))
     assert w.sum() == pytest.approx(1.0) and w[0] > w[1] > w[2]
 

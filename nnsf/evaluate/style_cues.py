@@ -10,7 +10,8 @@ the clip's body length -- the median summed bone length --, so any unit):
 * ``tempo``: the log of the motion's effective frequency, Σ mean |velocity|
   over Σ standard deviation, per second (1);
 * ``bands``: the log root-mean-square amplitude of every coordinate in each
-  octave band (:func:`nnsf.factor.style_transfer.band_amplitudes`, 6 × 32).
+  band (below 0.5 Hz, the four octaves 0.5-8 Hz, above 8 Hz;
+  :func:`nnsf.factor.style_transfer.band_amplitudes`, 6 × 32).
 
 Two measures per cue, with every content held out in turn:
 

@@ -69,6 +69,12 @@ def _labels(name, values, n):
     return values.astype(str)
 
 
+def _finite_mean(A) -> np.ndarray:
+    """Mean over the first axis of the finite entries; NaN where there is none."""
+    seen = np.isfinite(A).sum(axis=0)
+    return np.where(seen > 0, np.where(np.isfinite(A), A, 0.0).sum(axis=0) / np.maximum(seen, 1), np.nan)
+
+
 def _runs(*columns) -> np.ndarray:
     """Clip ids from runs of consecutive rows with equal labels, ``(n,)`` str."""
     n = len(columns[0])
@@ -160,7 +166,8 @@ class StyleTranslator(BaseEstimator):
         Mean root-relative pose of each cell (its clips' mean), template units.
     cell_bands_ : ndarray (K, N_BANDS, 32)
         Mean band amplitudes of each cell's clips
-        (:func:`~nnsf.factor.style_transfer.band_amplitudes`), template units.
+        (:func:`~nnsf.factor.style_transfer.band_amplitudes`), template units;
+        NaN in a band none of the cell's clips is long enough to measure.
     fps_ : float or None
         Frame rate of the training clips (``fit(..., fps=)``).
     shared_weights_, frame_rows_, content_rows_, reference_clips_
@@ -300,7 +307,10 @@ class StyleTranslator(BaseEstimator):
         for key in keys:
             rel = [st.root_relative(Xq)[0] for Xq in self.clips_[key]]
             poses.append(np.mean([R.mean(axis=0) for R in rel], axis=0))
-            bands.append(np.mean([st.band_amplitudes(R, rate) for R in rel], axis=0))
+            # Each band averaged over the clips long enough to measure it (NaN: none is).
+            bands.append(_finite_mean(np.stack([
+                np.where(st.resolved_bands(len(R), rate)[:, None], st.band_amplitudes(R, rate), np.nan)
+                for R in rel])))
         self.cells_ = np.array(keys, dtype=str).reshape(len(keys), 2)
         self.cell_pose_ = np.stack(poses)
         self.cell_bands_ = np.stack(bands)
@@ -552,7 +562,7 @@ class StyleTranslator(BaseEstimator):
         if reference is None:
             groups = [[i for (s, c2), i in idx.items() if c2 == c] for c in contents]
             ref_pose = np.stack([self.cell_pose_[g].mean(axis=0) for g in groups])
-            ref_bands = np.stack([self.cell_bands_[g].mean(axis=0) for g in groups])
+            ref_bands = np.stack([_finite_mean(self.cell_bands_[g]) for g in groups])
         else:
             r = [idx[(reference, c)] for c in contents]
             ref_pose, ref_bands = self.cell_pose_[r], self.cell_bands_[r]
@@ -611,8 +621,8 @@ class StyleTranslator(BaseEstimator):
             if self.transfer == "offset_swing":
                 R = R + st.posture_offset(t_pose, r_pose)
             R_in = st.root_relative(X)[0]
-            w = st.content_weights(st.describe(st.band_amplitudes(R_in, rate)),
-                                   np.stack([st.describe(b) for b in r_bands]))
+            A_in = np.where(st.resolved_bands(len(R_in), rate)[:, None], st.band_amplitudes(R_in, rate), np.nan)
+            w = st.content_weights(st.describe(A_in), np.stack([st.describe(b) for b in r_bands]))
             R = st.filter_bands(R, rate, st.swing_gains(t_bands, r_bands, w))
             X_hat = st.from_root_relative(R, root)
         X_hat = X + st.ease_in(len(X), rate)[:, None] * (X_hat - X)
