@@ -10,8 +10,10 @@
     nnsf reshape [--motion CSV] [--clip CLIP] [--character NAME|FILE|FOLDER] [--joints FILE] [--out DIR]
                                         a drawn character performing a motion clip
     nnsf styles [--data FOLDER] [--out FILE] [--joint-map FILE.yaml] [--alias NAME=STYLE ...]
+                [--neutral STYLE] [--views front,side,three-quarter]
                                         fit the style model and save it (default models/styles.npz);
-                                        works in any folder (package defaults without a params.yaml)
+                                        motion capture is learned in every view; works in any
+                                        folder (package defaults without a params.yaml)
     nnsf animate --character C --motion M [--style NAME|none] [--model FILE]
                  [--view front|side|three-quarter|auto] [--arms motion|drawing] [--head motion|torso]
                  [--out FILE.mp4|FILE.gif|DIR] [--fps N] [--workers N] [--joint-map FILE.yaml]
@@ -109,6 +111,11 @@ def _parser() -> argparse.ArgumentParser:
                         "(docs/formats.md §3.3); default: dataset.bvh.joint_map")
     p.add_argument("--alias", action="append", default=[], metavar="NAME=STYLE",
                    help="another name for a style, kept in the model (e.g. elderly=old); repeatable")
+    p.add_argument("--neutral", default=None,
+                   help="the style a motion of unknown style is read as (e.g. normal); default: "
+                        "translation.neutral of params.yaml")
+    p.add_argument("--views", default="front,side,three-quarter",
+                   help="the camera views a folder of motion capture is learned in (comma-separated)")
 
     p = sub.add_parser("animate", help="your character performing your motion in a learned style")
     p.add_argument("--character", required=True,
@@ -203,8 +210,7 @@ def _animate(args) -> int:
                         out=args.out, fps=args.fps, joints=args.joints, source_style=args.source_style,
                         n_vertices=args.vertices, clip=args.clip, arms=args.arms, workers=args.workers,
                         head=args.head, joint_map=joint_map, keypoints=args.keypoints)
-    for note in res.notes:
-        print(f"animate: note: {note}", file=sys.stderr)
+    # The notes were said before rendering (animate_files, progress on).
     parts = ", ".join(f"{k} {v:.2f} s" for k, v in res.seconds.items() if k != "total")
     print(f"animate: {res.frames} frames at {res.fps:g} fps in {res.seconds['total']:.2f} s ({parts})")
     for kind, path in res.files.items():
@@ -415,12 +421,15 @@ def _run(args) -> int:
                     raise InputError("--alias", name.strip(), "each alias once (letter case ignored)",
                                      f"{same[0]}={aliases[same[0]]} and {text}")
                 aliases[name.strip()] = style.strip()
+            if args.neutral is not None:
+                params["translation"] = {**params.get("translation", {}), "neutral": args.neutral}
             result, report = styles_by_hand(params, args.data, args.out, joint_map=args.joint_map,
-                                            aliases=aliases)
+                                            aliases=aliases, views=tuple(v for v in args.views.split(",") if v))
             for line in ([params.note] if getattr(params, "note", None) else []) + capped(report):
                 print(f"styles: {line}", file=sys.stderr)
             print(f"styles: wrote {args.out} ({result.metrics['styles']} styles, "
-                  f"{result.metrics['contents']} contents)")
+                  f"{result.metrics['contents']} contents, "
+                  f"{result.metrics.get('views', 1)} view(s))")
         elif args.command == "reshape-eval":
             from nnsf.reshape.evaluation import reshape_eval
 
@@ -524,7 +533,7 @@ def _check_stage_params(params: dict) -> None:
     if "reshape" in params:
         reshape_params(params)
     if "translation" in params:
-        check_translator(params, translator_params(params))
+        check_translator(params, translator_params(params), params["translation"].get("synthesis"))
     joint_map = params.get("dataset", {}).get("bvh", {}).get("joint_map") if isinstance(
         params.get("dataset"), dict) and isinstance(params["dataset"].get("bvh"), dict) else None
     if joint_map is not None:

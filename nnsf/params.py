@@ -29,9 +29,10 @@ TRACK_INITS = ("linear", "lk", "flow", "limb")
 LK_ENDS = ("blend", "none")
 SNAP_TARGETS = ("profile", "edge", "auto")
 #: StyleTranslator settings (nnsf.factor.translate).
-BASES = ("aligned", "refit", "separate")
+BASES = ("aligned", "refit")
 SYNTHESES = ("consensus", "source")
 AMPLITUDES = ("restore", "style", "none")
+TRANSFERS = ("recombine_swing", "offset_swing", "recombine")
 RESHAPE_FORMATS = ("png", "gif", "mp4")
 #: The pipeline's stages, in dvc.yaml order (nnsf.stages maps each to its function).
 STAGE_NAMES = ("frames", "roto", "roto_eval", "data", "features", "factorize", "evaluate", "isomap", "sweep",
@@ -42,8 +43,11 @@ VIEW_CHOICES = ("front", "side", "three-quarter", "auto")
 ARM_CHOICES = ("motion", "drawing")
 #: How a drawn character's head follows a motion (:func:`nnsf.reshape.drive.retarget`).
 HEAD_CHOICES = ("motion", "torso")
-TRANSLATION_METHODS = ("nnsf", "nnsf_smooth", "nnsf_nosmooth", "nnsf_restore", "nnsf_swapped", "nnsf_beta0",
-                       "nnsf_refit", "api", "api_source", "bilinear", "mgpm", "cbgpm", "offset", "identity", "real")
+TRANSLATION_METHODS = ("nnsf", "nnsf_nosmooth", "nnsf_restore", "nnsf_swapped", "nnsf_refit", "api",
+                       "api_source", "bilinear", "mgpm", "cbgpm", "offset", "identity", "real")
+#: Methods of the leave-one-content-out protocol (nnsf.evaluate.content_out).
+CONTENT_OUT_METHODS = ("api", "api_source", "api_offset_swing", "api_recombine", "offset", "spectral", "identity",
+                       "real")
 
 
 def _g(x) -> str:
@@ -283,10 +287,11 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "translation.basis": _choice(BASES),
     "translation.synthesis": _choice(SYNTHESES),
     "translation.amplitude": _choice(AMPLITUDES),
+    "translation.transfer": _choice(TRANSFERS),
+    "translation.neutral": _str(optional=True),
     "translation.tempo": _bool(),
     "translation.ridge": _num(0, 1e6),
     "translation.smooth": _num(0, 1e6),
-    "translation.smooth_order": _int(1, 2),
     "translation.max_iter": _int(1, 100000),
     "translation.align_iter": _int(1, 100000),
     "translation.bilinear_rank": _int(1, 34),
@@ -294,6 +299,8 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "translation.max_cells": _int(0, 100000),
     "translation.examples": _int(0, 100),
     "translation.methods": _list(_choice(TRANSLATION_METHODS), 20),
+    "translation.content_methods": _list(_choice(CONTENT_OUT_METHODS), 20),
+    "translation.max_contents": _int(0, 100000),
     "translation.content_clip": _str(),
     "translation.style": _str(),
     "reshape.clip": _name(optional=True),

@@ -44,13 +44,11 @@ SHARED_PRIVATE: dict[tuple[str, str], tuple[tuple[str, ...], str]] = {
     ("nnsf.evaluate.heldout_report", "nnsf.evaluate.translation"): (
         ("_pick",), "row selection of the held-out protocol, shared by its report writers"),
     ("nnsf.evaluate.translation", "nnsf.evaluate.scores"): (
-        ("_compare", "_unify"), "the protocol's scoring steps, applied per cell"),
+        ("_unify",), "the protocol's scoring steps, applied per cell"),
     ("nnsf.factor.align", "nnsf.factor.updates"): (
         ("_basis_step",), "NNSF's basis step (Alg. 1, lines 1-3), reused by the aligned fit"),
     ("nnsf.factor.translate", "nnsf.factor.updates"): (
         ("_basis_step",), "NNSF's basis step (Alg. 1, lines 1-3), reused by the translator's fit"),
-    ("nnsf.factor.translate", "nnsf.factor.align"): (
-        ("_free_basis_step",), "the atom alignment's basis step, used by the translator's fit"),
     ("nnsf.factor.translate", "nnsf.factor.timewarp"): (
         ("_style_tempo",), "a style's tempo, read by the translator"),
     ("nnsf.reshape.formats", "nnsf.reshape.character"): (

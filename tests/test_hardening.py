@@ -491,7 +491,7 @@ def style_model(tmp_path_factory) -> Path:
     raw = raw[raw["motion"].isin(["walk", "wave"])].reset_index(drop=True)
     table, unifier = unify_table(raw, 0.5)
     path = tmp_path_factory.mktemp("model") / "styles.npz"
-    fit_model(table, unifier, dict(n_components=3, max_iter=20, align_iter=5, random_state=0), path)
+    fit_model([(None, table, unifier)], dict(n_components=3, max_iter=20, align_iter=5, random_state=0), path)
     return path
 
 
@@ -525,55 +525,55 @@ def test_a_model_naming_code_to_run_is_refused_and_writes_nothing(style_model, t
     for where in ("nested", "top"):
         def change(meta, arrays, where=where):
             if where == "nested":
-                meta["state"]["nnsf_"] = _code_running_payload(target)
+                meta["views"][0]["state"]["nnsf_"] = _code_running_payload(target)
             else:
                 meta["class"] = "nnsf.io.write_json"
         bad = _rewrite_model(style_model, tmp_path / f"{where}.npz", change)
         monkeypatch.chdir(tmp_path)
         code = main(["animate", "--character", "pip", "--motion", "synthetic:ollie/walk/6", "--style", "bruno",
                      "--model", str(bad), "--out", str(tmp_path / "out.gif")])
-        field = "meta.state.nnsf_.class" if where == "nested" else "meta.class"
+        field = "meta.views[0].state.nnsf_.class" if where == "nested" else "meta.class"
         _assert_one_line(code, capsys.readouterr().err, str(bad), field, "nnsf.io.write_json")
         assert not target.exists() and not (tmp_path / "out.gif").exists()
         assert not list(tmp_path.glob("*.gif")) and not list(tmp_path.glob(".out*"))
 
 
 @pytest.mark.parametrize("case, field", [
-    ("unknown attribute", "meta.state.evil_: expected a fitted attribute of StyleTranslator"),
-    ("unknown parameter", "meta.params.path: expected a parameter of StyleTranslator"),
-    ("nested unknown parameter", "meta.state.nnsf_.params.fit: expected a parameter of NNSF"),
-    ("bad parameter value", "meta.params: expected parameters StyleTranslator accepts"),
-    ("wrong kind", "meta.state.styles_: expected an encoded array"),
-    ("wrong shape", "meta.state.style_bases_.bruno (array a"),
+    ("unknown attribute", "meta.views[0].state.evil_: expected a fitted attribute of StyleTranslator"),
+    ("unknown parameter", "meta.views[0].params.path: expected a parameter of StyleTranslator"),
+    ("nested unknown parameter", "meta.views[0].state.nnsf_.params.fit: expected a parameter of NNSF"),
+    ("bad parameter value", "meta.views[0].params: expected parameters StyleTranslator accepts"),
+    ("wrong kind", "meta.views[0].state.styles_: expected an encoded array"),
+    ("wrong shape", "meta.views[0].state.style_bases_.bruno (array a"),
     ("array used twice", "expected an array referred to once"),
     ("unreferenced array", "array a999: expected an array the model's metadata refers to"),
     ("unknown meta field", "meta.run_this: expected one of the fields format, version"),
-    ("style keys", "meta.state.style_offsets_: expected keys that are exactly the styles"),
+    ("style keys", "meta.views[0].state.style_offsets_: expected keys that are exactly the styles"),
     ("infinite basis", "values are NaN or infinite"),
-    ("deep nesting", "meta.state.clips_.bruno|walk[0]: expected an encoded array, got 'list'"),
-    ("meta styles", "meta.styles: expected the styles of meta.state.styles_"),
-    ("unifier", "meta.unifier.offset: expected a list of 2 to 2 items"),
-    ("row index", "meta.state.frame_rows_ (array a"),
-    ("atom count", "meta.state.nnsf_.attrs.n_components_: expected n_components = 3"),
-    ("two-line view", 'meta.view: expected a string of at most 100 printable characters, got "side\\n'),
+    ("deep nesting", "meta.views[0].state.clips_.bruno|walk[0]: expected an encoded array, got 'list'"),
+    ("meta styles", "meta.styles: expected the styles of meta.views[0].state.styles_"),
+    ("unifier", "meta.views[0].unifier.offset: expected a list of 2 to 2 items"),
+    ("row index", "meta.views[0].state.frame_rows_ (array a"),
+    ("atom count", "meta.views[0].state.nnsf_.attrs.n_components_: expected n_components = 3"),
+    ("two-line view", 'meta.views[0].view: expected a string of at most 100 printable characters, got "side\\n'),
 ])
 def test_every_field_of_a_model_file_is_checked_against_its_schema(style_model, tmp_path, case, field):
     from nnsf.factor.style_model import StyleModel
 
     def key(meta, attr, label):
-        return dict(meta["state"][attr]["items"])[label]["key"]
+        return dict(meta["views"][0]["state"][attr]["items"])[label]["key"]
 
     def change(meta, arrays):
-        state = meta["state"]
+        state = meta["views"][0]["state"]
         if case == "unknown attribute":
             state["evil_"] = _json_spec(1)
         elif case == "unknown parameter":
-            meta["params"]["items"].append(["path", _json_spec("/tmp/x")])
+            meta["views"][0]["params"]["items"].append(["path", _json_spec("/tmp/x")])
         elif case == "nested unknown parameter":
             state["nnsf_"]["params"]["items"].append(["fit", _json_spec(1)])
         elif case == "bad parameter value":
-            meta["params"]["items"] = [[k, _json_spec("bogus") if k == "basis" else v]
-                                       for k, v in meta["params"]["items"]]
+            meta["views"][0]["params"]["items"] = [[k, _json_spec("bogus") if k == "basis" else v]
+                                       for k, v in meta["views"][0]["params"]["items"]]
         elif case == "wrong kind":
             state["styles_"] = _json_spec(["bruno"])
         elif case == "wrong shape":
@@ -597,11 +597,11 @@ def test_every_field_of_a_model_file_is_checked_against_its_schema(style_model, 
         elif case == "meta styles":
             meta["styles"] = ["bruno", "mallory"]
         elif case == "unifier":
-            meta["unifier"]["offset"] = [0.0] * 1000
+            meta["views"][0]["unifier"]["offset"] = [0.0] * 1000
         elif case == "row index":
             arrays[state["frame_rows_"]["key"]][0] = 10**6       # a row the shared weights do not have
         elif case == "two-line view":
-            meta["view"] = "side\nerror: a line of the model's own"
+            meta["views"][0]["view"] = "side\nerror: a line of the model's own"
         elif case == "atom count":
             state["nnsf_"]["attrs"]["n_components_"] = {"kind": "json", "value": 7, "type": "int"}
     bad = _rewrite_model(style_model, tmp_path / "bad.npz", change)
@@ -1140,8 +1140,8 @@ def test_adding_a_fitted_field_is_adding_its_rule(style_model, tmp_path, monkeyp
                         Optional(Map(model_file.Estimator(model_file.TRANSLATOR))))
     back = StyleTranslator.load(tr.save(tmp_path / "views.npz"))
     assert np.array_equal(back.per_view_["side"].style_bases_["bruno"], tr.style_bases_["bruno"])
-    bad = _rewrite_model(tmp_path / "views.npz", tmp_path / "bad.npz", lambda meta, arrays: meta["state"][
+    bad = _rewrite_model(tmp_path / "views.npz", tmp_path / "bad.npz", lambda meta, arrays: meta["views"][0]["state"][
         "per_view_"]["items"][0][1].update({"class": "nnsf.cli.main"}))
-    with pytest.raises(InputError, match=r"meta\.state\.per_view_\.side\.class: expected "
+    with pytest.raises(InputError, match=r"meta\.views\[0\]\.state\.per_view_\.side\.class: expected "
                                          r"'nnsf\.factor\.translate\.StyleTranslator'"):
         StyleTranslator.load(bad)

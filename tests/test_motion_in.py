@@ -229,7 +229,7 @@ def test_styles_runs_in_any_folder_with_the_package_defaults_and_prints_the_repo
                for line in lines), err
     assert any("ds_run_sad_002.bvh: file: expected a .bvh file inside the dataset folder" in line
                for line in lines), err
-    assert "styles: wrote m.npz (2 styles, 3 contents)" in out
+    assert "styles: wrote m.npz (2 styles, 3 contents, 3 view(s))" in out
     from nnsf.factor.style_model import StyleModel
 
     m = StyleModel.load(work / "m.npz")
@@ -345,4 +345,4 @@ def test_styles_reads_a_folder_of_an_unknown_skeleton_with_a_joint_map(tmp_path,
     refused(capsys, ["styles", "--data", d, "--out", "m.npz"], d, "clips", "joint names", nothing=["m.npz"])
     code, out, err = run_cli(["styles", "--data", d, "--out", "m.npz", "--joint-map", jm], capsys)
     assert code == 0, err
-    assert "styles: wrote m.npz (2 styles, 3 contents)" in out
+    assert "styles: wrote m.npz (2 styles, 3 contents, 3 view(s))" in out

@@ -124,7 +124,8 @@ translation:
   tempo: true
   ridge: 0.5
   smooth: 0.0
-  smooth_order: 2
+  transfer: recombine_swing
+  neutral: null
   max_iter: 20
   align_iter: 20
   bilinear_rank: 1
@@ -135,6 +136,8 @@ translation:
   max_cells: 2
   examples: 1
   methods: [nnsf, bilinear, mgpm, cbgpm, identity]
+  content_methods: [api, offset, spectral]
+  max_contents: 1
   content_clip: auto
   style: auto
 reshape:

@@ -29,7 +29,6 @@ from nnsf.errors import InputError
 from nnsf.reshape.formats import read_character
 from nnsf.datasets import synthetic, views
 from nnsf.factor.style_model import StyleModel, translate as style_translate
-from nnsf.factor.timewarp import resample_clip
 from nnsf.animate.progress import phased
 from nnsf.datasets import contract
 from nnsf.io import atomic_path, check_writable
@@ -224,10 +223,11 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
     mo = motion if isinstance(motion, Motion) else read_motion_spec(motion, view=view, fps=fps, clip=clip,
                                                                     family=joint_map)
     points, depth = mo.points[:max_frames], None if mo.depth is None else mo.depth[:max_frames]
-    learned = sm.meta.get("view") if sm is not None else None
-    if learned not in (None, "auto") and mo.view is not None and learned != mo.view:
-        mo.notes.append(f"{sm.path}: the styles were learned in the {learned} view; this motion is seen "
-                        f"in the {mo.view} view (--view {learned} matches the model)")
+    if sm is not None:
+        # The model's view for the motion's: said now, before anything is rendered.
+        _, note = sm.pick_view(mo.view)
+        if note:
+            mo.notes.append(note)
     if ch.body == "quadruped" and arms != "motion":
         mo.notes.append(f"--arms {arms}: {ch.name} is a quadruped; its front legs always swing about "
                         "their drawn pose (docs/method.md §12)")
@@ -237,6 +237,8 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
                         "towards the camera, out of the picture (--view side shows them)")
     out_fps = float(fps) if fps else mo.fps
     ph.stop()
+    for note in list(ch.notes) + mo.notes:
+        _say(progress, f"animate: note: {note}")
     if mo.view is not None:
         _say(progress, f"animate: view {mo.view}" + (" (auto: the view the motion moves most in)"
                                                      if view == "auto" else ""))
@@ -244,15 +246,8 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
                    f"({ch.shape[1]}x{ch.shape[0]} px), style {style}")
     # ---- translate
     ph.start("translate", f"performing the motion in style {style}")
-    moved = points if sm is None else style_translate(points, style, sm, source_style=source_style)
-    if depth is not None and len(moved) != len(depth):
-        # The style's tempo resampled the motion (nnsf.translate); the depths follow.
-
-        depth = resample_clip(depth, len(moved))
-    moved = moved[:max_frames]              # a slower style's tempo may lengthen the motion
-    depth = None if depth is None else depth[:max_frames]
-    if len(moved) != len(points):
-        _say(progress, f"animate: {len(points)} -> {len(moved)} frames at the tempo of style {style}")
+    moved = points if sm is None else style_translate(points, style, sm, source_style=source_style,
+                                                      view=mo.view, fps=mo.fps)
     # ---- retarget
     ph.start("retarget", "fitting the motion to the drawing's proportions")
     kp = retarget(moved, ch.keypoints, source=mo.source or mo.name, arms=arms, body=ch.body, head=head)

@@ -1,6 +1,6 @@
 """How a held-out translation is scored (docs/method.md §15.5), apart from the independent judges.
 
-* ``dtw_error`` and ``bone_error`` (:func:`_compare`): mean per-joint error
+* ``dtw_error`` and ``bone_error`` (:func:`compare_clips`): mean per-joint error
   after DTW alignment (:func:`nnsf.factor.timewarp.dtw_align`) and the mean
   bone-length difference over the aligned frame pairs, template units;
 * ``jerk`` (:func:`jerk`): mean |second difference| of the key points;
@@ -170,7 +170,7 @@ def _bone_error(A, B, path) -> float:
     return float(np.abs(la - lb).mean())
 
 
-def _compare(X_hats: dict, X_ref) -> dict:
+def compare_clips(X_hats: dict, X_ref) -> dict:
     """DTW error, path and bone error of every synthesised clip against one reference clip.
 
     Clips of equal length share one batched DTW.

@@ -28,7 +28,6 @@ __all__ = ["TRANSLATION_STYLE", "per_style_figure", "strip_figure"]
 TRANSLATION_STYLE: dict[str, dict] = {
     "nnsf": {"color": "#d62728", "label": "NNSF, V_content U_style (ours)"},
     "nnsf_swapped": {"color": "#ff9896", "label": "NNSF, swapped reading (V_style U_content)"},
-    "nnsf_beta0": {"color": "#1f77b4", "label": "NNSF, β = 0 (NNSC)"},
     "nnsf_refit": {"color": "#aec7e8", "label": "NNSF, per-style refit of the source clip (method §8.1)"},
     "bilinear": {"color": "#9467bd", "label": "Bilinear (T&F), per-frame"},
     "bilinear_template": {"color": "#c5b0d5", "label": "Bilinear (T&F), cell template"},

@@ -1,16 +1,22 @@
-"""The file of a fitted :class:`~nnsf.factor.translate.StyleTranslator`: one ``.npz``, written and read.
+"""The file of fitted :class:`~nnsf.factor.translate.StyleTranslator` s: one ``.npz``, written and read.
 
 File format (``nnsf.style_model``, version :data:`VERSION`): an uncompressed
 ``.npz`` read with ``allow_pickle=False``, holding
 
 * ``meta``: a 0-d string array, JSON with ``format``, ``version``, ``styles``,
-  ``contents``, ``params`` (the translator's ``get_params()``), ``unifier``
-  (the template unification of the training characters,
-  :meth:`nnsf.skeleton.Unifier.to_dict`), ``features_sha256`` (hash of the
-  feature table the model was fitted on, or null), ``source`` (free text)
-  and ``state``: a description of every fitted attribute (``name_``) of the
-  translator and of its pooled :class:`~nnsf.factor.nnsf.NNSF`;
-* one array per fitted array, named ``a<N>`` and referenced from ``state``.
+  ``contents``, ``features_sha256`` (hash of the feature table the model was
+  fitted on, or null), ``source`` (free text), optional ``aliases`` and
+  ``views``: one entry per camera view the styles were learned in, each with
+
+  - ``view``: the view's name (``front``, ``side``, ``three-quarter``,
+    ``azimuth N``) or null for 2D data with no camera;
+  - ``params``: that view's translator's ``get_params()``;
+  - ``unifier``: the template unification of its training characters
+    (:meth:`nnsf.skeleton.Unifier.to_dict`), or null;
+  - ``state``: a description of every fitted attribute (``name_``) of the
+    translator and of its pooled :class:`~nnsf.factor.nnsf.NNSF`;
+
+* one array per fitted array, named ``a<N>`` and referenced from a ``state``.
 
 Values are encoded generically -- arrays, numbers, strings, lists, dicts with
 string or tuple-of-string keys and nested estimators -- but read back only as
@@ -45,7 +51,7 @@ from nnsf.skeleton import Unifier
 from nnsf.skeleton.unify import UNIFIER
 
 FORMAT = "nnsf.style_model"
-VERSION = 1
+VERSION = 2
 
 
 def file_sha256(path) -> str:
@@ -177,11 +183,15 @@ STATE: dict[str, dict[str, Rule]] = {
         "nnsf_": Estimator("nnsf.factor.nnsf.NNSF"),
         "style_bases_": Map(Array("f", (K, D), finite=True), keys="styles"),
         "style_offsets_": Map(Array("f", (D,), finite=True), keys="styles"),
-        "atom_cosine_": Map(Array("f", (K,)), keys="styles"),
-        "content_means_": Map(Array("f", (D,), finite=True), keys="contents"),
         "clips_": Map(List(Array("f", (None, D), finite=True), min_len=1),
                       key=Tuple((Str(max_len=1000), Str(max_len=1000))), keys="styles", key_index=0),
         "style_tempo_": Map(Num(0.0, 1e6), keys="styles"),
+        # The training clips' frame rate (None: unknown), and per (style, content) cell its
+        # mean root-relative pose and per-band swing amplitudes (NaN: a band no clip resolves).
+        "fps_": Opt(Num(0.0, 1e6)),
+        "cells_": Array("U", ("n_cells", 2)),
+        "cell_pose_": Array("f", ("n_cells", "n_relative"), finite=True),
+        "cell_bands_": Array("f", ("n_cells", None, "n_relative")),
         "reference_clips_": Optional(Map(Array("U", ()), keys="contents")),
         # "aligned" basis only: the shared weights, then rows of them (ends at most n_rows).
         "shared_weights_": Optional(Array("f", ("n_rows", K), finite=True)),
@@ -209,13 +219,15 @@ META = Record({
     "class": Str(choices=(TRANSLATOR,)),
     "styles": List(Str(max_len=1000), max_len=100_000),
     "contents": List(Str(max_len=1000), max_len=100_000),
-    "params": _Encoded(),
-    "unifier": Opt(UNIFIER),
     "features_sha256": Opt(Str(max_len=64)),
     "source": Str(max_len=100_000),
-    # The camera view of a motion-capture dataset (None: drawn/synthetic 2D data).
-    "view": Opt(Str(max_len=100)),
-    "state": _Encoded(),
+    "views": List(Record({
+        # The camera view of a motion-capture dataset (None: drawn/synthetic 2D data).
+        "view": Opt(Str(max_len=100)),
+        "params": _Encoded(),
+        "unifier": Opt(UNIFIER),
+        "state": _Encoded(),
+    }), min_len=1, max_len=100),
     # Other names of styles ({alias: style}, nnsf.factor.style_names), present when given.
     "aliases": Optional(Map(Str(max_len=1000), max_len=10_000)),
 })
@@ -383,35 +395,55 @@ class _Scalar(Rule):
 
 
 # ----------------------------------------------------------------------------- files
-def save_model(translator, path, *, unifier=None, features_sha256: str | None = None,
-               source: str = "", view: str | None = None, digits: int | None = None,
-               aliases: dict | None = None) -> Path:
-    """Write a fitted translator (and the unifier of its training characters) to ``path``, atomically.
+@dataclass(frozen=True)
+class ModelView:
+    """One view of a model file: its name (None: no camera), fitted translator and unifier (or None)."""
 
-    ``digits=None`` keeps every bit, so a loaded model translates exactly as
-    the fitted one.  The ``styles`` stage passes 6 significant digits
-    (:data:`nnsf.io.DIGITS`) instead, so that the versioned file, and DVC's
-    hash of it, is the same on every machine whatever BLAS noise the fit had.
-    ``aliases`` (``{alias: style}``, :mod:`nnsf.factor.style_names`) are other names of the
-    model's styles; stored only when given, so a model without them is unchanged.
+    view: str | None
+    translator: object
+    unifier: Unifier | None = None
+
+
+def save_model(views, path, *, features_sha256: str | None = None, source: str = "",
+               digits: int | None = None, aliases: dict | None = None) -> Path:
+    """Write fitted translators, one per view (a list of :class:`ModelView`), to ``path``, atomically.
+
+    Every view must know the same styles and contents.  ``digits=None`` keeps
+    every bit, so a loaded model translates exactly as the fitted one.  The
+    ``styles`` stage passes 6 significant digits (:data:`nnsf.io.DIGITS`)
+    instead, so that the versioned file, and DVC's hash of it, is the same on
+    every machine whatever BLAS noise the fit had.  ``aliases`` (``{alias:
+    style}``, :mod:`nnsf.factor.style_names`) are other names of the model's
+    styles; stored only when given.
     """
     from sklearn.utils.validation import check_is_fitted
 
-    check_is_fitted(translator, "style_bases_")
+    views = list(views)
+    if not views:
+        raise ValueError("save_model: no view to save")
+    names = [v.view for v in views]
+    if len(set(names)) != len(names):
+        raise ValueError(f"save_model: each view once, got {names}")
+    first = views[0].translator
     w = _Writer()
-    state = fitted_state(translator, w)
+    entries = []
+    for v in views:
+        check_is_fitted(v.translator, "style_bases_")
+        for field in ("styles_", "contents_"):
+            if list(getattr(v.translator, field)) != list(getattr(first, field)):
+                raise ValueError(f"save_model: view {v.view!r} has {field} {list(getattr(v.translator, field))}, "
+                                 f"view {views[0].view!r} {list(getattr(first, field))}")
+        entries.append({"view": v.view, "params": w.value(v.translator.get_params(deep=False)),
+                        "unifier": v.unifier.to_dict() if v.unifier is not None else None,
+                        "state": fitted_state(v.translator, w)})
     meta = {
         "format": FORMAT, "version": VERSION,
-        "class": f"{type(translator).__module__}.{type(translator).__qualname__}",
-        "styles": [str(s) for s in translator.styles_],
-        "contents": [str(c) for c in translator.contents_],
-        "params": w.value(translator.get_params(deep=False)),
-        "unifier": unifier.to_dict() if unifier is not None else None,
+        "class": f"{type(first).__module__}.{type(first).__qualname__}",
+        "styles": [str(s) for s in first.styles_],
+        "contents": [str(c) for c in first.contents_],
         "features_sha256": features_sha256,
         "source": str(source),
-        # The camera view of a motion-capture dataset (None: drawn/synthetic 2D data).
-        "view": view,
-        "state": state,
+        "views": entries,
     }
     if aliases:
         # Other names a user may give a style (elderly -> old): a flat {alias: style} of strings.
@@ -425,8 +457,8 @@ def save_model(translator, path, *, unifier=None, features_sha256: str | None = 
 def read_meta(path) -> tuple[dict, dict]:
     """``(meta, arrays)`` of a model file, or an :class:`InputError` naming the file and what is wrong.
 
-    ``meta`` follows :data:`META` (format, version, known fields only);
-    ``params`` and ``state`` are still encoded (:func:`load_model` decodes them).
+    ``meta`` follows :data:`META` (format, version, known fields only); each
+    view's ``params`` and ``state`` are still encoded (:func:`load_model` decodes them).
     """
     path = Path(path)
     if not path.is_file():
@@ -455,8 +487,8 @@ def read_meta(path) -> tuple[dict, dict]:
     return meta, arrays
 
 
-def load_model(path, translator_class):
-    """Read a model file: ``(translator, unifier or None, meta)``; the translator is a ``translator_class``.
+def load_model(path, translator_class) -> tuple[list[ModelView], dict]:
+    """Read a model file: ``(views, meta)``, each view's translator a ``translator_class``.
 
     Nothing in the file chooses code: the translator is ``translator_class``
     (which must be :data:`TRANSLATOR`), nested estimators come from
@@ -469,15 +501,24 @@ def load_model(path, translator_class):
         raise TypeError(f"load_model reads {TRANSLATOR} models, not {translator_class!r}")
     meta, arrays = read_meta(path)
     r = _Reader(arrays, path, {**ESTIMATORS, TRANSLATOR: translator_class})
-    tr = r.build(translator_class, r.params(translator_class, meta["params"], "meta.params"), "meta.params")
-    r.state(tr, TRANSLATOR, meta["state"], "meta.state", 0)
+    out, seen = [], set()
+    for i, entry in enumerate(meta["views"]):
+        name = f"meta.views[{i}]"
+        if entry["view"] in seen:
+            raise InputError(path, f"{name}.view", "each view once", entry["view"])
+        seen.add(entry["view"])
+        r.ctx = Context()        # sizes such as the shared weights' rows belong to one view
+        tr = r.build(translator_class, r.params(translator_class, entry["params"], f"{name}.params"),
+                     f"{name}.params")
+        r.state(tr, TRANSLATOR, entry["state"], f"{name}.state", 0)
+        for field in ("styles", "contents"):
+            held = [str(s) for s in getattr(tr, f"{field}_")]
+            if meta[field] != held:
+                raise InputError(path, f"meta.{field}", f"the {field} of {name}.state.{field}_ ({summarize(held)})",
+                                 meta[field])
+        unifier = Unifier.from_dict(entry["unifier"], path) if entry.get("unifier") else None
+        out.append(ModelView(entry["view"], tr, unifier))
     unused = sorted(set(arrays) - r.used)
     if unused:
         raise InputError(path, f"array {unused[0]}", "an array the model's metadata refers to", "unreferenced")
-    for field in ("styles", "contents"):
-        held = [str(s) for s in getattr(tr, f"{field}_")]
-        if meta[field] != held:
-            raise InputError(path, f"meta.{field}", f"the {field} of meta.state.{field}_ ({summarize(held)})",
-                             meta[field])
-    unifier = Unifier.from_dict(meta["unifier"], path) if meta.get("unifier") else None
-    return tr, unifier, meta
+    return out, meta
