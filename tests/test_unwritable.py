@@ -141,6 +141,8 @@ def test_command_with_an_unwritable_folder_from_its_options(args, blocked, named
     err = capsys.readouterr().err
     lines = err.strip().splitlines()
     assert code == 2, err
-    assert len(lines) == 1 and lines[0].startswith(f"error: {named}: output folder: "), lines
+    # one line naming the folder: as an output folder, or as the --out option it came from
+    assert len(lines) == 1 and (lines[0].startswith(f"error: {named}: output folder: ")
+                                or lines[0].startswith(f"error: {named}: --out: ")), lines
     assert "Traceback" not in err
     assert _files(tmp_path) == before  # nothing rendered, tracked or half-written
