@@ -143,7 +143,6 @@ reshape:
   n_vertices: 300
   subkeys_per_limb: 2
   method: ours
-  mesh: layered
   propagation: limb-frame
   arms: motion
   head: torso

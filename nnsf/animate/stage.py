@@ -23,8 +23,8 @@ def animate(params: dict, model=STYLES_MODEL, out_dir=ANIMATE_DIR) -> StageResul
     src = source_of(params)
     spec = {k: require(params, f"animate.{k}") for k in
             ("character", "motion", "style", "view", "fps", "n_vertices", "max_frames", "output")}
-    spec["arms"] = checked(params, "animate.arms", "motion")     # absent in older params files
-    spec["head"] = checked(params, "animate.head", "motion")
+    spec["arms"] = checked(params, "animate.arms", None)     # absent: the character YAML's choice, else motion
+    spec["head"] = checked(params, "animate.head", None)
     for key in ("character", "motion"):
         text = str(spec[key])
         if not text.startswith("synthetic:") and ("/" in text or "." in text):

@@ -128,6 +128,13 @@ def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", fr
     rest = np.asarray(rest_keypoints, dtype=np.float64)
     if body == "quadruped":
         return retarget_quadruped(P, rest)
+    J = JOINT_INDEX
+    mid = 0.5 * (P[:, J["pelvis"]] + P[:, J["thorax"]])
+    if min(np.median(np.linalg.norm(P[:, J["spine"]] - P[:, k], axis=1)) for k in (J["pelvis"], J["thorax"])) <= 0:
+        # A skeleton with no joint between pelvis and chest puts the spine on one of them: its middle
+        # then (the torso moves as one piece, so the spine point only anchors the body's scale).
+        P = P.copy()
+        P[:, J["spine"]] = mid
     try:
         mot = character_scale(P)
         drawn = character_scale(rest[None])
@@ -148,7 +155,6 @@ def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", fr
     placed = np.zeros(N_JOINTS, dtype=bool)
     placed[0] = True
     if rigid_torso:
-        J = JOINT_INDEX
         up_m = P[:, J["thorax"]] - P[:, J["pelvis"]]
         up_d = rest[J["thorax"]] - rest[J["pelvis"]]
         ang = np.arctan2(up_m[:, 1], up_m[:, 0]) - np.arctan2(up_d[1], up_d[0])
