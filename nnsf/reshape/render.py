@@ -55,7 +55,9 @@ class Renderer:
         if underlay is not None and (mesh.layer == 1).any():
             tex = np.hstack([tex, premultiplied(underlay, mask)])
             uv[mesh.layer == 1, :, 0] += W
-        self.texture = np.ascontiguousarray(tex)
+        # 8 bits a channel, premultiplied: bilinear sampling and compositing run on OpenCV's
+        # saturating uint8 arithmetic (a level of rounding per layer, no more).
+        self.texture = np.ascontiguousarray(np.clip(tex * 255.0 + 0.5, 0, 255).astype(np.uint8))
         self.uv = uv
         self.parts = np.asarray(mesh.parts, dtype=np.int64)
         self.part_triangles = [np.flatnonzero(self.parts == p) for p in range(int(self.parts.max()) + 1)]
@@ -85,7 +87,9 @@ class Renderer:
         RGBA ``(H, W, 4)`` uint8, or RGB over ``background`` (an RGB triple)."""
         V = np.asarray(vertices, dtype=np.float64)
         H, W = self.size
-        out = np.zeros((H, W, 4), np.float32)                           # premultiplied RGBA
+        out = np.zeros((H, W, 4), np.uint8)                             # premultiplied RGBA
+        if background is not None:  # an opaque page: the parts are laid straight onto its colour
+            out[:] = tuple(int(b) for b in background) + (255,)
         c = [np.ascontiguousarray(col) for col in self._maps(V).T]
         P = np.rint(V[self.triangles] * 16).astype(np.int32)            # (t, 3, 2), 4 fractional bits
         order = range(len(self.part_triangles)) if order is None else order
@@ -123,13 +127,11 @@ class Renderer:
             src = cv2.remap(self.texture, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                             borderValue=(0, 0, 0, 0))
             dst = out[y0:y1, x0:x1]
-            dst *= 1.0 - src[..., 3:4]
-            dst += src
+            keep = cv2.merge([255 - src[..., 3]] * 4)
+            cv2.add(cv2.multiply(dst, keep, scale=1.0 / 255.0), src, dst=dst)
         if background is None:
-            return to_uint8(out)
-        bg = np.asarray(background, np.float32) / 255.0
-        rgb = out[..., :3] + bg * (1.0 - out[..., 3:4])
-        return cv2.convertScaleAbs(rgb, alpha=255.0)
+            return to_uint8(out.astype(np.float32) / 255.0)
+        return cv2.cvtColor(out, cv2.COLOR_RGBA2RGB)
 
     def render_clip(self, frames, orders=None, background=None) -> np.ndarray:
         """Frames ``(T, n, 2)`` → images ``(T, H, W, 4 or 3)`` uint8."""
