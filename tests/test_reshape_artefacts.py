@@ -64,6 +64,17 @@ def test_a_crack_is_thin_enclosed_background_only():
     assert A.cracks(cov, isolated=False)[0] == 4   # ... but a speck
 
 
+def test_a_crack_at_a_joint_is_told_from_one_elsewhere():
+    cov = np.zeros((60, 60), bool)
+    cov[5:55, 5:55] = True
+    cov[10:30, 10:12] = False         # a slit near the top left
+    cov[40:50, 40:42] = False         # another near the bottom right
+    at = np.zeros_like(cov)
+    cv2.circle(at.view(np.uint8), (45, 45), 6, 1, -1)   # a joint's disc over the second
+    assert A.cracks(cov) == (2, 40 + 20)
+    assert A.cracks(cov, near=at) == (1, 20)
+
+
 def test_joint_notch_counts_the_missing_pixels_of_the_disc():
     kp = np.zeros((17, 2))
     kp[:] = [50, 50]

@@ -8,7 +8,9 @@ drawing) and the drawing itself, which is the reference ("at rest").  Coverage i
   of the character not joined to the body.
 * :func:`cracks`: enclosed background (components of the background that do not touch the image's
   border) no wider than 3 px (the largest disc it holds is at most 3 px across) and at least two
-  drawn pixels from any other background: a thin gap opening inside the drawing.  ``specks`` count
+  drawn pixels from any other background: a thin gap opening inside the drawing; ``joint_cracks``
+  those within 1.5 joint radii of a joint (where parts are joined: a seam splitting), the rest
+  being thin gaps between parts pressed together in the pose.  ``specks`` count
   every thin enclosed bit of background, joined through pixel edges only, pinched ends of wider
   gaps included.  A drawing may have such slits of its own;
   they are counted on the drawing too.
@@ -49,7 +51,7 @@ def detached(cov: np.ndarray, min_area: int = 3) -> int:
 
 
 def cracks(cov: np.ndarray, width: float = CRACK_WIDTH, connectivity: int = 8,
-           isolated: bool = True) -> tuple[int, int]:
+           isolated: bool = True, near: np.ndarray | None = None) -> tuple[int, int]:
     """``(count, pixels)`` of enclosed background components no wider than ``width`` px.
 
     A component's width is the diameter of the largest disc it holds, measured on the image at twice
@@ -58,7 +60,8 @@ def cracks(cov: np.ndarray, width: float = CRACK_WIDTH, connectivity: int = 8,
     for :func:`detached`.  With ``isolated`` a crack lies at least two drawn pixels from any other
     background: a thin gap opening inside the drawing.  Background one drawn pixel from other
     background is the pinched end of a wider gap (or of the outside) where two edges meet at a
-    shallow angle; ``isolated=False, connectivity=4`` counts those too (the "specks")."""
+    shallow angle; ``isolated=False, connectivity=4`` counts those too (the "specks").  ``near``
+    ``(H, W)`` bool: count only the cracks that touch it (the discs about the joints)."""
     bg = (~np.asarray(cov, dtype=bool)).astype(np.uint8)
     n, lab, stats, _ = cv2.connectedComponentsWithStats(bg, connectivity=connectivity)
     if n <= 1:
@@ -74,11 +77,13 @@ def cracks(cov: np.ndarray, width: float = CRACK_WIDTH, connectivity: int = 8,
         fine = cv2.resize(crop, None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST)
         if cv2.distanceTransform(fine, cv2.DIST_L2, cv2.DIST_MASK_PRECISE).max() > width:
             continue
+        if near is not None and not near[y:y + h, x:x + w][lab[y:y + h, x:x + w] == c].any():
+            continue
         if isolated:
             # The pinched end of a wider gap, or of the outside, lies one drawn pixel from it.
             y0, y1, x0, x1 = max(y - 2, 0), min(y + h + 2, H), max(x - 2, 0), min(x + w + 2, W)
-            near = cv2.dilate((lab[y0:y1, x0:x1] == c).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
-            if (near & (bg[y0:y1, x0:x1] > 0) & (lab[y0:y1, x0:x1] != c)).any():
+            ring = cv2.dilate((lab[y0:y1, x0:x1] == c).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+            if (ring & (bg[y0:y1, x0:x1] > 0) & (lab[y0:y1, x0:x1] != c)).any():
                 continue
         count, pixels = count + 1, pixels + int(area)
     return count, pixels
@@ -231,9 +236,14 @@ class FrameMeasures:
     def __call__(self, rgba: np.ndarray, keypoints: np.ndarray) -> dict:
         cov = coverage(rgba)
         n_cracks, crack_px = cracks(cov)
+        discs = np.zeros(cov.shape, np.uint8)
+        for j, r in zip(JOINTS_CHECKED, self.radii):
+            if np.isfinite(keypoints[j]).all():
+                cv2.circle(discs, tuple(int(v) for v in np.rint(keypoints[j])), int(round(1.5 * r)) + 1, 1, -1)
         notch = joint_notches(cov, keypoints, self.radii)
         turning = outline_turning(cov)
         return {"detached": detached(cov), "cracks": n_cracks, "crack_px": crack_px,
+                "joint_cracks": cracks(cov, near=discs > 0)[0] if n_cracks else 0,
                 "specks": cracks(cov, connectivity=4, isolated=False)[0],
                 "notch_px": int(notch.sum()),
                 "notch_beyond_rest": int(np.maximum(notch - self.rest_notches, 0).sum()),

@@ -84,9 +84,9 @@ def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", fr
       stretched along / across the spine by the motion's spine length /
       hip-plus-shoulder width relative to their medians, each ratio clipped to
       ``torso_stretch``.  The default (1, 1) keeps the torso rigid: ARAP
-      cannot meet handles that are not a similarity of the drawing, and on
-      char1 a kick's 0.85-1.15 stretch concentrated σ1/σ2 ≈ 5 at the
-      shoulder handles in 17 % of frames.  A drawn torso is one rigid shape; copying the
+      cannot meet handles that are not a similarity of the drawing (a kick's
+      0.85-1.15 stretch concentrated σ1/σ2 ≈ 5 at the shoulder handles in a
+      sixth of the frames).  A drawn torso is one rigid shape; copying the
       motion's hip and shoulder bone directions would shear it.
     * Every other bone (limbs, neck, head): the motion's direction, the
       drawing's length times the motion's foreshortening ratio
@@ -108,8 +108,8 @@ def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", fr
 
     * ``head="torso"`` (with ``rigid_torso``): head_top moves with the drawn
       torso, so the head keeps its drawn angle to the body.  For a drawing
-      with no neck, whose head is the top of one shape (a candy corn, a
-      sprite's head sitting flat on its body): turned on its own, the head
+      with no neck, whose head is the top of one shape (a cone whose tip is
+      the head, a head sitting flat on its body): turned on its own, the head
       part slides across the body and its drawn outline shows inside it.
       ``"motion"`` (the default) turns the head as the performer's.
 

@@ -46,8 +46,8 @@ from nnsf.reshape.formats import read_character, read_yaml
 from nnsf.reshape.stage import report, write_sheet
 
 #: Per-frame measures whose worst frame and mean a row keeps.
-MEASURES = ("detached", "cracks", "crack_px", "specks", "notch_px", "notch_beyond_rest", "spikes",
-            "outline_roughness")
+MEASURES = ("detached", "cracks", "crack_px", "joint_cracks", "specks", "notch_px", "notch_beyond_rest",
+            "spikes", "outline_roughness")
 
 
 def _root(roots, rel) -> Path:
@@ -105,6 +105,7 @@ def evaluate_item(item: dict) -> dict:
         row["frames_with_detached"] = int((table["detached"] > rest["detached"]).sum())
         row["frames_with_cracks"] = int((table["cracks"] > rest["cracks"]).sum())
         row["frames_with_specks"] = int((table["specks"] > rest["specks"]).sum())
+        row["frames_with_joint_cracks"] = int((table["joint_cracks"] > 0).sum())
         row["frames_notch_over_rest"] = int((table["notch_beyond_rest"] > 4).sum())
         row["frames_spikes_over_rest"] = int((table["spikes"] > rest["spikes"]).sum())
         row.update(width_stats(np.stack([r["widths"] for r in res]), measure.rest_widths))
@@ -205,6 +206,7 @@ def run(data_root, out_dir=Path("reports"), characters=(), heldout=(), motions=(
             "items": int(len(d)), "frames": int(d["frames"].sum()),
             "frames_with_detached": int(d["frames_with_detached"].sum()),
             "frames_with_cracks": int(d["frames_with_cracks"].sum()),
+            "frames_with_joint_cracks": int(d["frames_with_joint_cracks"].sum()),
             "frames_notch_over_rest": int(d["frames_notch_over_rest"].sum()),
             "frames_spikes_over_rest": int(d["frames_spikes_over_rest"].sum()),
             "render_ms": float(d["render_ms"].mean())}
