@@ -36,8 +36,8 @@ from nnsf.errors import InputError
 #: simplified outline and the triangles kept along it then cover every drawn pixel, thin strokes and
 #: pixels on the image's border too.
 GROW = 2
-#: How far from a joint (in joint radii) a cut seam gets an underlay under the parent.
-COLLAR = 0.0
+#: Pixels past the body's closed outline that its underlay still covers.
+UNDERLAY_MARGIN = 2
 
 
 @dataclass
@@ -329,8 +329,10 @@ def _components(triangles: np.ndarray) -> np.ndarray:
                                 directed=False)[1]
 
 
-def _clean_labels(triangles: np.ndarray, parts: np.ndarray, pairs: np.ndarray) -> np.ndarray:
-    """Each part one edge-connected region: a smaller island joins the part it borders most."""
+def _clean_labels(triangles: np.ndarray, parts: np.ndarray, pairs: np.ndarray, parent=None) -> np.ndarray:
+    """Each part one edge-connected region: a smaller island joins the part it borders most, among
+    its own part's parent and children when it borders one (``parent`` ``(P,)``): a piece of one leg
+    cut off where the legs were drawn close does not join the other leg and leave with it."""
     parts = parts.copy()
     t = len(triangles)
     for _ in range(10):
@@ -348,12 +350,18 @@ def _clean_labels(triangles: np.ndarray, parts: np.ndarray, pairs: np.ndarray) -
             tri = comp == c
             edge = tri[pairs[:, 0]] != tri[pairs[:, 2]]
             other = np.where(tri[pairs[edge, 0]], parts[pairs[edge, 2]], parts[pairs[edge, 0]])
+            if parent is not None and len(other):
+                own = int(parts[tri][0])
+                kin = (other == parent[own]) | (parent[other] == own)
+                if kin.any():
+                    other = other[kin]
             if len(other):
                 parts[tri] = np.bincount(other).argmax()
     return parts
 
 
-def split_seams(vertices: np.ndarray, triangles: np.ndarray, scores: np.ndarray, clamp: float = 0.2):
+def split_seams(vertices: np.ndarray, triangles: np.ndarray, scores: np.ndarray, clamp: float = 0.2,
+                chains=None):
     """Split triangles so the boundary between two parts follows the zero of their score difference.
 
     ``scores`` ``(n, P)``: each vertex's score per part (:meth:`nnsf.reshape.rig.Rig.scores`); a
@@ -396,7 +404,26 @@ def split_seams(vertices: np.ndarray, triangles: np.ndarray, scores: np.ndarray,
     three = np.flatnonzero(kinds == 3)
     if len(three):
         g = n + len(cross) + np.arange(len(three))
-        new = np.vstack([new, vertices[triangles[three]].mean(axis=1)])
+        # The fan's centre: its centroid; where two different limbs meet (``chains``: each part's
+        # limb, −1 for the body), where the three corners' parts score alike, the scores linear over
+        # the triangle as along its edges: a centroid deep in one limb would hand a stroke of it to
+        # the other, to be carried away across the gap drawn between them.
+        tri3 = triangles[three]
+        own = L[three]                                                  # (k, 3) corner parts
+        Sc = scores[tri3[:, :, None], own[:, None, :]]                  # (k, corner, part)
+        A = np.stack([Sc[:, :, 0] - Sc[:, :, 1], Sc[:, :, 1] - Sc[:, :, 2], np.ones_like(Sc[:, :, 0])], 1)
+        rhs = np.broadcast_to(np.array([0.0, 0.0, 1.0]), (len(three), 3))
+        with np.errstate(all="ignore"):
+            lam = np.linalg.solve(A + 1e-9 * np.eye(3), rhs[..., None])[..., 0]
+        lam = np.where(np.isfinite(lam), lam, 1 / 3)
+        lam = np.clip(lam, clamp, 1.0)
+        lam /= lam.sum(axis=1, keepdims=True)
+        centre = vertices[tri3].mean(axis=1)
+        if chains is not None:
+            ch = np.asarray(chains)[own]
+            apart = ((ch[:, :, None] != ch[:, None, :]) & (ch[:, :, None] >= 0) & (ch[:, None, :] >= 0)).any((1, 2))
+            centre[apart] = np.einsum("kc,kcx->kx", lam[apart], vertices[tri3[apart]])
+        new = np.vstack([new, centre])
         for k in range(3):
             ck, cn = triangles[three, k], triangles[three, (k + 1) % 3]
             tris += [np.column_stack([ck, M[three, k], g]), np.column_stack([M[three, k], cn, g])]
@@ -413,13 +440,13 @@ def build_mesh(character, rig, n_vertices: int = 800) -> Mesh:
     * Seams cut where :meth:`~nnsf.reshape.rig.Rig.cuts` says; a piece the cuts would set apart from
       the rest (its part does not reach the joint it hangs from) stays joined where it touches: the
       mesh is one connected piece.
-    * Underlays (:func:`_underlays`): copies of a child's triangles about its joint, and of a limb's
-      triangles over the body, put in the parent (the body), sharing its vertices where they meet it:
-      when the child moves, the parent under it is there (textured by :func:`underlay_texture`).
+    * Underlays (:func:`_underlays`): copies of a limb's triangles over the body, put in the body,
+      sharing its vertices where they meet it: when the limb moves, the body under it is there
+      (textured by :func:`underlay_texture`).
     """
     V, T, h = triangulate(character.mask, n_vertices)
-    V, T, parts, _ = split_seams(V, T, rig.scores(V))
-    parts = _clean_labels(T, parts, shared_edges(T))
+    V, T, parts, _ = split_seams(V, T, rig.scores(V), chains=rig.chains())
+    parts = _clean_labels(T, parts, shared_edges(T), rig.parent)
     # The body's hull, where a limb drawn over the body gets an underlay, cuts the limb's triangles
     # along a straight line (not a staircase of triangles that shows once the limb moves away).
     body = np.unique(T[parts == 0])
@@ -465,38 +492,14 @@ def build_mesh(character, rig, n_vertices: int = 800) -> Mesh:
 
 
 def _underlays(V: np.ndarray, T: np.ndarray, parts: np.ndarray, rig) -> np.ndarray:
-    """For each triangle ``(t,)``, the part whose underlay copies it, or −1.
-
-    * Where the seam between a child and its parent is cut within :data:`COLLAR` joint radii of
-      their joint, the child's triangles along it (within the child's radius) are copied under the
-      parent: when the child turns, the wedge that opens there shows the parent painted in, not the
-      page (a paper puppet's pieces overlap at their rivet the same way).
-    * A limb's triangles inside the convex hull of the torso's are copied under the torso: a limb
-      drawn over the body leaves the body whole when it moves away.
+    """For each triangle ``(t,)``, the part whose underlay copies it, or −1: a limb's triangles inside
+    the convex hull of the torso's are copied under the torso, so a limb drawn over the body leaves
+    the body whole when it moves away.
     """
-    c = V[T].mean(axis=1)
     owner = np.full(len(T), -1, dtype=np.int64)
-    R = rig.joint_radius()
-    radius = rig.part_radius()
-    pairs = shared_edges(T)
-    mid = 0.5 * (V[T[pairs[:, 0], pairs[:, 1]]] + V[T[pairs[:, 0], (pairs[:, 1] + 1) % 3]])
-    cut = rig.cuts(mid, parts[pairs[:, 0]], parts[pairs[:, 2]])
-    for child in range(rig.n_parts):
-        j = rig.joint[child]
-        if j < 0:
-            continue
-        p = rig.parent[child]
-        # Where the seam between child and parent is cut, near the joint: a wedge opens there.
-        seam = cut & (((parts[pairs[:, 0]] == child) & (parts[pairs[:, 2]] == p))
-                      | ((parts[pairs[:, 0]] == p) & (parts[pairs[:, 2]] == child)))
-        seam &= np.linalg.norm(mid - rig.keypoints[j], axis=1) <= COLLAR * R[j]
-        if not seam.any():
-            continue
-        near = cKDTree(mid[seam]).query(c)[0] <= radius[child]
-        owner[(parts == child) & near] = p
     body = parts == 0
     if body.sum() >= 3:
-        inside = _hull_distance(V[np.unique(T[body])], c) < 0
+        inside = _hull_distance(V[np.unique(T[body])], V[T].mean(axis=1)) < 0
         owner[(parts >= 2) & inside] = 0
     return owner
 
@@ -546,6 +549,15 @@ def underlay_texture(texture: np.ndarray, mask: np.ndarray, mesh: Mesh) -> np.nd
         bins, inv, counts = np.unique(pix >> 4, axis=0, return_inverse=True, return_counts=True)
         colour = pix[inv.ravel() == np.argmax(counts)].mean(axis=0)
         sel = cv2.dilate(region, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))) > 0
+        # The body goes on under a limb only where it closes around the limb: the parent's region
+        # closed by a disc wider than the limb (a slot the limb covers fills, the page beside a
+        # limb's root on the outline does not), and UNDERLAY_MARGIN px more, so a seam there that
+        # opens by a pixel shows the body.
+        reach = 1.5 * float(cv2.distanceTransform(np.pad(region, 1), cv2.DIST_L2, 5).max()) + 2.0
+        body = (raster((mesh.layer == 0) & (mesh.parts == p)) & np.asarray(mask, np.uint8)) > 0
+        grown = cv2.distanceTransform((~body).astype(np.uint8), cv2.DIST_L2, 5) <= reach
+        closed = cv2.distanceTransform(grown.astype(np.uint8), cv2.DIST_L2, 5) > reach - UNDERLAY_MARGIN
         out[sel, :3] = np.rint(colour).astype(np.uint8)
-        out[sel, 3] = 255
+        out[sel, 3] = np.where(closed[sel] | body[sel], 255, 0)
     return out
+

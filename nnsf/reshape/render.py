@@ -25,6 +25,9 @@ import numpy as np
 
 from nnsf.reshape.mesh import Mesh
 
+#: Transparent columns between the drawing and the underlay in the texture atlas, pixels.
+ATLAS_GAP = 8
+
 
 def premultiplied(texture: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
     """RGBA ``(H, W, 4)`` uint8 → premultiplied float32 RGBA in [0, 1]; outside ``mask`` transparent."""
@@ -53,8 +56,11 @@ class Renderer:
         tex = premultiplied(texture, mask)
         uv = mesh.vertices[self.triangles].copy()                       # (t, 3, 2)
         if underlay is not None and (mesh.layer == 1).any():
-            tex = np.hstack([tex, premultiplied(underlay, mask)])
-            uv[mesh.layer == 1, :, 0] += W
+            # A transparent gap between the halves: a triangle reaching past the drawing's edge
+            # (the mesh covers the mask grown by a few pixels) samples the page, not the other half.
+            gap = np.zeros((H, ATLAS_GAP, 4), tex.dtype)
+            tex = np.hstack([tex, gap, premultiplied(underlay, mask)])
+            uv[mesh.layer == 1, :, 0] += W + ATLAS_GAP
         # 8 bits a channel, premultiplied: bilinear sampling and compositing run on OpenCV's
         # saturating uint8 arithmetic (a level of rounding per layer, no more).
         self.texture = np.ascontiguousarray(np.clip(tex * 255.0 + 0.5, 0, 255).astype(np.uint8))

@@ -83,6 +83,9 @@ class Rig:
     parent: np.ndarray
     joint: np.ndarray
     extra_sides: tuple[str, ...] = ()
+    #: Parts whose seam with their parent is never cut: they move as one (a head that keeps its
+    #: drawn angle to the body, ``head: torso``), so a cut would only open pinholes between them.
+    fused: tuple[int, ...] = ()
     #: ``(H, W)`` int16, the part of each drawn pixel (−1 off the drawing), :meth:`segment`.
     labels: np.ndarray | None = None
 
@@ -117,8 +120,9 @@ class Rig:
             lower = [i for i, (_, _, q) in enumerate(bones) if parent[q] == part and q != part and part != 0]
             if lower:
                 radius[b] = min(radius[b], UPPER_TO_LOWER * min(radius[i] for i in lower))
+        fused = (PARTS.index("head"),) if getattr(character, "head", None) == "torso" else ()
         rig = cls(kp, bones, radius.astype(np.float64), tuple(parts), np.array(parent), np.array(joint),
-                  tuple(sides))
+                  tuple(sides), fused)
         rig.labels = rig.segment(character.texture, character.mask)
         return rig
 
@@ -140,6 +144,7 @@ class Rig:
             p, q = a[k] + 0.2 * (b[k] - a[k]), a[k] + 0.8 * (b[k] - a[k])
             cv2.line(markers, tuple(np.rint(p * 16).astype(int)), tuple(np.rint(q * 16).astype(int)),
                      int(self.bones[k, 2]) + 1, max(1, int(0.5 * self.radius[k])), cv2.LINE_8, 4)
+        seeds = markers.copy()
         markers[~mask] = self.n_parts + 1
         cv2.watershed(np.ascontiguousarray(texture[..., 2::-1]), markers)
         labels = (markers - 1).astype(np.int16)
@@ -162,32 +167,54 @@ class Rig:
         if bad.any():
             ys, xs = np.nonzero(bad)
             labels[ys, xs] = np.argmin(self.band_scores(np.column_stack([xs, ys])), axis=1)
-        # A strip of a part thinner than 5 px outside its bones' bands (a stroke of outline the flood
-        # ran along) would hang between seams: it goes to the part around it.
+        # A strip of a part thinner than 5 px more than 2 px from its bones (a stroke of outline the
+        # flood ran along) would hang between seams, and a piece of a part cut off from its seeds
+        # would move with a limb it does not touch: both are flooded again from the parts around
+        # them, through the drawing only (a claw beside a leg stays with its hand).
         disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
-        core = np.zeros((H, W), bool)
-        for (i, j, p), r in zip(self.bones, self.radius):
-            cv2.line(core.view(np.uint8), tuple(np.rint(self.keypoints[i] * 16).astype(int)),
-                     tuple(np.rint(self.keypoints[j] * 16).astype(int)), 1, max(1, int(2 * r)), cv2.LINE_8, 4)
-        thin = np.zeros((H, W), bool)
+        core = np.zeros((H, W), np.uint8)
+        for i, j, _ in self.bones:
+            cv2.line(core, tuple(np.rint(self.keypoints[i] * 16).astype(int)),
+                     tuple(np.rint(self.keypoints[j] * 16).astype(int)), 1, 5, cv2.LINE_8, 4)
+        loose = np.zeros((H, W), bool)
         for p in range(self.n_parts):
             region = (labels == p).astype(np.uint8)
-            thin |= (region > 0) & (cv2.morphologyEx(region, cv2.MORPH_OPEN, disc) == 0)
-        thin &= ~core
-        keep = mask & ~thin
-        if thin.any() and keep.any():
-            _, nearest = cv2.distanceTransformWithLabels((~keep).astype(np.uint8), cv2.DIST_L2, 3,
-                                                         labelType=cv2.DIST_LABEL_PIXEL)
-            ys, xs = np.nonzero(keep)
-            source = np.full(nearest.max() + 1, -1, np.int16)
-            source[nearest[ys, xs]] = labels[ys, xs]
-            ty, tx = np.nonzero(thin)
-            labels[ty, tx] = source[nearest[ty, tx]]
+            loose |= (region > 0) & (cv2.morphologyEx(region, cv2.MORPH_OPEN, disc) == 0) & (core == 0)
+            n, comp = cv2.connectedComponents(region & ~loose.astype(np.uint8), connectivity=8)
+            seeded = np.unique(comp[(seeds == p + 1) & (comp > 0)])
+            if n > 2 and len(seeded):
+                loose |= (comp > 0) & ~np.isin(comp, seeded)
+        loose &= mask
+        if loose.any() and (mask & ~loose).any():
+            flood = np.where(mask & ~loose, labels.astype(np.int32) + 1, 0).astype(np.int32)
+            flood[~mask] = self.n_parts + 1
+            cv2.watershed(np.ascontiguousarray(texture[..., 2::-1]), flood)
+            # The watershed's own boundary pixels take a neighbour's part.
+            for _ in range(4):
+                edge = mask & ((flood <= 0) | (flood > self.n_parts))
+                if not edge.any():
+                    break
+                grown = cv2.dilate(np.where((flood > 0) & (flood <= self.n_parts), flood, 0).astype(np.float32),
+                                   np.ones((3, 3), np.uint8)).astype(np.int32)
+                flood[edge] = grown[edge]
+            fixed = mask & (flood > 0) & (flood <= self.n_parts)
+            labels[fixed] = (flood[fixed] - 1).astype(np.int16)
         return labels
 
     @property
     def n_parts(self) -> int:
         return len(self.parts)
+
+    def chains(self) -> np.ndarray:
+        """Each part's limb ``(P,)``: the part that hangs from the body above it, −1 for the body and
+        the head."""
+        out = np.full(self.n_parts, -1, dtype=np.int64)
+        for p in range(self.n_parts):
+            q = p
+            while q >= 0 and self.parent[q] > 0:
+                q = self.parent[q]
+            out[p] = q if self.parent[p] >= 0 and q != PARTS.index("head") else -1
+        return out
 
     def part_radius(self) -> np.ndarray:
         """``(P,)`` the largest radius of each part's bones, pixels."""
@@ -263,6 +290,9 @@ class Rig:
                 continue
             j = self.joint[child]
             sel = np.flatnonzero(out & (p == a) & (q == b))
+            if child in self.fused:
+                out[sel] = False
+                continue
             out[sel[np.linalg.norm(midpoints[sel] - self.keypoints[j], axis=1) <= R[j]]] = False
         return out
 
