@@ -36,7 +36,7 @@ from nnsf.errors import InputError
 #: simplified outline and the triangles kept along it then cover every drawn pixel, thin strokes and
 #: pixels on the image's border too.
 GROW = 2
-#: Pixels past the body's closed outline that its underlay still covers.
+#: Pixels past the body's convex hull that its underlay still covers.
 UNDERLAY_MARGIN = 2
 
 
@@ -549,15 +549,14 @@ def underlay_texture(texture: np.ndarray, mask: np.ndarray, mesh: Mesh) -> np.nd
         bins, inv, counts = np.unique(pix >> 4, axis=0, return_inverse=True, return_counts=True)
         colour = pix[inv.ravel() == np.argmax(counts)].mean(axis=0)
         sel = cv2.dilate(region, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))) > 0
-        # The body goes on under a limb only where it closes around the limb: the parent's region
-        # closed by a disc wider than the limb (a slot the limb covers fills, the page beside a
-        # limb's root on the outline does not), and UNDERLAY_MARGIN px more, so a seam there that
-        # opens by a pixel shows the body.
-        reach = 1.5 * float(cv2.distanceTransform(np.pad(region, 1), cv2.DIST_L2, 5).max()) + 2.0
-        body = (raster((mesh.layer == 0) & (mesh.parts == p)) & np.asarray(mask, np.uint8)) > 0
-        grown = cv2.distanceTransform((~body).astype(np.uint8), cv2.DIST_L2, 5) <= reach
-        closed = cv2.distanceTransform(grown.astype(np.uint8), cv2.DIST_L2, 5) > reach - UNDERLAY_MARGIN
+        # The body goes on under a limb as far as its convex hull (and UNDERLAY_MARGIN px, so a seam
+        # at the hull's edge that opens by a pixel shows the body), not past it: beyond, the page.
+        hull = np.zeros((H, W), np.uint8)
+        own_v = mesh.vertices[np.unique(mesh.triangles[(mesh.layer == 0) & (mesh.parts == p)])]
+        cv2.fillConvexPoly(hull, np.rint(cv2.convexHull(own_v.astype(np.float32))[:, 0] * 16).astype(np.int32),
+                           1, cv2.LINE_8, 4)
+        hull = cv2.dilate(hull, np.ones((2 * UNDERLAY_MARGIN + 1, 2 * UNDERLAY_MARGIN + 1), np.uint8))
         out[sel, :3] = np.rint(colour).astype(np.uint8)
-        out[sel, 3] = np.where(closed[sel] | body[sel], 255, 0)
+        out[sel, 3] = np.where(hull[sel] > 0, 255, 0)
     return out
 
