@@ -113,7 +113,7 @@ def main(argv=None) -> int:
         tmp = Path(tmp)
         raw = contract.validate(synthetic.generate(characters=4, clips_per_cell=1, frames=24, seed=0), "syn")
         table, unifier = unify_table(raw, 0.5)
-        fit_model(table, unifier, dict(n_components=8, max_iter=60, align_iter=40), tmp / "m.npz")
+        fit_model([(None, table, unifier)], dict(n_components=8, max_iter=60, align_iter=40), tmp / "m.npz")
         model = StyleModel.load(tmp / "m.npz")
         bvh = DATA / "bandai-namco-1" / "data" / "dataset-1_walk_normal_001.bvh"
         for workers in args.workers:

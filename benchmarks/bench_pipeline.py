@@ -65,9 +65,9 @@ def stage_work(db: Path) -> dict[str, float]:
     for _, row in runs.iterrows():
         stage = row.get("tags.nnsf.stage")
         if stage == "sweep":
-            work[stage] = float(row.get("metrics.sweep_seconds", float("nan")))
+            work[stage] = float(row.get("metrics.sweep/sweep_seconds", float("nan")))
         elif stage and stage != "sweep-point":
-            work[stage] = float(row.get("metrics.stage_seconds", float("nan")))
+            work[stage] = float(row.get(f"metrics.{stage}/stage_seconds", float("nan")))
     return work
 
 

@@ -11,7 +11,7 @@ same run it times
 * **ours**     — limb start, then the space-time LM solve with sketch term and colour penalty;
 * **ours, snap profile / snap edge** — "ours" ended by the snap (``snap: 2``
   to the keyframes' colour profile; ``snap: 3`` to the strongest colour edge),
-  the options for flat-colour art (README, tracking);
+  the options for flat-colour art (docs/results.md, tracking);
 * **ours, init linear** — the same solver from linear interpolation (the
   library's default options, what this benchmark timed before the flow starts);
 * **agarwala** — the same solver without sketch term and colour penalty (dense-flow start);

@@ -11,6 +11,8 @@ Commands::
         the scheduled pipeline flow, run once now (same server handling as repro)
     python -m flows serve [--cron "0 3 * * *"] [--name nnsf-pipeline]
         serve the pipeline flow as a deployment on a cron schedule
+    python -m flows ui [--port 5000]
+        MLflow's UI on the project's store; prints the URL of the experiment's runs
 
 Exit codes: 0 success, 2 bad input (one ``error: …`` line on stderr, never a
 traceback), 1 any other failure (also one line; set ``NNSF_DEBUG=1`` to get
@@ -67,8 +69,12 @@ def main(argv: list[str] | None = None) -> int:
             from flows import pipeline
 
             return pipeline.serve_main(rest)
+        if command == "ui":
+            from flows import mlflow_ui
+
+            return mlflow_ui.main(rest)
         error_line(f"command line: {command!r}: expected one of "
-                   f"{', '.join(STAGES + ('repro', 'pipeline', 'serve'))}")
+                   f"{', '.join(STAGES + ('repro', 'pipeline', 'serve', 'ui'))}")
         return 2
     except KeyboardInterrupt:
         error_line("interrupted")
@@ -126,6 +132,9 @@ def run_stage_command(stage: str, args: list[str]) -> int:
     from nnsf.pipeline import check_outputs
 
     check_outputs(stage)  # an unwritable output folder: one line now, not after the work
+    from flows.tracking import preflight
+
+    preflight()  # MLflow's store and Prefect's API reached now, within NNSF_TRACKING_TIMEOUT
 
     from flows.console import quiet_prefect_console
 

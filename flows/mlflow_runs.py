@@ -25,6 +25,7 @@ import mlflow
 from mlflow.entities import Metric, Param
 from mlflow.exceptions import MlflowException
 from mlflow.tracking import MlflowClient
+from mlflow.utils.logging_utils import MLFLOW_LOGGING_STREAM
 
 from flows import project
 
@@ -33,10 +34,17 @@ from flows import project
 # error line (see flows.console).
 # Only MLflow's own stderr handler: others on that logger (a test runner's
 # capture handler) keep their streams.
+# MLflow's handler writes to its own wrapper of sys.stderr (MLFLOW_LOGGING_STREAM), so that is
+# what is looked for, besides stderr itself.
 for _handler in logging.getLogger("mlflow").handlers:
-    if type(_handler) is logging.StreamHandler and _handler.stream in (sys.stderr, sys.__stderr__):
+    if type(_handler) is logging.StreamHandler and _handler.stream in (sys.stderr, sys.__stderr__,
+                                                                      MLFLOW_LOGGING_STREAM):
         _handler.setStream(sys.stdout)
 
+#: The experiment tag MLflow 3's UI reads to choose an experiment's pages, and the kind that
+#: opens on the runs table and charts (without it the UI may open the GenAI pages: traces,
+#: prompts).  The value is one of the UI's ``ExperimentKind`` names.
+EXPERIMENT_KIND_TAG, EXPERIMENT_KIND = "mlflow.experimentKind", "custom_model_development"
 #: MLflow's per-request limits for ``log_batch``.
 _MAX_PARAMS, _MAX_METRICS = 100, 1000
 #: Longest parameter value MLflow stores.
@@ -70,7 +78,8 @@ class ExperimentLog:
             # or --default-artifact-root); a local store keeps them in the project.
             location = None if _is_remote(self.uri) else project.mlflow_artifacts(self.root)
             try:
-                return self.client.create_experiment(name, artifact_location=location)
+                return self.client.create_experiment(name, artifact_location=location,
+                                                     tags={EXPERIMENT_KIND_TAG: EXPERIMENT_KIND})
             except MlflowException:
                 # Another process created it between our lookup and create.
                 exp = self.client.get_experiment_by_name(name)
@@ -79,6 +88,8 @@ class ExperimentLog:
         if exp.lifecycle_stage == "deleted":
             # A deleted experiment keeps its name; logging into it would fail.
             self.client.restore_experiment(exp.experiment_id)
+        if EXPERIMENT_KIND_TAG not in exp.tags:  # made by another tool, or by an older nnsf
+            self.client.set_experiment_tag(exp.experiment_id, EXPERIMENT_KIND_TAG, EXPERIMENT_KIND)
         return exp.experiment_id
 
     # -- runs ---------------------------------------------------------------
@@ -96,16 +107,19 @@ class ExperimentLog:
         self.client.set_terminated(run_id, "FINISHED" if ok else "FAILED")
 
     def log(self, run_id: str, params: Mapping | None = None,
-            metrics: Mapping | None = None, artifacts=()) -> None:
+            metrics: Mapping | None = None, artifacts=(), group: str | None = None) -> None:
         """Log flat params, numeric metrics and files to a run.
 
         Metric values that are not real numbers are skipped (MLflow would
         reject the whole batch); artifact files keep their folder relative to
         the project (``reports/figures/…``) so the run mirrors the workspace.
+        With ``group`` (the stage), each metric is named ``<group>/<name>``:
+        MLflow's charts gather the metrics of one prefix in one section, so the
+        runs view shows one section per stage instead of one grid of all.
         """
         now = int(time.time() * 1000)
         plist = [Param(str(k), _param_value(v)) for k, v in (params or {}).items()]
-        mlist = [Metric(str(k), float(v), now, 0) for k, v in (metrics or {}).items()
+        mlist = [Metric(metric_name(group, k), float(v), now, 0) for k, v in (metrics or {}).items()
                  if isinstance(v, numbers.Real)]
         for i in range(0, len(plist), _MAX_PARAMS):
             self.client.log_batch(run_id, params=plist[i:i + _MAX_PARAMS])
@@ -128,7 +142,7 @@ class ExperimentLog:
         """One finished run for a stage's :class:`~nnsf.pipeline.StageResult`."""
         run_id = self.start_run(stage, {"nnsf.stage": stage, **(tags or {})})
         try:
-            self.log(run_id, result.params, result.metrics, result.artifacts)
+            self.log(run_id, result.params, result.metrics, result.artifacts, group=stage)
         except BaseException:
             self.end_run(run_id, ok=False)
             raise
@@ -213,6 +227,11 @@ class ExperimentLog:
             filter_string=f"tags.mlflow.parentRunId = '{parent_id}'",
             output_format="pandas",
         )
+
+
+def metric_name(group: str | None, name) -> str:
+    """A metric's MLflow name: ``<group>/<name>`` (the stage's chart section), or ``name``."""
+    return f"{group}/{name}" if group else str(name)
 
 
 def _param_value(value) -> str:

@@ -77,8 +77,8 @@ def running(home: Path, host: str = "127.0.0.1", port: int | None = None,
     cmd = _prefect_command() + ["server", "start", "--host", host, "--port", str(port),
                                 "--analytics-off"] + ([] if ui else ["--no-ui"])
     with open(log_file, "ab") as log:
-        # A new session makes the server and anything it spawns one process
-        # group, so stop() can end them all and nothing else.
+        # The server and anything it spawns form one process group of their
+        # own (setsid), so stop() can end them all and nothing else.
         proc = subprocess.Popen(cmd, env=env, stdin=subprocess.DEVNULL, stdout=log,
                                 stderr=subprocess.STDOUT, start_new_session=True)
     try:

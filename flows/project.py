@@ -76,6 +76,6 @@ def prefect_home(project: Path | None = None) -> Path:
     """Prefect's home for servers this project starts: ``<root>/.prefect``.
 
     Kept inside the project so the run history of ``python -m flows repro``
-    survives and can be browsed later (see the README).
+    survives and can be browsed later (docs/operations.md).
     """
     return (project or root()) / ".prefect"

@@ -14,8 +14,8 @@ below); ``NNSF_TASK_RUNNER`` set to one of these names overrides it for all:
 - ``threads``: :class:`prefect.task_runners.ThreadPoolTaskRunner`.  Threads
   start at once and copy nothing.  numpy releases the GIL inside its
   products, but the default dataset's fits are small (about 9,000 x 34) and
-  hold it between them, so two threads gain little over one there (README,
-  Benchmarks).
+  hold it between them, so two threads gain little over one there
+  (``benchmarks/bench_sweep.py``).
 - ``processes``: :class:`prefect.task_runners.ProcessPoolTaskRunner`.  Each
   worker process pays its start-up (imports, about 3-6 s) once and each item
   is pickled to it, but the workers share no GIL.
@@ -24,7 +24,7 @@ below); ``NNSF_TASK_RUNNER`` set to one of these names overrides it for all:
   local cluster of ``NNSF_WORKERS`` single-threaded worker processes lives
   for the flow run.
 
-The rule (measured: README, Fan-out): **processes for few, large items**,
+The rule (measured with ``benchmarks/bench_fanout.py``): **processes for few, large items**,
 items that each compute for seconds in Python and numpy between BLAS calls
 (a held-out cell refits eleven methods on the remaining clips: 4-30 s), where
 a worker's start-up and a copy of its input are small beside the item and a

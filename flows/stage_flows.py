@@ -20,6 +20,7 @@ from nnsf.errors import InputError
 from nnsf.pipeline import StageResult
 
 from flows.mlflow_runs import ExperimentLog
+from flows.tracking import recorded
 
 
 def run_stage(stage: str, fn: Callable[[dict], StageResult], params: dict):
@@ -37,15 +38,16 @@ def run_stage(stage: str, fn: Callable[[dict], StageResult], params: dict):
         return Failed(message=str(err), data=err)
     seconds = time.perf_counter() - started
     result.metrics.setdefault("stage_seconds", round(seconds, 3))
-    log = ExperimentLog(params["mlflow"]["experiment"])
-    run_id = log.log_stage(stage, result)
-    for name, child in result.runs.items():
-        # One nested run per method/variant, so they line up in MLflow's
-        # comparison view.
-        child_id = log.start_run(name, {"nnsf.stage": f"{stage}-run", "nnsf.run": name},
-                                 parent_id=run_id)
-        log.log(child_id, child.params, child.metrics, child.artifacts)
-        log.end_run(child_id)
+    with recorded(stage, result.artifacts):     # a store failing now: one line saying what was kept
+        log = ExperimentLog(params["mlflow"]["experiment"])
+        run_id = log.log_stage(stage, result)
+        for name, child in result.runs.items():
+            # One nested run per method/variant, so they line up in MLflow's
+            # comparison view.
+            child_id = log.start_run(name, {"nnsf.stage": f"{stage}-run", "nnsf.run": name},
+                                     parent_id=run_id)
+            log.log(child_id, child.params, child.metrics, child.artifacts, group=stage)
+            log.end_run(child_id)
     shown = ", ".join(f"{k}={_short(v)}" for k, v in list(result.metrics.items())[:8])
     logger.info("%s done in %.1f s; MLflow run %s; %s", stage, seconds, run_id, shown)
     return {"metrics": result.metrics, "mlflow_run_id": run_id}
@@ -144,8 +146,14 @@ def animate(params: dict):
     return run_stage("animate", stages.animate, params)
 
 
+@flow(name="nnsf-results", **_OPTIONS)
+def results(params: dict):
+    """The results document: docs/results.md from the reports (docs/results.yaml lists its tables)."""
+    return run_stage("results", stages.results, params)
+
+
 #: The stage flows by DVC stage name (the sweep lives in :mod:`flows.sweep`).
 FLOWS = {f.fn.__name__: f for f in (data, features, factorize, evaluate, isomap, frames, roto, roto_eval,
-                                    heldout, translate, reshape, styles, animate)}
+                                    heldout, translate, reshape, styles, animate, results)}
 #: Stages that fan out on the configured task runner (flows.runners).
 FAN_OUT = {"evaluate", "frames", "roto", "roto_eval", "heldout"}

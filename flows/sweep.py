@@ -15,7 +15,9 @@ interrupted sweep resume, and an unchanged point survive a grid that grew.
 
 Afterwards the nested runs are read back with ``mlflow.search_runs`` and
 written as the comparison table ``reports/sweep.csv`` plus the metrics file
-``reports/sweep.json`` (the best point).
+``reports/sweep.json`` (the best point); the parent run carries the table and
+a chart of the score against α, β and rank (:data:`CHART`).  Metrics are
+logged as ``sweep/<name>`` (:func:`flows.mlflow_runs.metric_name`).
 """
 from __future__ import annotations
 
@@ -33,14 +35,19 @@ from prefect.states import Failed
 
 from nnsf import pipeline, stages
 from nnsf.errors import InputError
+from nnsf.evaluate.figures import sweep_figure
 from nnsf.io import write_csv, write_json
 
 from flows import project, runners
-from flows.mlflow_runs import ExperimentLog
+from flows.mlflow_runs import ExperimentLog, metric_name
 
 SWEEP_CSV = pipeline.REPORTS / "sweep.csv"
 SWEEP_JSON = pipeline.REPORTS / "sweep.json"
 FIGURE_DIR = pipeline.REPORTS / "figures" / "sweep"
+#: The parent run's chart: the score of every point against α, β and rank.
+CHART = FIGURE_DIR / "precision_vs_alpha_beta_rank.png"
+#: The chart section of the sweep's metrics in MLflow.
+GROUP = "sweep"
 #: The metric that ranks sweep points, best first if higher; the first one a
 #: point reports is used.
 SCORES = ("precision_mean", "precision", "accuracy_mean", "accuracy")
@@ -159,7 +166,7 @@ def sweep(params: dict, point_fn: str | None = None, reuse: bool = True):
                  "figure_dir": str(figure_dir), "key": keys[i]} for i in todo]
         failure = _fan_out(fn, jobs, log, parent, logger)
         counts = {"points_reused": len(done), "points_computed": len(todo) - _failed_count(failure)}
-        log.log(parent, metrics=counts)
+        log.log(parent, metrics=counts, group=GROUP)
         if failure is not None:
             log.end_run(parent, ok=False)
             return failure
@@ -167,8 +174,9 @@ def sweep(params: dict, point_fn: str | None = None, reuse: bool = True):
         best = _best(table)
         write_csv(root / SWEEP_CSV, table)
         write_json(root / SWEEP_JSON, best)
+        chart = sweep_figure(table, score_column(table), root / CHART)
         log.log(parent, metrics={**best, "sweep_seconds": time.perf_counter() - started},
-                artifacts=[root / SWEEP_CSV, root / SWEEP_JSON])
+                artifacts=[root / SWEEP_CSV, root / SWEEP_JSON, chart], group=GROUP)
     except BaseException:
         log.end_run(parent, ok=False)
         raise
@@ -216,7 +224,7 @@ def _fan_out(fn, jobs, log: ExperimentLog, parent: str, logger):
         child = log.start_run(point_name(point), {"nnsf.stage": "sweep-point", TAG_KEY: job["key"]},
                               parent_id=parent)
         log.log(child, params={**result.params, **point}, metrics=result.metrics,
-                artifacts=result.artifacts)
+                artifacts=result.artifacts, group=GROUP)
         log.end_run(child)
         logger.info("sweep point %s: %s", point_name(point),
                     ", ".join(f"{k}={v:.4g}" for k, v in result.metrics.items()
@@ -267,7 +275,7 @@ def _one_blas_thread_per_worker():
 
 
 #: Metrics that vary from run to run with the same inputs.
-VOLATILE_METRICS = ("metrics.seconds", "metrics.stage_seconds")
+VOLATILE_METRICS = ("seconds", "stage_seconds")
 
 
 def _comparison_table(runs: pd.DataFrame, expected: int) -> pd.DataFrame:
@@ -283,10 +291,11 @@ def _comparison_table(runs: pd.DataFrame, expected: int) -> pd.DataFrame:
         "beta": runs["params.beta"].astype(float),
         "rank": runs["params.rank"].astype(int),
     })
-    metric_cols = sorted(c for c in runs.columns
-                         if c.startswith("metrics.") and c not in VOLATILE_METRICS)
-    for col in metric_cols:
-        table[col.removeprefix("metrics.")] = runs[col].astype(float)
+    prefix = "metrics." + metric_name(GROUP, "")
+    names = sorted(c.removeprefix(prefix) for c in runs.columns if c.startswith(prefix))
+    for name in names:
+        if name not in VOLATILE_METRICS:
+            table[name] = runs[prefix + name].astype(float)
     return table.sort_values(list(POINT), kind="stable").reset_index(drop=True)
 
 

@@ -1,6 +1,6 @@
 """The ``nnsf`` command: each pipeline stage as a plain command, without orchestration.
 
-    nnsf frames|roto|roto_eval|data|features|factorize|evaluate|isomap|heldout [--params FILE]
+    nnsf frames|roto|roto_eval|data|features|factorize|evaluate|isomap|heldout|results [--params FILE]
     nnsf roto [--export-cvat DIR] [--corrections FILE.xml [--clip CLIP]]
                                         tracks out to CVAT; corrected frames back in as keyframes
     nnsf sweep [--params FILE]          every sweep point in turn, a CSV on stdout
@@ -9,18 +9,25 @@
                                         one clip's motion performed in another style
     nnsf reshape [--motion CSV] [--clip CLIP] [--character NAME|FILE|FOLDER] [--joints FILE] [--out DIR]
                                         a drawn character performing a motion clip
-    nnsf styles [--data FOLDER] [--out FILE]
-                                        fit the style model and save it (default models/styles.npz)
+    nnsf styles [--data FOLDER] [--out FILE] [--joint-map FILE.yaml] [--alias NAME=STYLE ...]
+                [--neutral STYLE] [--views front,side,three-quarter]
+                                        fit the style model and save it (default models/styles.npz);
+                                        motion capture is learned in every view; works in any
+                                        folder (package defaults without a params.yaml)
     nnsf animate --character C --motion M [--style NAME|none] [--model FILE]
                  [--view front|side|three-quarter|auto] [--arms motion|drawing] [--head motion|torso]
-                 [--out FILE.mp4|FILE.gif|DIR] [--fps N] [--workers N]
+                 [--out FILE.mp4|FILE.gif|DIR] [--fps N] [--workers N] [--joint-map FILE.yaml]
+                 [--keypoints FILE.csv]
                                         your character performing your motion in a learned style
+    nnsf bvh-info FILE.bvh [--joint-map FILE.yaml]
+                                        a BVH file's hierarchy, frames, skeleton family, key points
+                                        and the view it moves most in
     nnsf reshape-eval --data DIR [--out DIR] [--workers N]
                                         the reshaping evaluation on drawn characters (AnimatedDrawings,
                                         Bandai-Namco, Kenney folders under DIR)
-    nnsf roto-real --data DIR [--out DIR] [--lpc DIR]
-                                        the trackers on the Kenney toon walk cycles (or the LPC
-                                        sprite sheets' walk rows) vs their silhouettes
+    nnsf roto-real --data DIR --annotations DIR [--format frames|lpc] [--name STEM] [--out DIR]
+                                        the trackers on annotated real frames (folders of RGBA
+                                        frames, or LPC sprite sheets) vs their silhouettes
 
 The same stages run as Prefect flows with MLflow logging through
 ``python -m flows <stage>`` (what ``dvc repro`` calls).  Exit codes: 0 done,
@@ -40,6 +47,10 @@ from pathlib import Path
 from nnsf.errors import InputError, exception_line, terminate_as_interrupt
 from nnsf.io import read_json
 from nnsf.params import STAGE_NAMES
+from nnsf.schema import List, Optional, Record, Str
+
+#: The part of reshape's metrics.json the command reads back: its notes, each printed on one line.
+RESHAPE_NOTES = Record({"notes": Optional(List(Str(max_len=10_000), max_len=1000))}, extra=True)
 
 #: OS errors that mean "this output cannot be written here": reported like bad input (exit 2).
 UNWRITABLE = {errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOTDIR, errno.EISDIR, errno.ENOSPC,
@@ -54,9 +65,10 @@ def _parser() -> argparse.ArgumentParser:
                                      formatter_class=argparse.RawDescriptionHelpFormatter,
                                      epilog=__doc__.split("\n\n", 1)[1])
     sub = parser.add_subparsers(dest="command", required=True, metavar="command")
+    params_help = "parameters file (default: params.yaml in the current folder)"
     for name in STAGES + ("sweep", "check"):
         p = sub.add_parser(name, help=f"the {name} stage" if name in STAGES else None)
-        p.add_argument("--params", default="params.yaml", help="parameters file (default: params.yaml)")
+        p.add_argument("--params", default="params.yaml", help=params_help)
         if name == "roto":
             p.add_argument("--corrections", type=Path, default=None, metavar="FILE.xml",
                            help="a CVAT for video 1.1 file of corrected tracks: its corrected frames "
@@ -66,7 +78,7 @@ def _parser() -> argparse.ArgumentParser:
                            help="also write DIR/<clip>.xml (CVAT for video 1.1) of every clip's tracks")
 
     p = sub.add_parser("translate", help="one clip's motion performed in another style")
-    p.add_argument("--params", default="params.yaml")
+    p.add_argument("--params", default="params.yaml", help=params_help)
     p.add_argument("--features", type=Path, default=Path("data/features/features.csv"),
                    help="unified feature table (its unifier.json beside it)")
     p.add_argument("--clip", default=None, help="the content clip (default: translation.content_clip)")
@@ -74,7 +86,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, default=Path("reports/translation"))
 
     p = sub.add_parser("reshape", help="a drawn character performing a motion clip")
-    p.add_argument("--params", default="params.yaml")
+    p.add_argument("--params", default="params.yaml", help=params_help)
     p.add_argument("--motion", type=Path, default=Path("reports/translation/translated_features.csv"),
                    help="a feature-matrix CSV (any 17-point clip: synthetic, BVH, tracked, translated)")
     p.add_argument("--clip", default=None, help="its clip (default: reshape.clip, else the first)")
@@ -82,22 +94,35 @@ def _parser() -> argparse.ArgumentParser:
                    help="a built-in character name, or an AnimatedDrawings folder (extra arms and "
                         "quadrupeds too), joints YAML beside its PNG or character JSON (default: reshape.character)")
     p.add_argument("--joints", type=Path, default=None,
-                   help="joints YAML (or Kenney nnsf.keypoints JSON) for a PNG --character")
+                   help="joints YAML (or nnsf.keypoints JSON) for a PNG --character")
     p.add_argument("--out", type=Path, default=Path("reports/reshape"))
 
     p = sub.add_parser("styles", help="fit the style model and save it")
-    p.add_argument("--params", default="params.yaml")
+    p.add_argument("--params", default=None,
+                   help="parameters file (its dataset.bvh, unify, translation and seed settings); default: "
+                        "params.yaml in the current folder, else the package defaults (a note says so)")
     p.add_argument("--data", type=Path, default=None,
                    help="a folder of labelled .bvh clips, or a features folder (features.csv, unifier.json); "
                         "default: data/features (the pipeline's configured dataset)")
-    p.add_argument("--out", type=Path, default=Path("models/styles.npz"))
+    p.add_argument("--out", type=Path, default=Path("models/styles.npz"),
+                   help="the model file to write (default: models/styles.npz)")
+    p.add_argument("--joint-map", type=Path, default=None, metavar="FILE.yaml",
+                   help="which joints make the 17 key points, for a skeleton no built-in family reads "
+                        "(docs/formats.md §3.3); default: dataset.bvh.joint_map")
+    p.add_argument("--alias", action="append", default=[], metavar="NAME=STYLE",
+                   help="another name for a style, kept in the model (e.g. elderly=old); repeatable")
+    p.add_argument("--neutral", default=None,
+                   help="the style a motion of unknown style is read as (e.g. normal); default: "
+                        "translation.neutral of params.yaml")
+    p.add_argument("--views", default="front,side,three-quarter",
+                   help="the camera views a folder of motion capture is learned in (comma-separated)")
 
     p = sub.add_parser("animate", help="your character performing your motion in a learned style")
     p.add_argument("--character", required=True,
                    help="AnimatedDrawings folder or char_cfg.yaml, RGBA PNG (+ --joints), joints YAML, "
                         "character JSON, or a built-in character name")
     p.add_argument("--joints", type=Path, default=None,
-                   help="joints YAML (or Kenney nnsf.keypoints JSON) for a PNG character")
+                   help="joints YAML (or nnsf.keypoints JSON) for a PNG character")
     p.add_argument("--motion", required=True,
                    help="a .bvh, a feature-matrix .csv, or synthetic:<character>/<motion>[/<frames>]")
     p.add_argument("--clip", default=None, help="the clip of a multi-clip CSV (default: the first)")
@@ -123,9 +148,19 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--vertices", type=int, default=800, help="mesh vertices (100..6000)")
     p.add_argument("--workers", type=int, default=None,
                    help="processes that render the frames (default: the CPUs available, at most 8)")
+    p.add_argument("--joint-map", type=Path, default=None, metavar="FILE.yaml",
+                   help="which joints of a BVH motion make the 17 key points (docs/formats.md §3.3)")
+    p.add_argument("--keypoints", type=Path, default=None, metavar="FILE.csv",
+                   help="also write the key points that drive the drawing (styled, in its pixels) as a "
+                        "feature-matrix CSV (docs/formats.md §3.1)")
+
+    p = sub.add_parser("bvh-info", help="what nnsf makes of a BVH file: hierarchy, family, key points, view")
+    p.add_argument("file", type=Path, metavar="FILE.bvh")
+    p.add_argument("--joint-map", type=Path, default=None, metavar="FILE.yaml",
+                   help="which joints make the 17 key points (docs/formats.md §3.3), instead of detection")
 
     p = sub.add_parser("reshape-eval", help="reshaping evaluation on drawn characters (docs/method.md §15.7)")
-    p.add_argument("--params", default="params.yaml")
+    p.add_argument("--params", default="params.yaml", help=params_help)
     p.add_argument("--data", type=Path, required=True, nargs="+",
                    help="folders holding the drawings and motions reshape_eval names (each looked up in "
                         "the first folder that has it)")
@@ -133,21 +168,21 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=1,
                    help="processes for the (drawing, motion) items (default 1; results are the same)")
 
-    p = sub.add_parser("roto-real", help="the trackers on real cartoon frames (Kenney toon walk cycles)")
-    p.add_argument("--params", default="params.yaml")
-    p.add_argument("--data", type=Path, default=None,
-                   help="the Kenney toon characters folder (female_adventurer/, robot/, ...); "
-                        "required unless --lpc is given")
-    p.add_argument("--annotations", type=Path, default=Path("tests/data/kenney"),
-                   help="hand-made keyframe annotations, <character>.annotation.json")
+    p = sub.add_parser("roto-real", help="the trackers on annotated real frames, scored against their silhouettes")
+    p.add_argument("--params", default="params.yaml", help=params_help)
+    p.add_argument("--data", type=Path, required=True,
+                   help="frames: a folder of <character>/ folders of RGBA PNG frames; "
+                        "lpc: a folder of LPC sprite sheets <body>.png")
+    p.add_argument("--annotations", type=Path, required=True,
+                   help="hand-made keyframe annotations, <character>.annotation.json (each one is tracked)")
+    p.add_argument("--format", choices=("frames", "lpc"), default="frames",
+                   help="how --data holds the frames (default: frames)")
+    p.add_argument("--name", default=None,
+                   help="the report's file stem (default: roto_<format>)")
     p.add_argument("--out", type=Path, default=Path("reports"))
     p.add_argument("--tol", type=float, default=None,
                    help="px from the silhouette boundary that counts as on it "
-                        "(default 1.5 for Kenney, 1.0 for the LPC pixel art)")
-    p.add_argument("--lpc", type=Path, default=None, metavar="DIR",
-                   help="instead: the LPC sprite sheets' walk rows in DIR (the lpc-bodies folder)")
-    p.add_argument("--lpc-annotations", type=Path, default=Path("tests/data/lpc"),
-                   help="hand-made LPC keyframe annotations, <body>.annotation.json")
+                        "(default 1.5 for frames, 1.0 for the 64-px LPC tiles)")
     return parser
 
 
@@ -174,25 +209,54 @@ def _animate(args) -> int:
         raise InputError("--fps", "fps", "a number 1..120", args.fps)
     if not 100 <= args.vertices <= 6000:
         raise InputError("--vertices", "vertices", "an integer 100..6000", args.vertices)
+    joint_map = None
+    if args.joint_map is not None:
+        from nnsf.datasets.joint_map import read_joint_map
+
+        joint_map = read_joint_map(args.joint_map)
+    if args.keypoints is not None and args.keypoints.suffix.lower() != ".csv":
+        raise InputError(args.keypoints, "--keypoints", "a .csv file name", args.keypoints.suffix or "none")
     res = animate_files(args.character, args.motion, style=args.style, model=args.model, view=args.view,
                         out=args.out, fps=args.fps, joints=args.joints, source_style=args.source_style,
                         n_vertices=args.vertices, clip=args.clip, arms=args.arms, workers=args.workers,
-                        head=args.head, mask=args.mask, **_max_size(args))
-    for note in res.notes:
-        print(f"animate: note: {note}", file=sys.stderr)
+                        head=args.head, joint_map=joint_map, keypoints=args.keypoints, mask=args.mask,
+                        **_max_size(args))
+    # The notes were said before rendering (animate_files, progress on).
     parts = ", ".join(f"{k} {v:.2f} s" for k, v in res.seconds.items() if k != "total")
     print(f"animate: {res.frames} frames at {res.fps:g} fps in {res.seconds['total']:.2f} s ({parts})")
     for kind, path in res.files.items():
-        if kind == "mp4":
-            from nnsf.reshape.video import mp4_codec
-
-            codec = mp4_codec()
-            print(f"animate: {kind}: {path}" + ("" if codec == "avc1" else
-                  " (MPEG-4 Part 2, mp4v: this OpenCV has no H.264 encoder; VLC and ffmpeg play it, "
-                  "browsers and QuickTime may not: use --out FILE.gif for those)"))
-        else:
-            print(f"animate: {kind}: {path}")
+        print(f"animate: {kind}: {path}" + (" (H.264)" if kind == "mp4" else ""))
+    if args.keypoints is not None:
+        print(f"animate: keypoints: {args.keypoints}")
     return 0
+
+
+def _bvh_info(args) -> int:
+    from nnsf.datasets.bvh_info import bvh_info
+
+    joint_map = None
+    if args.joint_map is not None:
+        from nnsf.datasets.joint_map import read_joint_map
+
+        joint_map = read_joint_map(args.joint_map)
+    info = bvh_info(args.file, joint_map=joint_map)
+    print("\n".join(info.lines), flush=True)
+    if info.error is not None:
+        raise info.error
+    return 0
+
+
+def _styles_params(args):
+    """The params ``nnsf styles`` runs with: ``--params``, else ./params.yaml, else the package defaults."""
+    from nnsf import params as params_mod
+
+    if args.params is not None or Path("params.yaml").is_file():
+        return params_mod.load(args.params or "params.yaml")
+    params = params_mod.load_defaults()
+    # Said with the reader's report once the model is written (a failure stays one line).
+    params.note = (f"no params.yaml in {Path.cwd()}; used the package defaults ({params.source}); "
+                   "--params FILE picks another")
+    return params
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -213,11 +277,14 @@ def _run(args) -> int:
         _settle_publications()
         if args.command == "animate":  # needs no params.yaml
             return _animate(args)
+        if args.command == "bvh-info":
+            return _bvh_info(args)
         from nnsf import params as params_mod
         from nnsf import pipeline, stages
 
-        params = params_mod.load(args.params)
+        params = _styles_params(args) if args.command == "styles" else params_mod.load(args.params)
         if args.command == "check":
+            _check_stage_params(params)
             print(f"{args.params}: ok")
             return 0
         # Every output folder is checked before any work: a file in the way, no
@@ -263,15 +330,27 @@ def _run(args) -> int:
             result = stages.reshape(params, motion_csv=args.motion, out_dir=args.out,
                                     character_path=character_path, joints=args.joints)
             shown = [str(a) for a in result.artifacts if str(a).endswith(".gif")]
-            for note in read_json(Path(args.out) / "metrics.json").get("notes", []):
+            for note in read_json(Path(args.out) / "metrics.json", RESHAPE_NOTES).get("notes", []):
                 print(f"reshape: note: {note}", file=sys.stderr)
             print(f"reshape: wrote {args.out}/" + (f"; open {shown[0]}" if shown else ""))
         elif args.command == "styles":
             from nnsf.factor.stage import styles_by_hand
 
-            result = styles_by_hand(params, args.data, args.out)
+            aliases = {}
+            for text in args.alias:
+                name, sep, style = text.partition("=")
+                if not sep or not name.strip() or not style.strip():
+                    raise InputError("--alias", "alias", "NAME=STYLE, e.g. elderly=old", text)
+                aliases[name.strip()] = style.strip()
+            if args.neutral is not None:
+                params["translation"] = {**params.get("translation", {}), "neutral": args.neutral}
+            result, report = styles_by_hand(params, args.data, args.out, joint_map=args.joint_map,
+                                            aliases=aliases, views=tuple(v for v in args.views.split(",") if v))
+            for line in ([params.note] if getattr(params, "note", None) else []) + report:
+                print(f"styles: {line}", file=sys.stderr)
             print(f"styles: wrote {args.out} ({result.metrics['styles']} styles, "
-                  f"{result.metrics['contents']} contents)")
+                  f"{result.metrics['contents']} contents, "
+                  f"{result.metrics.get('views', 1)} view(s))")
         elif args.command == "reshape-eval":
             from nnsf.reshape.evaluation import reshape_eval
 
@@ -290,22 +369,17 @@ def _run(args) -> int:
                         return list(ex.map(fn, xs))
             result = reshape_eval(params, data_root=args.data, out_dir=args.out, mapper=mapper)
         elif args.command == "roto-real":
-            from nnsf.roto.real import kenney_report
+            from nnsf.roto import lpc, real
             from nnsf.roto.options import track_options
 
-            if args.lpc is None and args.data is None:
-                raise InputError("nnsf roto-real", "--data",
-                                 "the Kenney toon characters folder (or --lpc DIR for the LPC sheets)")
-            if args.lpc is not None:
-                from nnsf.roto.lpc import TOL, lpc_report
-
-                args.tol = TOL if args.tol is None else args.tol
-                summary = lpc_report(args.lpc, args.lpc_annotations, args.out, tol=args.tol,
-                                     **track_options(params))
-            else:
-                args.tol = 1.5 if args.tol is None else args.tol
-                summary = kenney_report(args.data, args.annotations, args.out, tol=args.tol,
-                                        **track_options(params))
+            report, tol = ((lpc.lpc_report, lpc.TOL) if args.format == "lpc"
+                           else (real.frames_report, real.TOL))
+            args.tol = tol if args.tol is None else args.tol
+            stem = args.name or f"roto_{args.format}"
+            if not stem.replace("_", "").replace("-", "").isalnum():
+                raise InputError("nnsf roto-real", "--name", "a file stem of letters, digits, - and _", stem)
+            summary = report(args.data, args.annotations, args.out, stem=stem, tol=args.tol,
+                             **track_options(params))
             for tracker, score in summary["trackers"].items():
                 extra = ""
                 if tracker in summary.get("coverage", {}):
@@ -316,9 +390,8 @@ def _run(args) -> int:
             if summary.get("snap"):
                 print("roto-real: ours ended with snap " + ", ".join(
                     f"{c} {t}" for c, t in sorted(summary["snap"].items())))
-            name = "roto_lpc.json" if args.lpc is not None else "roto_kenney.json"
             print(f"roto-real: keyframe ceiling = {summary['ceiling']:.3f}; "
-                  f"wrote {args.out / name}")
+                  f"wrote {args.out / (stem + '.json')}")
             return 0
         elif args.command == "roto" and (args.corrections or args.export_cvat):
             from nnsf.roto.correct import apply_corrections, export_clips
@@ -326,6 +399,10 @@ def _run(args) -> int:
             if args.corrections is not None:
                 done = apply_corrections(params, args.corrections, pipeline.FRAMES_DIR,
                                          pipeline.TRACKS_DIR, clip=args.clip)
+                if not done["corrected_frames"]:
+                    print(f"track: {done['clip']}: no frame of {args.corrections} differs from the tracked "
+                          "curves (at the file's precision) and no frame was ticked nnsf_keyframe: nothing "
+                          "to re-track")
                 print(f"track: {done['clip']}: corrected frames {done['corrected_frames']}; "
                       f"re-tracked intervals {done['resolved_intervals']}; wrote {done['curves']}")
                 from nnsf.roto.stage import keypoints_from_tracks
@@ -357,6 +434,27 @@ def _run(args) -> int:
         return 2
     except Exception as err:  # a bug or an environment problem
         return _unexpected(args.command, err)
+
+
+def _check_stage_params(params: dict) -> None:
+    """The parameter checks stages make beyond the schema that need no data, for ``nnsf check``.
+
+    The schema (:func:`nnsf.params.load`) has every field's type and range;
+    these combine fields or compare them with the code (motion names the
+    generator has, a translator's settings that go together, subkeys the
+    reshaping method needs).  Each runs when its section is present, so
+    ``nnsf check`` refuses what the stage would.
+    """
+    from nnsf.factor.style_model import check_translator, translator_params
+    from nnsf.frames.stage import frames_params
+    from nnsf.reshape.stage import stage_params as reshape_params
+
+    if "frames" in params:
+        frames_params(params)
+    if "reshape" in params:
+        reshape_params(params)
+    if "translation" in params:
+        check_translator(params, translator_params(params), params["translation"].get("synthesis"))
 
 
 def _settle_publications() -> None:

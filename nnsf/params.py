@@ -9,13 +9,15 @@ from __future__ import annotations
 import difflib
 import math
 import numbers
+import os
 from pathlib import Path
 from typing import Any, Callable
 
-import yaml
-
+from nnsf import names
 from nnsf.errors import InputError, summarize
 from nnsf.errors import read_text
+from nnsf.names import is_safe_name
+from nnsf.safe_yaml import parse_yaml
 
 DATASETS = ("synthetic", "bvh", "frames")
 FACINGS = ("first", "normalise", "none")
@@ -27,25 +29,25 @@ TRACK_INITS = ("linear", "lk", "flow", "limb")
 LK_ENDS = ("blend", "none")
 SNAP_TARGETS = ("profile", "edge", "auto")
 #: StyleTranslator settings (nnsf.factor.translate).
-BASES = ("aligned", "refit", "separate")
+BASES = ("aligned", "refit")
 SYNTHESES = ("consensus", "source")
 AMPLITUDES = ("restore", "style", "none")
+TRANSFERS = ("recombine_swing", "offset_swing", "recombine")
 RESHAPE_FORMATS = ("png", "gif", "mp4")
 #: The pipeline's stages, in dvc.yaml order (nnsf.stages maps each to its function).
 STAGE_NAMES = ("frames", "roto", "roto_eval", "data", "features", "factorize", "evaluate", "isomap", "sweep",
-               "heldout", "translate", "reshape", "styles", "animate")
+               "heldout", "translate", "reshape", "styles", "animate", "results")
 #: Camera views of projected motion capture (nnsf.datasets.views).
 VIEW_CHOICES = ("front", "side", "three-quarter", "auto")
 #: How a drawn character's arms follow a motion (:func:`nnsf.reshape.drive.retarget`).
 ARM_CHOICES = ("motion", "drawing")
 #: How a drawn character's head follows a motion (:func:`nnsf.reshape.drive.retarget`).
 HEAD_CHOICES = ("motion", "torso")
-TRANSLATION_METHODS = ("nnsf", "nnsf_smooth", "nnsf_nosmooth", "nnsf_restore", "nnsf_swapped", "nnsf_beta0",
-                       "nnsf_refit", "api", "api_source", "bilinear", "mgpm", "cbgpm", "offset", "identity", "real")
-
-
-def _optional_str():
-    return (lambda v: v is None or (isinstance(v, str) and v != "")), "a non-empty string or null"
+TRANSLATION_METHODS = ("nnsf", "nnsf_nosmooth", "nnsf_restore", "nnsf_swapped", "nnsf_refit", "api",
+                       "api_source", "bilinear", "mgpm", "cbgpm", "offset", "identity", "real")
+#: Methods of the leave-one-content-out protocol (nnsf.evaluate.content_out).
+CONTENT_OUT_METHODS = ("api", "api_source", "api_offset_swing", "api_recombine", "offset", "spectral", "identity",
+                       "real")
 
 
 def _g(x) -> str:
@@ -108,8 +110,69 @@ def _bool():
     return (lambda v: isinstance(v, bool)), "true or false"
 
 
-def _str(max_len: int = 500):
-    return (lambda v: isinstance(v, str) and 0 < len(v) <= max_len), "a non-empty string"
+def _str(max_len: int = 500, optional: bool = False):
+    return ((lambda v: (optional and v is None) or (isinstance(v, str) and 0 < len(v) <= max_len)),
+            "a non-empty string" + (" or null" if optional else ""))
+
+
+def _name(optional: bool = False):
+    """An id that becomes a file name (:func:`nnsf.names.safe_name`): the writers' rule, applied here too."""
+    return ((lambda v: (optional and v is None) or is_safe_name(v)),
+            (names.EXPECTED + ", or null") if optional else names.EXPECTED)
+
+
+#: What a path in params.yaml may be (:func:`project_path`).
+PROJECT_PATH = "a name, or a relative path inside the project (no '..'; symbolic links resolved)"
+
+
+def project_path(value, source, field: str, root=".") -> Path | None:
+    """The path ``value`` names in the project ``root``, or None when it is a name (``rex``, ``synthetic:...``).
+
+    ``value`` is a path when it holds a ``/``, ``\\`` or ``.``, or a file or
+    link of that name exists in ``root``.  A path must be relative, without
+    ``..``, and stay inside ``root`` once symbolic links are resolved
+    (checked by resolving it, not by its text); else an :class:`InputError`
+    naming ``source`` and ``field``.  The stages and ``nnsf check`` (the
+    :data:`SCHEMA` entries of such fields) use this one function.
+    """
+    text = str(value)
+    if text.startswith("synthetic:"):
+        return None
+    root = Path(root)
+    if not any(c in text for c in "/\\.") and not os.path.lexists(root / text):
+        return None
+    parts = text.replace("\\", "/").split("/")
+    p = Path(text)
+    try:
+        outside = (p.is_absolute() or text.startswith(("/", "\\", "~")) or ".." in parts
+                   or not (root / p).resolve().is_relative_to(root.resolve()))
+    except (OSError, RuntimeError) as exc:   # a loop of symbolic links
+        raise InputError(source, field, PROJECT_PATH, text, reason=str(exc)) from None
+    if outside:
+        raise InputError(source, field, PROJECT_PATH, text)
+    return root / p
+
+
+def _project_path():
+    def check(v):
+        if not (isinstance(v, str) and 0 < len(v) <= 500):
+            return False
+        try:
+            project_path(v, "", "")
+        except InputError:
+            return False
+        return True
+    return check, PROJECT_PATH
+
+
+def _relative():
+    """A path relative to a data folder, without ``..`` (``nnsf reshape-eval --data DIR``)."""
+    def check(v):
+        if not (isinstance(v, str) and 0 < len(v) <= 500):
+            return False
+        parts = v.replace("\\", "/").split("/")
+        return not (v.startswith(("/", "\\", "~")) or ".." in parts or Path(v).is_absolute())
+    return check, "a relative path inside the data folder (no '..')"
 
 
 def _view():
@@ -168,6 +231,7 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "dataset.bvh.facing": _choice(FACINGS),
     "dataset.bvh.center": _bool(),
     "dataset.bvh.complete_grid": _bool(),
+    "dataset.bvh.joint_map": _str(optional=True),
     "frames.characters": _int(1, 12),
     "frames.motions": _motions(),
     "frames.clips_per_cell": _int(1, 100),
@@ -233,10 +297,11 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "translation.basis": _choice(BASES),
     "translation.synthesis": _choice(SYNTHESES),
     "translation.amplitude": _choice(AMPLITUDES),
+    "translation.transfer": _choice(TRANSFERS),
+    "translation.neutral": _str(optional=True),
     "translation.tempo": _bool(),
     "translation.ridge": _num(0, 1e6),
     "translation.smooth": _num(0, 1e6),
-    "translation.smooth_order": _int(1, 2),
     "translation.max_iter": _int(1, 100000),
     "translation.align_iter": _int(1, 100000),
     "translation.bilinear_rank": _int(1, 34),
@@ -244,10 +309,12 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "translation.max_cells": _int(0, 100000),
     "translation.examples": _int(0, 100),
     "translation.methods": _list(_choice(TRANSLATION_METHODS), 20),
+    "translation.content_methods": _list(_choice(CONTENT_OUT_METHODS), 20),
+    "translation.max_contents": _int(0, 100000),
     "translation.content_clip": _str(),
     "translation.style": _str(),
-    "reshape.clip": _optional_str(),
-    "reshape.character": _str(),
+    "reshape.clip": _name(optional=True),
+    "reshape.character": _project_path(),
     "reshape.character_size": _int(64, 4096),
     "reshape.n_vertices": _int(100, 6000),
     "reshape.subkeys_per_limb": _int(0, 12),
@@ -262,14 +329,14 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "reshape.depth_overrides": ((lambda v: isinstance(v, list) and len(v) <= 1000
                                  and all(isinstance(x, (str, dict)) for x in v)),
                                 "a list of overrides such as 'left_arm over torso from 12 to 30'"),
-    "reshape_eval.characters": _list(_str(), 100),
-    "reshape_eval.heldout": _list(_str(), 100),
-    "reshape_eval.motions": _list(_str(), 100),
+    "reshape_eval.characters": _list(_relative(), 100),
+    "reshape_eval.heldout": _list(_relative(), 100),
+    "reshape_eval.motions": _list(_relative(), 100),
     "reshape_eval.n_vertices": _int(100, 6000),
     "reshape_eval.max_frames": _int(3, 5000),
     "reshape_eval.subkeys_per_limb": _int(1, 12),
-    "animate.character": _str(),
-    "animate.motion": _str(),
+    "animate.character": _project_path(),
+    "animate.motion": _project_path(),
     "animate.style": _str(),
     "animate.view": _choice(VIEW_CHOICES),
     "animate.arms": _choice(ARM_CHOICES),
@@ -446,7 +513,7 @@ MAX_PARAMS_BYTES = 1_000_000
 
 
 def load(path="params.yaml") -> dict:
-    """Read and validate a params file (``yaml.safe_load``).
+    """Read and validate a params file (the bounded safe loader, :func:`nnsf.safe_yaml.parse_yaml`).
 
     Every failure is an :class:`InputError` naming the file: missing,
     unreadable (permissions), larger than :data:`MAX_PARAMS_BYTES`, not
@@ -455,18 +522,21 @@ def load(path="params.yaml") -> dict:
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "file", "an existing params.yaml")
-    text = read_text(path, max_bytes=MAX_PARAMS_BYTES, what="a params file")
-    try:
-        params = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}" if mark else "file"
-        raise InputError(path, where, "valid YAML", reason=getattr(exc, "problem", None) or str(exc)) from None
-    except RecursionError:
-        raise InputError(path, "file", "YAML nested at most a few hundred levels deep") from None
+    params = parse_yaml(read_text(path, max_bytes=MAX_PARAMS_BYTES, what="a params file"), path)
     out = Params(validate(params if params is not None else {}, path))
     out.source = str(path)
     return out
+
+
+#: The package's own parameters for commands run outside a project (``nnsf styles`` with no
+#: params.yaml): the sections those commands read, equal to the project's params.yaml
+#: (tests/test_cli_styles.py checks that they agree).
+DEFAULTS_FILE = Path(__file__).with_name("defaults.yaml")
+
+
+def load_defaults() -> dict:
+    """:data:`DEFAULTS_FILE`, read and validated as :func:`load` does; its ``source`` names it."""
+    return load(DEFAULTS_FILE)
 
 
 def require(params: dict, key: str):

@@ -27,6 +27,7 @@ import pandas as pd
 from nnsf.errors import InputError
 from nnsf.io import check_writable, read_json
 from nnsf.params import require, source_of
+from nnsf.schema import Array
 from nnsf.skeleton import N_FEATURES, Unifier
 
 # Default locations, mirrored exactly by dvc.yaml.
@@ -42,6 +43,15 @@ FEATURES_CSV = FEATURES_DIR / "features.csv"
 TRANSLATION_DIR = REPORTS / "translation"
 RESHAPE_DIR = REPORTS / "reshape"
 ANIMATE_DIR = REPORTS / "animate"
+
+#: The arrays of ``models/nnsf.npz`` (the factorize stage's fit: n frames, k atoms, d features,
+#: c classes): what the stages reading it back accept.
+NNSF_MODEL = {
+    "U": Array("f", ("k", N_FEATURES)), "V": Array("f", ("n", "k")), "V_encoded": Array("f", ("n", "k"), finite=True),
+    "W": Array("f", ("k", "c")), "classes": Array("U", ("c",)), "objective": Array("f", (None,)),
+    "clip": Array("U", ("n",)), "character": Array("U", ("n",)), "motion": Array("U", ("n",)),
+    "label": Array("U", ()),
+}
 
 #: The folders each stage writes into (the parents of its dvc.yaml outs, and the
 #: outs that are folders).  The commands check them before any work starts, so an
@@ -61,6 +71,7 @@ OUTPUT_FOLDERS = {
     "reshape": (RESHAPE_DIR,),
     "styles": (MODEL_PATH.parent,),
     "animate": (ANIMATE_DIR,),
+    "results": (Path("docs"),),
 }
 
 
@@ -131,11 +142,7 @@ def need_several(table: pd.DataFrame, column: str, source, purpose: str, at_leas
 def read_unifier(features_dir=FEATURES_DIR) -> Unifier:
     """The unifier fitted by the features stage (``unifier.json``)."""
     path = Path(features_dir) / "unifier.json"
-    d = read_json(path)
-    try:
-        return Unifier.from_dict(d)
-    except (KeyError, TypeError, ValueError) as exc:
-        raise InputError(path, "characters", "a unifier written by the features stage", reason=str(exc)) from None
+    return Unifier.from_dict(read_json(path), path)
 
 
 # ---------------------------------------------------------------- fan-out

@@ -37,7 +37,6 @@ from __future__ import annotations
 import contextlib
 import errno
 import hashlib
-import json
 import os
 import shutil
 import tempfile
@@ -45,7 +44,8 @@ from pathlib import Path
 from typing import Iterator
 
 from nnsf.errors import InputError
-from nnsf.io import WriteError, _write_error, read_json, renamed_write_error, write_json
+from nnsf.io import WriteError, write_error, read_json, renamed_write_error, write_json
+from nnsf.schema import Map, Optional, Record, Str
 
 JOURNAL = ".commit.json"
 #: Where the stages publish (``nnsf.pipeline.REPORTS``); recovered by every command.
@@ -69,6 +69,42 @@ def _sha256(path: Path) -> str:
         for block in iter(lambda: fh.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()
+
+
+#: A journal (``.commit.json``) and a manifest, as :func:`publishing` writes them.
+JOURNAL_RULE = Record({
+    "stage": Str(max_len=100),
+    "root": Optional(Str(max_len=4096)),
+    "files": Map(Str(max_len=64), key=Str(max_len=4096, empty=False)),
+})
+
+
+def read_journal(path: Path, reports: Path, stage: str) -> dict:
+    """A journal or manifest read back, checked before any of its paths is used.
+
+    Besides :data:`JOURNAL_RULE`: it is ``stage``'s; its ``root`` is the
+    reports folder or the folder above it (the only roots :func:`publishing`
+    makes for the project's stages); every file is a relative path without
+    ``..`` that stays inside that root once symbolic links are resolved.  A
+    journal is a file in the project, so whoever can write one must not be
+    able to move files anywhere else by it.
+    """
+    journal = read_json(path, JOURNAL_RULE)
+    if journal["stage"] != stage:
+        raise InputError(path, "stage", f"{stage!r} (the stage whose file this is)", journal["stage"])
+    reports_real = Path(reports).resolve()
+    root = Path(reports) / journal.get("root", ".")
+    root_real = root.resolve()
+    if root_real not in (reports_real, reports_real.parent):
+        raise InputError(path, "root", "the reports folder or the folder that holds it",
+                         journal.get("root"))
+    for rel in journal["files"]:
+        parts = rel.replace("\\", "/").split("/")
+        if rel.startswith(("/", "~")) or ".." in parts or any(p.startswith(".") or not p for p in parts) \
+                or not (root / rel).resolve().is_relative_to(root_real):
+            raise InputError(path, f"files.{rel}", "a relative path inside the stage's root folder "
+                             "(no '..', no hidden parts, symbolic links resolved)")
+    return journal
 
 
 def _staged_files(staging: Path) -> list[str]:
@@ -119,7 +155,7 @@ def _move(src: Path, dst: Path) -> None:
         os.replace(src, dst)
     except OSError as exc:
         if exc.errno != errno.EXDEV:
-            raise _write_error(dst, exc) from None
+            raise write_error(dst, exc) from None
         # Another file system (a linked folder): copy beside the target, then rename.
         fd, tmp = tempfile.mkstemp(prefix=f".{dst.name}.", dir=dst.parent)
         os.close(fd)
@@ -147,7 +183,7 @@ def _settle(reports: Path, stage: str, staging: Path) -> str:
     if staging.name != staging_path(reports, stage).name or not journal_file.is_file():
         shutil.rmtree(staging, ignore_errors=True)
         return "discarded"
-    _roll_forward(reports, stage, json.loads(journal_file.read_text()))
+    _roll_forward(reports, stage, read_journal(journal_file, reports, stage))
     return "completed"
 
 
@@ -233,7 +269,7 @@ def publishing(reports, stage: str, root=None) -> Iterator[Path]:
         # is never visible unlocked while its run lives.
         new = Path(tempfile.mkdtemp(prefix=staging.name + ".", dir=reports))
     except OSError as exc:
-        raise _write_error(staging, exc) from None
+        raise write_error(staging, exc) from None
     fd = _lock(new, wait=False)
     try:
         try:
@@ -311,11 +347,9 @@ def verify(reports, stage: str) -> dict[str, Path]:
     if not mpath.is_file():
         raise InputError(mpath, "file", f"the manifest of the {stage} stage's outputs "
                          f"(rerun the {stage} stage)")
-    manifest = read_json(mpath)
-    files = manifest.get("files")
-    if not isinstance(files, dict):
-        raise InputError(mpath, "files", "a mapping of output paths to SHA-256 hashes")
-    root = reports / str(manifest.get("root", "."))
+    manifest = read_journal(mpath, reports, stage)
+    files = manifest["files"]
+    root = reports / manifest.get("root", ".")
     out = {}
     for rel, digest in files.items():
         p = root / rel

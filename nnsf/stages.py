@@ -35,6 +35,7 @@ REGISTRY: dict[str, str] = {
     "reshape": "nnsf.reshape.stage:reshape",
     "styles": "nnsf.factor.stage:styles",
     "animate": "nnsf.animate.stage:animate",
+    "results": "nnsf.results:results",
 }
 
 

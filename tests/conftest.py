@@ -36,7 +36,7 @@ def _spawn_audit(event: str, args) -> None:
         what = " ".join(str(a) for a in list(args[1])[:3])
     _GUARDED["started"].append(what)
     raise RuntimeError(f"{test} starts a process ({what}) but is not marked slow: mark it "
-                       "@pytest.mark.slow (README, Tests), or run the code in this process")
+                       "@pytest.mark.slow (docs/operations.md, Tests), or run the code in this process")
 
 
 # Three libraries ask the system by running a command: joblib counts the physical cores
@@ -97,7 +97,20 @@ def _quick_tests_start_no_process(request):
 #: What a fresh clone holds that the pipeline needs (no data, models, reports,
 #: stores or environments).
 SOURCES = ("nnsf", "flows", "dvc.yaml", "params.yaml", "pyproject.toml", ".dvcignore",
-           ".gitignore", ".dvc/config", ".dvc/.gitignore")
+           ".gitignore", ".dvc/config", ".dvc/.gitignore", "docs/results.yaml")
+
+
+def committed_reports() -> list[str]:
+    """Reports a stage reads that no stage writes: the committed runs on data outside the
+    repository, which the ``results`` stage puts in the results document.  A fresh clone has them."""
+    import yaml
+
+    stages = yaml.safe_load((PROJECT / "dvc.yaml").read_text())["stages"].values()
+    name = lambda entry: next(iter(entry)) if isinstance(entry, dict) else entry  # noqa: E731
+    written = {name(e) for s in stages for key in ("outs", "metrics", "plots") for e in s.get(key) or []}
+    inside = lambda path: any(path == w or path.startswith(w.rstrip("/") + "/") for w in written)  # noqa: E731
+    return sorted({name(d) for s in stages for d in s.get("deps") or []
+                   if name(d).startswith("reports/") and not inside(name(d))})
 
 
 @pytest.fixture(scope="session")
@@ -123,7 +136,7 @@ def mlflow_template(tmp_path_factory) -> Path:
 def copy_project(dest: Path) -> Path:
     """Copy the project's sources to ``dest`` and commit them in a new git repo."""
     ignore = shutil.ignore_patterns("__pycache__", "*.pyc")
-    for name in SOURCES:
+    for name in SOURCES + tuple(committed_reports()):
         src = PROJECT / name
         if src.is_dir():
             shutil.copytree(src, dest / name, ignore=ignore)
@@ -200,7 +213,7 @@ def small_pipeline(tmp_path_factory, prefect_api, mlflow_template):
 
     test_pipeline inspects (and then changes) the project; test_ops_repro compares its
     own repros with ``reference``, the dvc.lock output hashes taken right after this run.
-    One OpenBLAS thread: the reference set-up of the cross-BLAS comparison.
+    One OpenBLAS thread: test_ops_repro repeats it with two.
     """
     import time
     from types import SimpleNamespace
@@ -218,19 +231,27 @@ def small_pipeline(tmp_path_factory, prefect_api, mlflow_template):
     seconds = time.perf_counter() - started
     assert cold.returncode == 0, cold.stdout[-4000:] + cold.stderr[-4000:]
     print(f"cold repro of the small pipeline: {seconds:.1f} s")
+    # The reports as the cold run left them (test_pipeline changes the project later).
+    reports = base / "reports-after-cold-repro"
+    for path in (root / "reports").rglob("*"):
+        if path.suffix in (".json", ".csv") and path.is_file():
+            (reports / path.relative_to(root / "reports")).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(path, reports / path.relative_to(root / "reports"))
     return SimpleNamespace(root=root, env=env, cold=cold, seconds=seconds, imports=base / "imports",
-                           mlflow_uri=env["MLFLOW_TRACKING_URI"], reference=lock_hashes(root))
+                           mlflow_uri=env["MLFLOW_TRACKING_URI"], reference=lock_hashes(root),
+                           reports=reports)
 
 
 # --------------------------------------------------------------------------- scheduling on xdist workers
 
 #: Modules that share a session fixture, so they must run on one xdist worker (``--dist
 #: loadgroup``); every other module is a group of its own, as with ``--dist loadfile``.
-GROUPS = {"test_pipeline.py": "small-pipeline", "test_ops_repro.py": "small-pipeline"}
+GROUPS = {"test_pipeline.py": "small-pipeline", "test_ops_repro.py": "small-pipeline",
+          "test_determinism.py": "small-pipeline"}
 #: The modules that take minutes (the ``--durations`` table of .ci/run), longest first: they are
 #: handed out first (``--no-loadscope-reorder`` keeps this order), so the many short modules fill
 #: in around them instead of leaving one worker running a long module alone at the end.
-LONGEST_FIRST = ("small-pipeline", "test_determinism.py", "test_ops_faults.py", "test_ops_servers.py",
+LONGEST_FIRST = ("small-pipeline", "test_ops_faults.py", "test_ops_servers.py",
                  "test_hardening_publish.py", "test_track_stage.py", "test_flows.py",
                  "test_ops_fanout.py", "test_animate.py", "test_translation_eval.py", "test_hardening.py")
 

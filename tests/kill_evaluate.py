@@ -40,7 +40,7 @@ from nnsf.params import Params
 
 try:
     from nnsf.publish import JOURNAL, staging_path, verify
-except ImportError:  # the code before issue 18 had no publication protocol
+except ImportError:  # a checkout without the publication protocol: kill on the files alone
     JOURNAL = ".commit.json"
 
     def staging_path(root, stage):

@@ -1,4 +1,4 @@
-"""Saved style models, `nnsf translate()`, views, `nnsf styles` and `nnsf animate` (issue 13).
+"""Saved style models, `nnsf translate()`, views, `nnsf styles` and `nnsf animate`.
 
 Self-contained: the model is fitted on a small embedded synthetic set, the
 drawn character is the built-in stick figure written out in AnimatedDrawings'
@@ -21,6 +21,7 @@ import yaml
 from nnsf import cli
 from nnsf.datasets import contract, synthetic
 from nnsf.errors import InputError
+from nnsf.factor.translate import StyleTranslator
 from nnsf.skeleton import JOINT_INDEX, JOINTS
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -45,8 +46,9 @@ def model_file(tmp_path_factory):
     raw = raw[raw["motion"].isin(["walk", "wave", "jump"])].reset_index(drop=True)
     table, unifier = unify_table(raw, 0.5)
     path = tmp_path_factory.mktemp("model") / "styles.npz"
-    tr = fit_model(table, unifier, dict(n_components=4, max_iter=40, align_iter=20, random_state=0), path)
-    return path, tr, table
+    (view,) = fit_model([(None, table, unifier)], dict(n_components=4, max_iter=40, align_iter=20, random_state=0),
+                        path, fps=24.0)
+    return path, view.translator, table
 
 
 def write_ad_folder(folder: Path, height: int = 200, drop=None, move=None) -> Path:
@@ -86,7 +88,7 @@ def test_save_load_translates_bit_for_bit(model_file):
     staged = StyleTranslator.load(path)
     X = contract.features(table[table["clip"] == table["clip"].iloc[0]])
     for style in tr.styles_:
-        np.testing.assert_allclose(staged.translate_unseen(X, style), tr.translate_unseen(X, style),
+        np.testing.assert_allclose(staged.translate_clip(X, style), tr.translate_clip(X, style),
                                    rtol=1e-4, atol=1e-5)
     # ... and save() by default keeps every bit: the loaded model is the fitted one.
     exact = tr.save(path.with_name("exact.npz"))
@@ -94,16 +96,17 @@ def test_save_load_translates_bit_for_bit(model_file):
     with np.load(exact, allow_pickle=False) as z:      # no pickled object anywhere
         assert "meta" in z.files
     for style in tr.styles_:
-        assert np.array_equal(tr.translate_unseen(X, style), loaded.translate_unseen(X, style))
+        assert np.array_equal(tr.translate_clip(X, style), loaded.translate_clip(X, style))
         assert np.array_equal(tr.translate(X, tr.styles_[0], style), loaded.translate(X, tr.styles_[0], style))
         assert np.array_equal(tr.synthesize("walk", style), loaded.synthesize("walk", style))
     P = synthetic.clip_points("max", "walk", 20)
     m = StyleModel.load(path)
     assert np.array_equal(translate(P, "olga", m), translate(P, "olga", path))
     meta = m.meta
-    assert meta["styles"] == ["bruno", "olga", "pip"] and meta["version"] == 1
-    assert meta["params"]["items"]  # the params that made it
-    assert meta["unifier"]["characters"].keys() == {"bruno", "olga", "pip"}
+    assert meta["styles"] == ["bruno", "olga", "pip"] and meta["version"] == 2
+    (view,) = meta["views"]
+    assert view["view"] is None and view["params"]["items"]  # no camera; the params that made it
+    assert view["unifier"]["characters"].keys() == {"bruno", "olga", "pip"}
 
 
 def test_translate_returns_the_callers_coordinates(model_file):
@@ -140,9 +143,9 @@ def test_model_file_errors_name_the_file_and_what_is_wrong(model_file, tmp_path)
     bad.write_bytes(path.read_bytes()[:500])
     with pytest.raises(InputError, match=r"corrupt\.npz: file: expected a readable \.npz style model"):
         StyleModel.load(bad)
-    with pytest.raises(InputError, match=r"v2\.npz: meta\.version: expected format version 1.*got 2"):
-        StyleModel.load(_rewrite(path, tmp_path / "v2.npz", {"version": 2}))
-    with pytest.raises(InputError, match=r"missing\.npz: array a3: .*missing"):
+    with pytest.raises(InputError, match=r"v1\.npz: meta\.version: expected format version 2.*got 1"):
+        StyleModel.load(_rewrite(path, tmp_path / "v1.npz", {"version": 1}))
+    with pytest.raises(InputError, match=r"missing\.npz: meta\.views\[0\]\.state\..*: expected the array a3 .*missing"):
         StyleModel.load(_rewrite(path, tmp_path / "missing.npz", drop="a3"))
     text = tmp_path / "text.npz"
     text.write_text("not a zip")
@@ -318,14 +321,14 @@ def test_bad_input_one_line_exit_2_nothing_written(model_file, tmp_path, capsys)
                    "0 0 0 0 0 0\n0 0 0 0 0 0\n")
     char = write_ad_folder(tmp_path / "ok")
     _bad(capsys, ["animate", "--character", char, "--motion", bvh, "--out", out],
-         "odd.bvh", "joint names", "closest is", out=out)
+         "odd.bvh", "joint names", "--joint-map", "writes any of them", out=out)
     # a style the model does not know (the known ones listed)
     _bad(capsys, base + ["--character", char, "--style", "zorro", "--model", path],
          "styles.npz", "--style", "bruno, olga, pip", "zorro", out=out)
     # a model file of another format version
-    v2 = _rewrite(path, tmp_path / "v2.npz", {"version": 2})
-    _bad(capsys, base + ["--character", char, "--style", "olga", "--model", v2],
-         "v2.npz", "meta.version", out=out)
+    v1 = _rewrite(path, tmp_path / "v1.npz", {"version": 1})
+    _bad(capsys, base + ["--character", char, "--style", "olga", "--model", v1],
+         "v1.npz", "meta.version", out=out)
     # an unknown motion source, a bad output kind
     _bad(capsys, base + ["--character", char, "--motion", "synthetic:max/moonwalk"], "moonwalk", out=out)
     _bad(capsys, ["animate", "--character", char, "--motion", "synthetic:max/walk/4", "--out", tmp_path / "x.avi"],
@@ -611,6 +614,79 @@ def test_the_model_records_the_view_its_styles_were_learned_in():
     assert dataset_view({"dataset": {**bvh, "bvh": {"azimuth": 0.0, "view": "auto"}}}) == "auto"
 
 
+def test_a_model_keeps_one_translator_per_view_and_picks_the_motions(model_file, tmp_path):
+    """A file with a front and a side view: a motion seen from the side gets the side view's
+    translator, one seen three-quarter the nearest (a note says so), one with no camera the first."""
+    from nnsf.factor.model_file import ModelView, save_model
+    from nnsf.factor.style_model import StyleModel, translate
+
+    path, tr, table = model_file
+    m = StyleModel.load(path)
+    side = StyleTranslator(**{**tr.get_params(), "n_components": 3}).fit(
+        contract.features(table), table["motion"].to_numpy(), table["character"].to_numpy(),
+        table["clip"].to_numpy(), fps=24.0)
+    two = save_model([ModelView("front", tr, m.unifier), ModelView("side", side, m.unifier)],
+                     tmp_path / "two.npz")
+    m2 = StyleModel.load(two)
+    assert m2.view_names == ["front", "side"] and m2.meta["views"][1]["view"] == "side"
+    picked, note = m2.pick_view("side")
+    assert picked.translator.n_components == 3 and note is None
+    picked, note = m2.pick_view("three-quarter")
+    assert picked.view == "front" and "no style model for the three-quarter view" in note
+    assert m2.pick_view(None) == (m2.views[0], None)
+    P = synthetic.clip_points("max", "walk", 20)
+    assert not np.allclose(translate(P, "olga", m2, view="side"), translate(P, "olga", m2, view="front"))
+    with pytest.raises(ValueError, match="each view once"):
+        save_model([ModelView("side", tr), ModelView("side", side)], tmp_path / "dup.npz")
+    _, note = m.pick_view("side")                     # a model from 2D key points
+    assert "2D key points with no camera view" in note
+
+
+@needs_shared
+def test_styles_on_a_bvh_folder_learns_every_view_without_a_params_edit(tmp_path, capsys):
+    """``nnsf styles --data FOLDER`` on motion capture: one translator per view in one file, the
+    neutral style recorded; ``--neutral`` names a style of the folder or is refused in one line."""
+    from nnsf.factor.style_model import StyleModel
+
+    folder = tmp_path / "bandai"
+    shutil.copytree(BN.parent / "cfg", folder / "cfg")
+    (folder / "data").mkdir()
+    for stem in BN_CLIPS:
+        for suffix in (".bvh", ".json"):
+            shutil.copy2(BN / (stem + suffix), folder / "data" / (stem + suffix))
+    p = yaml.safe_load((Path(__file__).resolve().parents[1] / "params.yaml").read_text())
+    p["dataset"]["bvh"]["fps"] = 10
+    p["translation"].update(rank=4, max_iter=30, align_iter=10)
+    (tmp_path / "params.yaml").write_text(yaml.safe_dump(p))
+    out = tmp_path / "styles.npz"
+    code, stdout, err = run_cli(["styles", "--params", tmp_path / "params.yaml", "--data", folder, "--out", out,
+                                 "--neutral", "angry"], capsys)
+    assert code == 0, err
+    assert "3 view(s)" in stdout
+    model = StyleModel.load(out)
+    assert model.view_names == ["front", "side", "three-quarter"]
+    assert all(v.translator.neutral == "angry" and v.translator.fps_ == 10.0 for v in model.views)
+    assert model.pick_view("side")[0].view == "side"
+    code, _, err = run_cli(["styles", "--params", tmp_path / "params.yaml", "--data", folder, "--out",
+                            tmp_path / "x.npz", "--neutral", "calm", "--views", "side"], capsys)
+    assert code == 2 and err.count("\n") == 1 and "translation.neutral" in err and "calm" in err
+    assert not (tmp_path / "x.npz").exists()
+
+
+@needs_shared
+def test_animate_says_the_view_mismatch_before_rendering(model_file, tmp_path, capsys):
+    """A model learned from 2D key points and a BVH motion seen from the side: the note is on
+    stderr before the first rendered frame."""
+    path, _, _ = model_file
+    code, _, err = run_cli(["animate", "--character", "pip", "--motion", BN / "dataset-1_bow_normal_001.bvh",
+                            "--view", "side", "--style", "olga", "--model", path, "--fps", "6",
+                            "--out", tmp_path / "a.gif", "--vertices", "200"], capsys)
+    assert code == 0, err
+    note = err.index("2D key points with no camera view")
+    assert note < err.index("animate: rendered frame")
+    assert err.count("no camera view") == 1
+
+
 @pytest.mark.slow
 def test_the_stage_model_file_has_the_same_bytes_whatever_the_hash_seed(tmp_path):
     """Two processes with different string-hash seeds write byte-identical style models.
@@ -629,7 +705,8 @@ def test_the_stage_model_file_has_the_same_bytes_whatever_the_hash_seed(tmp_path
         "raw = contract.validate(synthetic.generate(characters=4, clips_per_cell=1, frames=12, seed=0), 'syn')\n"
         "raw = raw[raw['motion'].isin(['walk', 'wave', 'jump'])].reset_index(drop=True)\n"
         "table, unifier = unify_table(raw, 0.5)\n"
-        "fit_model(table, unifier, dict(n_components=4, max_iter=20, align_iter=10, random_state=0), sys.argv[1])\n"
+        "fit_model([(None, table, unifier)], dict(n_components=4, max_iter=20, align_iter=10, random_state=0),\n"
+        "          sys.argv[1])\n"
     )
     outs = []
     for seed in ("1", "2"):

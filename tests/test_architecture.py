@@ -3,11 +3,16 @@
 * no import cycle between modules, and none between sub-packages;
 * only the CLI imports the stage registry ``nnsf.stages`` (flows/ and the
   tests may too): no module below it depends on the set of stages;
-* no module longer than 600 lines unless its docstring says why it is one
-  concept;
+* no private name (``_x``) of one module used by another, by import or as a
+  module attribute: a name another module needs is part of its module's
+  interface and is named as such; a module split in two along a line that
+  cuts through its private helpers is split in the wrong place (the pairs of
+  :data:`SHARED_PRIVATE` are listed with their reason);
 * no import of a project module inside a function, except in the modules of
   :data:`DEFERRED_IMPORTS` (each with its reason): such imports hide the
-  route from a reader and hid the cycles this test now forbids.
+  route from a reader, and the cycles the first rule forbids.
+
+Module length is not a rule: a module is one concept, however long.
 """
 from __future__ import annotations
 
@@ -18,7 +23,6 @@ from pathlib import Path
 import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "nnsf"
-MAX_LINES = 600
 
 #: Modules that may import project modules inside functions, and why.
 DEFERRED_IMPORTS = {
@@ -29,6 +33,25 @@ DEFERRED_IMPORTS = {
 }
 #: Modules that may import the stage registry.
 REGISTRY_USERS = {"nnsf.cli", "nnsf.stages"}
+#: Private names one module uses of another: (user, owner) -> (names, why).  Each is a helper
+#: shared inside one sub-package; an entry that no longer occurs fails
+#: test_shared_private_names_are_still_used, so the list only shrinks.
+SHARED_PRIVATE: dict[tuple[str, str], tuple[tuple[str, ...], str]] = {
+    ("nnsf.evaluate.heldout_bvh", "nnsf.evaluate.heldout_report"): (
+        ("_target_check",), "the held-out targets, checked by both report writers"),
+    ("nnsf.evaluate.heldout_bvh", "nnsf.evaluate.translation"): (
+        ("_pick",), "row selection of the held-out protocol, shared by its report writers"),
+    ("nnsf.evaluate.heldout_report", "nnsf.evaluate.translation"): (
+        ("_pick",), "row selection of the held-out protocol, shared by its report writers"),
+    ("nnsf.evaluate.translation", "nnsf.evaluate.scores"): (
+        ("_unify",), "the protocol's scoring steps, applied per cell"),
+    ("nnsf.factor.align", "nnsf.factor.updates"): (
+        ("_basis_step",), "NNSF's basis step (Alg. 1, lines 1-3), reused by the aligned fit"),
+    ("nnsf.factor.translate", "nnsf.factor.updates"): (
+        ("_basis_step",), "NNSF's basis step (Alg. 1, lines 1-3), reused by the translator's fit"),
+    ("nnsf.factor.translate", "nnsf.factor.timewarp"): (
+        ("_style_tempo",), "a style's tempo, read by the translator"),
+}
 
 
 def _modules() -> dict[str, Path]:
@@ -175,13 +198,65 @@ def test_stage_names_are_defined_once_and_every_stage_is_registered():
         assert callable(get(name))
 
 
-@pytest.mark.parametrize("name", sorted(MODULES))
-def test_module_is_at_most_600_lines_or_says_why_it_is_one_concept(name):
-    path = MODULES[name]
-    lines = len(path.read_text().splitlines())
-    if lines <= MAX_LINES:
-        return
-    doc = ast.get_docstring(ast.parse(path.read_text())) or ""
-    assert "one concept" in doc.lower(), (
-        f"{path.relative_to(PACKAGE.parent)} has {lines} lines (> {MAX_LINES}) and its docstring "
-        "does not say why it is one concept")
+def _private_uses(name: str, path: Path):
+    """``(owner module, private name, line)`` of every private name of another project module
+    that ``name`` imports (``from m import _x``) or reads off an imported module (``m._x``)."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    modules: dict[str, str] = {}  # local name -> project module
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parts = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join(parts + ([base] if base else []))
+            if base.split(".")[0] != "nnsf":
+                continue
+            for alias in node.names:
+                if f"{base}.{alias.name}" in MODULES:
+                    modules[alias.asname or alias.name] = f"{base}.{alias.name}"
+                elif _private(alias.name) and _resolve(base) != name:
+                    yield _resolve(base), alias.name, node.lineno
+        elif isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name.split(".")[0] == "nnsf" and alias.asname:
+                    modules[alias.asname] = alias.name
+    for node in ast.walk(tree):
+        if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and _private(node.attr)
+                and modules.get(node.value.id, name) != name):
+            yield modules[node.value.id], node.attr, node.lineno
+
+
+def _private(identifier: str) -> bool:
+    return identifier.startswith("_") and not identifier.startswith("__")
+
+
+PRIVATE_USES = {(name, owner, attr): line for name, path in MODULES.items()
+                for owner, attr, line in _private_uses(name, path)}
+
+
+def test_the_private_name_finder_finds_imports_and_attributes(tmp_path, monkeypatch):
+    """The oracle: both spellings of a cross-module private use are found; a module's own
+    private names, dunders and public names are not."""
+    user = tmp_path / "user.py"
+    user.write_text("from nnsf.io import _hidden, atomic_path\nfrom nnsf import io\n"
+                    "import nnsf.params as P\nio._other()\nP._x\nio.__name__\n")
+    found = sorted((owner, attr) for owner, attr, _ in _private_uses("nnsf.user", user))
+    assert found == [("nnsf.io", "_hidden"), ("nnsf.io", "_other"), ("nnsf.params", "_x")]
+    own = tmp_path / "own.py"
+    own.write_text("from nnsf.io import _hidden\n")
+    assert list(_private_uses("nnsf.io", own)) == []
+
+
+def test_no_module_uses_another_modules_private_names():
+    allowed = {(user, owner, attr) for (user, owner), (names, _) in SHARED_PRIVATE.items() for attr in names}
+    found = [f"{MODULES[user].relative_to(PACKAGE.parent)}:{line} uses {owner}.{attr}"
+             for (user, owner, attr), line in sorted(PRIVATE_USES.items())
+             if (user, owner, attr) not in allowed]
+    assert found == [], "name it as part of its module's interface (no leading underscore)"
+
+
+def test_shared_private_names_are_still_used():
+    stale = [f"{user} -> {owner}.{attr}" for (user, owner), (names, _) in SHARED_PRIVATE.items()
+             for attr in names if (user, owner, attr) not in PRIVATE_USES]
+    assert stale == [], "remove these from SHARED_PRIVATE"

@@ -4,6 +4,7 @@ clips in ../shared/data when present)."""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -12,9 +13,8 @@ from scipy.spatial.transform import Rotation
 
 from nnsf.datasets.bvh import forward_kinematics, parse_bvh, read_bvh
 from nnsf.datasets.projection import detect_up_axis, project, resample, resample_times
-from nnsf.datasets.bvh_skeletons import (
-    FAMILIES, detect_family, family_from_mapping, keypoints_3d, parse_rule,
-)
+from nnsf.datasets.bvh_detect import detect_family
+from nnsf.datasets.bvh_skeletons import FAMILIES, family_from_mapping, keypoints_3d, parse_rule
 from nnsf.datasets.bvh_source import (
     DEPTH_COLUMNS, labels_from_json, labels_from_name, load_clip, read_folder,
 )
@@ -235,12 +235,12 @@ def _write(tmp_path, name, text):
 
 
 @pytest.mark.parametrize("body, line, words", [
-    ("Frames: 3\nFrame Time: 0.1\n0 0 0 0 0 0\n0 0 0 0 0 0\n", 16, "3 motion lines"),
+    ("Frames: 5\nFrame Time: 0.1\n0 0 0 0 0 0\n0 0 0 0 0 0\n", 16, "5 motion lines"),
     ("Frames: 2\nFrame Time: 0.1\n0 0 0 0 0 0\n0 0 0 0 0\n", 15, "6 values per motion line"),
     ("Frames: 2\nFrame Time: 0.1\n0 0 0 0 0 0\n0 0 x1 0 0 0\n", 15, "numeric"),
     ("Frames: 1\nFrame Time: 0.1\n0 0 0 nan 0 0\n", 14, "finite"),
     ("Frames: 0\nFrame Time: 0.1\n", 12, "at least 1"),
-    ("Frames: 1\nFrame Time: 0.1\n0 0 0 0 0 0\n0 0 0 0 0 0\n", 15, "exactly 1 motion lines"),
+    ("Frames: 1\nFrame Time: 0.1\n" + "0 0 0 0 0 0\n" * 4, 17, "1 motion lines as Frames: says (give or take 2)"),
 ])
 def test_bad_motion_sections_name_file_and_line(tmp_path, body, line, words):
     p = _write(tmp_path, "bad.bvh", GOOD_HEADER + body)
@@ -275,8 +275,9 @@ def test_good_minimal_file_reads(tmp_path):
 
 # --------------------------------------------------------------------------- skeleton families
 
-def _tiny_human(names: dict[str, str] | None = None) -> str:
-    """A small Y-up human in the Bandai naming (optionally renamed)."""
+def _tiny_human(names: dict[str, str] | None = None, variant: int = 0) -> str:
+    """A small Y-up human in the Bandai naming (optionally renamed); each ``variant`` leans a
+    little more, so that clips of a test folder are not byte-identical copies of one take."""
     j = [("Hips", None, (0, 90, 0)), ("Spine", "Hips", (0, 15, 0)), ("Chest", "Spine", (0, 10, 0)),
          ("Neck", "Chest", (0, 15, 0)), ("Head", "Neck", (0, 6, 0)),
          ("UpperArm_L", "Chest", (18, 12, 0)), ("LowerArm_L", "UpperArm_L", (25, 0, 0)),
@@ -314,7 +315,7 @@ def _tiny_human(names: dict[str, str] | None = None) -> str:
         v = np.zeros(n_ch)
         v[1] = 90.0                # position channels replace the root's OFFSET
         v[2] = 10.0 * f            # walk towards +z
-        v[4] = 5.0 * f             # lean
+        v[4] = (5.0 + 0.5 * variant) * f  # lean
         rows.append(" ".join(f"{x:g}" for x in v))
     out += ["MOTION", "Frames: 4", "Frame Time: 0.0333333", *rows]
     return "\n".join(out) + "\n"
@@ -358,10 +359,17 @@ def test_unknown_skeleton_lists_missing_joints(tmp_path):
 
 @pytest.mark.parametrize("rel, family, up", [
     ("bandai-namco-1/data/dataset-1_walk_normal_001.bvh", "bandai-namco", "y"),
-    ("animated-drawings/bvh/cmu1/jumping_jacks.bvh", "cmu", "y"),
-    ("animated-drawings/bvh/fair1/dab.bvh", "mixamo", "z"),
-    ("animated-drawings/bvh/fair1/zombie.bvh", "mixamo", "z"),
+    ("animated-drawings/bvh/cmu1/jumping_jacks.bvh", "cmu-asf", "y"),
+    ("animated-drawings/bvh/fair1/dab.bvh", "animated-drawings", "z"),
+    ("animated-drawings/bvh/fair1/zombie.bvh", "animated-drawings", "z"),
     ("animated-drawings/bvh/rokoko/jesse_dance.bvh", "rokoko", "y"),
+    ("bvh-skeletons/cmu-motionbuilder/cmu_12_01_walk.bvh", "cmu-motionbuilder", "y"),
+    ("bvh-skeletons/cmu-motionbuilder/01_01.bvh", "cmu-motionbuilder", "y"),
+    ("bvh-skeletons/3dsmax-style/bvh_test2.bvh", "3dsmax", "y"),
+    ("bvh-skeletons/3dsmax-style/test_mocapbank.bvh", "3dsmax", "y"),
+    ("bvh-skeletons/3dsmax-style/Boxing_Toes.bvh", "3dsmax", "y"),
+    ("bvh-skeletons/mixamo/test_freebvh.bvh", "mixamo", "y"),
+    ("bvh-skeletons/cmu-daz/29_01.bvh", "daz", "y"),
 ])
 def test_family_detection_on_real_files(rel, family, up):
     if not (DATA / rel).is_file():
@@ -383,10 +391,8 @@ def test_family_detection_on_real_files(rel, family, up):
 def _label_folder(tmp_path) -> Path:
     d = tmp_path / "clips"
     d.mkdir()
-    good = _tiny_human()
-    for motion in ("walk", "run"):
-        for style in ("happy", "sad"):
-            (d / f"ds_{motion}_{style}_001.bvh").write_text(good)
+    for k, (motion, style) in enumerate((m, s) for m in ("walk", "run") for s in ("happy", "sad")):
+        (d / f"ds_{motion}_{style}_001.bvh").write_text(_tiny_human(variant=k + 1))
     return d
 
 
@@ -395,7 +401,7 @@ def test_folder_reports_bad_files_and_keeps_the_rest(tmp_path):
     good = _tiny_human()
     (d / "ds_walk_old_001.bvh").write_text(good.replace("Frames: 4", "Frames: 9"))   # truncated
     (d / "just-a-name.bvh").write_text(good)                                      # no labels
-    (d / "ds_jump_giant_001.bvh").write_text(good)                                 # lone style
+    (d / "ds_jump_giant_001.bvh").write_text(_tiny_human(variant=9))              # lone style
     (d / "ds_dance_happy_001.json").write_text(json.dumps({"content": "dance", "style": "happy"}))
     (d / "ds_kick_sad_002.json").write_text(json.dumps({"motion": "kick", "character": "sad",
                                                         "bvh": "../outside.bvh"}))
@@ -569,3 +575,298 @@ def test_a_turning_clip_keeps_its_turn_through_the_reader(tmp_path, degrees):
     assert abs(abs(img[-1] - img[0]) - abs(turn)) < 1.0  # ... and keeps the whole turn
     flat = image_heading(load_clip(path, fps=30, facing="normalise"))
     assert abs(flat[-1] - flat[0]) < 0.2 * abs(turn)
+
+
+@pytest.mark.parametrize("declared, rows", [(3069, 3070), (5, 4), (5, 7), (4, 2)])
+def test_frame_count_off_by_a_row_or_two_is_read_with_a_note(tmp_path, declared, rows):
+    body = f"Frames: {declared}\nFrame Time: 0.01\n" + "".join(f"{k} 0 0 0 0 0\n" for k in range(rows))
+    b = read_bvh(_write(tmp_path, "off.bvh", GOOD_HEADER + body))
+    assert b.n_frames == rows and b.motion[-1, 0] == rows - 1
+    assert len(b.notes) == 1 and "off.bvh: line 12: Frames: says" in b.notes[0], b.notes
+    assert f"{declared}" in b.notes[0] and f"{rows} motion lines" in b.notes[0]
+    exact = read_bvh(_write(tmp_path, "exact.bvh", GOOD_HEADER + f"Frames: {rows}\nFrame Time: 0.01\n"
+                            + "".join(f"{k} 0 0 0 0 0\n" for k in range(rows))))
+    assert exact.notes == []
+
+
+@pytest.mark.parametrize("declared, rows", [(3069, 3066), (10, 13), (1000, 4)])
+def test_a_large_frame_count_mismatch_is_an_error(tmp_path, declared, rows):
+    body = f"Frames: {declared}\nFrame Time: 0.01\n" + "".join(f"{k} 0 0 0 0 0\n" for k in range(rows))
+    with pytest.raises(InputError) as err:
+        read_bvh(_write(tmp_path, "far.bvh", GOOD_HEADER + body))
+    msg = str(err.value)
+    assert msg.startswith("far.bvh: line ") or "far.bvh: line " in msg
+    assert f"{declared} motion lines" in msg and "\n" not in msg
+
+
+def test_boxing_toes_header_mismatch_reads_all_rows():
+    p = DATA / "bvh-skeletons/3dsmax-style/Boxing_Toes.bvh"
+    if not p.is_file():
+        pytest.skip(f"{p} not found (../shared/data absent)")
+    b = read_bvh(p)
+    assert b.n_frames == 3070 and len(b.notes) == 1 and "3069" in b.notes[0]
+
+
+def test_folder_reports_conflicting_labels_duplicates_and_garbled_json(tmp_path):
+    d = _label_folder(tmp_path)
+    # two label files give one clip different styles: the clip is left out, both files named
+    (d / "ds_kick_x_001.bvh").write_text(_tiny_human(variant=11))
+    (d / "kick-a.json").write_text(json.dumps({"content": "kick", "style": "happy", "bvh": "ds_kick_x_001.bvh"}))
+    (d / "kick-b.json").write_text(json.dumps({"content": "kick", "style": "sad", "bvh": "ds_kick_x_001.bvh"}))
+    # two label files that agree: read once, with a note
+    (d / "ds_jump_y_001.bvh").write_text(_tiny_human(variant=12))
+    for name in ("jump-a.json", "jump-b.json"):
+        (d / name).write_text(json.dumps({"content": "jump", "style": "sad", "bvh": "ds_jump_y_001.bvh"}))
+    # a byte-identical copy with the same labels: kept once
+    (d / "ds_walk_happy_002.bvh").write_bytes((d / "ds_walk_happy_001.bvh").read_bytes())
+    # a byte-identical copy labelled otherwise: both left out
+    (d / "ds_run_sad_009.bvh").write_text(_tiny_human(variant=13))
+    (d / "ds_run_happy_009.bvh").write_text(_tiny_human(variant=13))
+    # a garbled label file
+    (d / "broken.json").write_text('{"content": "walk", "style": ')
+    table, report = read_folder(d, fps=15)
+    text = "\n".join(report)
+    clips = set(table["clip"])
+    assert "ds_kick_x_001" not in clips and "ds_jump_y_001" in clips
+    assert "ds_walk_happy_002" not in clips and "ds_walk_happy_001" in clips
+    assert "ds_run_sad_009" not in clips and "ds_run_happy_009" not in clips
+    line = next(r for r in report if "ds_kick_x_001.bvh" in r)
+    assert "kick-a.json" in line and "kick-b.json" in line and "kick/happy" in line and "kick/sad" in line
+    assert any("jump-a.json" in r and "jump-b.json" in r and r.startswith("note:") for r in report), text
+    assert any("ds_walk_happy_002.bvh: file: expected a clip of its own, got a byte-identical copy of" in r
+               and "ds_walk_happy_001.bvh" in r for r in report), text
+    assert any("ds_run_happy_009.bvh" in r and "ds_run_sad_009.bvh" in r and "labelled differently" in r
+               for r in report), text
+    assert any(r.startswith("skipped label:") and "broken.json: line 1" in r for r in report), text
+    assert all("\n" not in r for r in report)
+
+
+def test_coinciding_key_points_are_the_skeletons_problem_naming_the_joints(tmp_path):
+    text = _tiny_human().replace("OFFSET 0 6 0", "OFFSET 0 0 0")      # Head on top of Neck
+    p = _write(tmp_path, "flat.bvh", text)
+    with pytest.raises(InputError) as err:
+        load_clip(p)
+    msg = str(err.value)
+    assert msg.startswith(f"{p}: skeleton: expected key points at distinct places"), msg
+    assert "thorax = Neck and neck = Head" in msg and "--joint-map" in msg and "\n" not in msg
+
+
+def test_a_motionbuilder_cmu_file_forced_into_rokoko_rules_names_the_coinciding_joints():
+    p = DATA / "bvh-skeletons/cmu-motionbuilder/cmu_12_01_walk.bvh"
+    if not p.is_file():
+        pytest.skip(f"{p} not found (../shared/data absent)")
+    with pytest.raises(InputError, match=r"spine = Spine1 and thorax = Neck"):
+        load_clip(p, family="rokoko")
+    assert load_clip(p).family == "cmu-motionbuilder"
+
+
+@pytest.mark.parametrize("frame_time", ["100000", "1e300"])
+def test_a_huge_frame_time_is_refused_before_resampling(tmp_path, frame_time):
+    text = _tiny_human().replace("Frame Time: 0.0333333", f"Frame Time: {frame_time}")
+    p = _write(tmp_path, "slow.bvh", text)
+    with pytest.raises(InputError) as err:
+        load_clip(p, fps=30)
+    msg = str(err.value)
+    assert msg.startswith(f"{p}: Frame Time: expected a clip of at most 600000 frames"), msg
+    assert load_clip(p, fps=None).points.shape == (4, 17, 2)      # at its own rate: 4 frames
+
+
+def bvh_text(joints, n_frames: int = 6, frame_time: float = 1 / 30, sway: float = 10.0) -> str:
+    """A BVH file from ``[(name, parent or None, (x, y, z) offset)]`` (Y-up, cm): the root walks
+    towards +z, every joint swings about its x axis by up to ``sway`` degrees; leaves get End Sites."""
+    children: dict = {}
+    for n, p, _ in joints:
+        children.setdefault(p, []).append(n)
+    off = {n: o for n, _, o in joints}
+    out = ["HIERARCHY"]
+
+    def emit(n, depth):
+        pad = "  " * depth
+        out.append(f"{pad}{'ROOT' if depth == 0 else 'JOINT'} {n}")
+        out.extend([pad + "{", f"{pad}  OFFSET {' '.join(f'{v:g}' for v in off[n])}",
+                f"{pad}  CHANNELS {6 if depth == 0 else 3} " + ("Xposition Yposition Zposition " if depth == 0
+                                                               else "") + "Zrotation Xrotation Yrotation"])
+        for c in children.get(n, []):
+            emit(c, depth + 1)
+        if n not in children:
+            out.extend([pad + "  End Site", pad + "  {", pad + "    OFFSET 0 -2 0", pad + "  }"])
+        out.append(pad + "}")
+
+    emit(joints[0][0], 0)
+    rows = []
+    for f in range(n_frames):
+        v = [0.0, off[joints[0][0]][1], 5.0 * f, 0.0, 0.0, 0.0]
+        for k in range(1, len(joints)):
+            v += [0.0, sway * np.sin(0.7 * f + k), 0.0]
+        rows.append(" ".join(f"{x:.4f}" for x in v))
+    out += ["MOTION", f"Frames: {n_frames}", f"Frame Time: {frame_time:.7f}", *rows]
+    return "\n".join(out) + "\n"
+
+
+def iclone_joints(prefix: str = "CC_Base_"):
+    """A Character Creator rig as iClone exports it: twist and share bones, facial bones, no head End Site."""
+    P = prefix
+    j = [("RL_BoneRoot", None, (0, 0, 0)), (P + "Hip", "RL_BoneRoot", (0, 98, 0)),
+         (P + "Pelvis", P + "Hip", (0, 0, 0)), (P + "Waist", P + "Hip", (0, 5, 0)),
+         (P + "Spine01", P + "Waist", (0, 12, 0)), (P + "Spine02", P + "Spine01", (0, 14, 0)),
+         (P + "NeckTwist01", P + "Spine02", (0, 18, 0)), (P + "NeckTwist02", P + "NeckTwist01", (0, 5, 0)),
+         (P + "Head", P + "NeckTwist02", (0, 5, 1)), (P + "FacialBone", P + "Head", (0, 6, 8)),
+         (P + "JawRoot", P + "FacialBone", (0, -4, 1)), (P + "L_Eye", P + "FacialBone", (3, 2, 1)),
+         (P + "R_Eye", P + "FacialBone", (-3, 2, 1))]
+    for s, x in (("L", 1), ("R", -1)):
+        j += [(f"{P}{s}_Thigh", P + "Pelvis", (9 * x, -7, 0)), (f"{P}{s}_ThighTwist01", f"{P}{s}_Thigh", (0, -20, 0)),
+              (f"{P}{s}_Calf", f"{P}{s}_Thigh", (0, -42, 0)), (f"{P}{s}_KneeShareBone", f"{P}{s}_Calf", (0, 0, 2)),
+              (f"{P}{s}_CalfTwist01", f"{P}{s}_Calf", (0, -20, 0)), (f"{P}{s}_Foot", f"{P}{s}_Calf", (0, -42, 0)),
+              (f"{P}{s}_ToeBase", f"{P}{s}_Foot", (0, -6, 12)),
+              (f"{P}{s}_Clavicle", P + "Spine02", (3 * x, 14, 0)), (f"{P}{s}_Upperarm", f"{P}{s}_Clavicle", (14 * x, 0, 0)),
+              (f"{P}{s}_UpperarmTwist01", f"{P}{s}_Upperarm", (13 * x, 0, 0)),
+              (f"{P}{s}_Forearm", f"{P}{s}_Upperarm", (27 * x, 0, 0)), (f"{P}{s}_ElbowShareBone", f"{P}{s}_Forearm", (0, 0, -2)),
+              (f"{P}{s}_ForearmTwist01", f"{P}{s}_Forearm", (12 * x, 0, 0)), (f"{P}{s}_Hand", f"{P}{s}_Forearm", (25 * x, 0, 0)),
+              (f"{P}{s}_Mid1", f"{P}{s}_Hand", (8 * x, 0, 0))]
+    return j
+
+
+def test_an_iclone_rig_is_read_with_its_twist_and_share_bones_ignored(tmp_path):
+    p = _write(tmp_path, "cc.bvh", bvh_text(iclone_joints()))
+    clip = load_clip(p, fps=None, facing="none", center=False)
+    assert clip.family == "iclone" and clip.up == "y"
+    K = clip.points3d[0]
+    J = JOINT_INDEX
+    np.testing.assert_allclose(K[J["pelvis"]], (K[J["l_hip"]] + K[J["r_hip"]]) / 2)
+    # head_top: 1.8 neck lengths (NeckTwist01 -> Head) above the head joint, above everything else
+    assert K[J["head_top"], 1] == pytest.approx(K[J["neck"], 1] + 1.8 * (K[J["neck"], 1] - K[J["thorax"], 1]), abs=1.0)
+    assert K[J["head_top"], 1] > K[J["neck"], 1] > K[J["thorax"], 1] > K[J["spine"], 1] > K[J["pelvis"], 1]
+    assert K[J["pelvis"], 1] > K[J["l_knee"], 1] > K[J["l_ankle"], 1]
+    # forearm twist and share bones do not move the elbow: it is the Forearm joint
+    assert abs(K[J["l_elbow"], 0] - K[J["l_shoulder"], 0]) > 20
+
+
+def test_a_shared_name_prefix_is_looked_through(tmp_path):
+    mixamo = [("Hips", None, (0, 95, 0)), ("Spine", "Hips", (0, 10, 0)), ("Spine1", "Spine", (0, 12, 0)),
+              ("Spine2", "Spine1", (0, 13, 0)), ("Neck", "Spine2", (0, 15, 0)), ("Head", "Neck", (0, 10, 2)),
+              ("HeadTop_End", "Head", (0, 18, 2))]
+    for s, x in (("Left", 1), ("Right", -1)):
+        mixamo += [(f"{s}Shoulder", "Spine2", (6 * x, 9, 0)), (f"{s}Arm", f"{s}Shoulder", (12 * x, 0, 0)),
+                   (f"{s}ForeArm", f"{s}Arm", (27 * x, 0, 0)), (f"{s}Hand", f"{s}ForeArm", (25 * x, 0, 0)),
+                   (f"{s}UpLeg", "Hips", (9 * x, -7, 0)), (f"{s}Leg", f"{s}UpLeg", (0, -41, 0)),
+                   (f"{s}Foot", f"{s}Leg", (0, -40, 0)), (f"{s}ToeBase", f"{s}Foot", (0, -6, 12))]
+    renamed = [(f"Character1_{n}", None if p is None else f"Character1_{p}", o) for n, p, o in mixamo]
+    p = _write(tmp_path, "hik.bvh", bvh_text(renamed))
+    assert load_clip(p, fps=None).family == "mixamo"
+    b = read_bvh(p)
+    assert detect_family(b.names, p, b.is_end_site).name == "mixamo"
+
+
+# --------------------------------------------------------------------------- joint maps
+
+ALIEN = {"Spine": "Ruecken1", "Chest": "Ruecken2",
+         "UpperArm_L": "OberarmL", "LowerArm_L": "UnterarmL", "Hand_L": "HandL",
+         "UpperArm_R": "OberarmR", "LowerArm_R": "UnterarmR", "Hand_R": "HandR",
+         "UpperLeg_L": "OberschenkelL", "LowerLeg_L": "UnterschenkelL", "Foot_L": "FussL",
+         "UpperLeg_R": "OberschenkelR", "LowerLeg_R": "UnterschenkelR", "Foot_R": "FussR"}
+
+ALIEN_MAP = """\
+# joints of a made-up skeleton
+format: nnsf.joint_map
+version: 1
+joints:
+  pelvis: [OberschenkelL, OberschenkelR]
+  r_hip: OberschenkelR
+  r_knee: UnterschenkelR
+  r_ankle: FussR
+  l_hip: OberschenkelL
+  l_knee: UnterschenkelL
+  l_ankle: FussL
+  spine: mid(Ruecken1, Ruecken2)
+  thorax: Neck
+  neck: Head
+  head_top: local(Head, 3)
+  l_shoulder: OberarmL
+  l_elbow: UnterarmL
+  l_wrist: HandL
+  r_shoulder: OberarmR
+  r_elbow: UnterarmR
+  r_wrist: HandR
+"""
+
+
+def test_made_up_joint_names_are_refused_with_candidates_then_read_with_a_joint_map(tmp_path):
+    from nnsf.datasets.joint_map import read_joint_map
+
+    p = _write(tmp_path, "alien.bvh", _tiny_human(ALIEN))
+    with pytest.raises(InputError) as err:
+        load_clip(p)
+    msg = str(err.value)
+    assert msg.startswith(f"{p}: joint names: expected joint names of a known family"), msg
+    assert "candidates: " in msg and "--joint-map" in msg and "\n" not in msg
+    fam = read_joint_map(_write(tmp_path, "alien.yaml", ALIEN_MAP))
+    # Hips, Neck and Head are names several families write: they are listed, none maps all 17
+    assert re.search(r"candidates: [\w-]+ \(score 0\.\d\d, maps \d+ of 17 key points; lacks ", msg), msg
+    clip = load_clip(p, family=fam, fps=None)
+    # the same motion as the Bandai-named original, key point for key point
+    ref = load_clip(_write(tmp_path, "ref.bvh", _tiny_human()), fps=None)
+    assert ref.family == "bandai-namco"
+    np.testing.assert_allclose(clip.points, ref.points, atol=1e-9)
+
+
+def test_a_joint_map_over_a_family_fills_in_the_rest(tmp_path):
+    from nnsf.datasets.joint_map import read_joint_map
+
+    renamed = {"UpperLeg_L": "LThigh", "LowerLeg_L": "LShin", "Foot_L": "LFoot"}
+    p = _write(tmp_path, "part.bvh", _tiny_human(renamed))
+    m = _write(tmp_path, "part.yaml", "family: bandai-namco\njoints:\n  pelvis: [LThigh, UpperLeg_R]\n"
+               "  l_hip: LThigh\n  l_knee: LShin\n  l_ankle: LFoot\n")
+    clip = load_clip(p, family=read_joint_map(m), fps=None)
+    ref = load_clip(_write(tmp_path, "ref.bvh", _tiny_human()), fps=None)
+    np.testing.assert_allclose(clip.points, ref.points, atol=1e-9)
+
+
+@pytest.mark.parametrize("text, field, words", [
+    ("joints: [a, b]\n", "joints", "a mapping of key points"),
+    ("joints:\n  pelvis: Hips\n", "joints", "all 17 key points"),
+    ("family: nope\njoints:\n  pelvis: Hips\n", "family", "one of bandai-namco"),
+    ("family: mixamo\njoints:\n  pelvs: Hips\n", "joints.pelvs", "did you mean pelvis"),
+    ("family: mixamo\njoints:\n  pelvis: [A, B, C]\n", "joints.pelvis", "two joint names"),
+    ("family: mixamo\njoints:\n  pelvis: middle(A)\n", "joints.pelvis", "cannot read key-point rule"),
+    ("family: mixamo\nextra: 1\njoints:\n  pelvis: Hips\n", "extra", "only the keys"),
+    ("version: 2\nfamily: mixamo\njoints:\n  pelvis: Hips\n", "version", "expected 1"),
+    ("joints: {pelvis: [a\n", "line 2", "valid YAML"),
+    ("!!python/object/apply:os.system [ls]\n", "line 1", "YAML without tags that build Python objects"),
+])
+def test_bad_joint_maps_name_the_file_and_field(tmp_path, text, field, words):
+    from nnsf.datasets.joint_map import read_joint_map
+
+    p = _write(tmp_path, "bad.yaml", text)
+    with pytest.raises(InputError) as err:
+        read_joint_map(p)
+    msg = str(err.value)
+    assert msg.startswith(f"{p}: {field}: ") and words in msg and "\n" not in msg, msg
+
+
+def test_a_joint_map_naming_a_joint_the_file_lacks_names_the_map_and_the_nearest_joints(tmp_path):
+    from nnsf.datasets.joint_map import read_joint_map
+
+    p = _write(tmp_path, "alien.bvh", _tiny_human(ALIEN))
+    m = _write(tmp_path, "typo.yaml", ALIEN_MAP.replace("l_knee: UnterschenkelL", "l_knee: UnterschenkeL"))
+    with pytest.raises(InputError) as err:
+        load_clip(p, family=read_joint_map(m))
+    msg = str(err.value)
+    assert msg.startswith(f"{m}: joints.l_knee: expected joints of {p}, got 'UnterschenkeL'"), msg
+    assert "UnterschenkelL" in msg
+
+
+def test_an_end_site_at_zero_offset_is_no_point_and_the_next_rule_is_used():
+    from nnsf.datasets.bvh_skeletons import mapping_text
+
+    fam = FAMILIES["cmu-motionbuilder"]
+    names = ["Hips", "LeftUpLeg", "RightUpLeg", "LeftLeg", "RightLeg", "LeftFoot", "RightFoot", "Spine",
+             "Spine1", "Neck", "Neck1", "Head", "Head_end", "LeftArm", "RightArm", "LeftForeArm",
+             "RightForeArm", "LeftHand", "RightHand"]
+    kinds = [0] * len(names)
+    kinds[names.index("Head_end")] = 1
+    assert mapping_text(fam, names, kinds)["head_top"] == "end(Head)"
+    kinds[names.index("Head_end")] = 2                     # OFFSET 0 0 0: the head joint itself
+    assert mapping_text(fam, names, kinds)["head_top"] == "beyond(Neck1, Head, 1)"
+    b = parse_bvh(GOOD_HEADER.replace("OFFSET 0 1 0", "OFFSET 0 0 0") + "Frames: 1\nFrame Time: 0.1\n"
+                  "0 0 0 0 0 0\n", "zero.bvh")
+    assert list(b.site_kinds) == [0, 2]

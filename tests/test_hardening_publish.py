@@ -1,4 +1,4 @@
-"""A killed ``evaluate`` never leaves a mixed set of outputs (issue 18, class 10).
+"""A killed ``evaluate`` never leaves a mixed set of outputs.
 
 The stage's outputs are published together (:mod:`nnsf.publish`: staging
 folder, commit journal, renames, manifest last).  The kill test SIGKILLs a

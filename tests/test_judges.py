@@ -1,5 +1,5 @@
-"""The independent judges, the mean-pose-offset baseline and the smoothness of syntheses
-(issue 11): judges never see the hidden cell, ``offset`` matches a hand computation, and a
+"""The independent judges, the mean-pose-offset baseline and the smoothness of syntheses:
+judges never see the hidden cell, ``offset`` matches a hand computation, and a
 consensus synthesis is no jerkier than the real clips of its target style."""
 from __future__ import annotations
 

@@ -10,7 +10,7 @@ from sklearn.decomposition._nmf import _initialize_nmf
 from nnsf import NNSF
 from nnsf.factor import nnsf as nnsf_module
 from nnsf.factor.nnsf import LARGE_INIT_ROWS, _initialize_nndsvd_lean
-from nnsf.factor.updates import _residual_norm, _weight_pass, weight_step
+from nnsf.factor.updates import residual_norm, _weight_pass, weight_step
 
 
 def _exact_rank(n, d, k, seed=0):
@@ -43,7 +43,7 @@ def test_blocked_weight_pass_is_the_plain_update_with_its_grams():
     np.testing.assert_allclose(VtV, plain.T @ plain, rtol=1e-12)
     np.testing.assert_allclose(VtX, plain.T @ X, rtol=1e-12)
     assert v_sum == pytest.approx(plain.sum(), rel=1e-12)
-    assert _residual_norm(X, plain, U, chunk=999) == pytest.approx(np.linalg.norm(X - plain @ U), rel=1e-12)
+    assert residual_norm(X, plain, U, chunk=999) == pytest.approx(np.linalg.norm(X - plain @ U), rel=1e-12)
 
 
 @pytest.mark.parametrize("dtype", ["float64", "float32"])

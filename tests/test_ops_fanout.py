@@ -283,7 +283,7 @@ def test_a_point_that_always_fails_is_named_and_the_others_are_kept(project, pre
     assert list(parent["status"]) == ["FAILED"]
     children = nested_runs(parent["run_id"].iloc[0])
     assert len(children) == 6 and (children["status"] == "FINISHED").all()
-    assert children["metrics.precision_mean"].notna().all()
+    assert children["metrics.sweep/precision_mean"].notna().all()
     assert not (root / "reports" / "sweep.csv").exists()
 
     # Once the broken points are fixed, only they are computed: the six are reused.

@@ -111,8 +111,8 @@ def test_a_sweep_killed_halfway_resumes_without_recomputing_finished_points(
     assert killed.info.status == "KILLED"  # marked when the second run opened the store
     assert resumed.info.status == "FINISHED"
     # The counter: every point that had finished was copied, only the rest computed.
-    assert resumed.data.metrics["points_reused"] == finished_before
-    assert resumed.data.metrics["points_computed"] == total - finished_before
+    assert resumed.data.metrics["sweep/points_reused"] == finished_before
+    assert resumed.data.metrics["sweep/points_computed"] == total - finished_before
     children = client.search_runs([exp.experiment_id],
                                   f"tags.mlflow.parentRunId = '{resumed.info.run_id}'")
     reused = [c for c in children if "nnsf.reused_from" in c.data.tags]
@@ -132,5 +132,6 @@ def test_a_sweep_killed_halfway_resumes_without_recomputing_finished_points(
         assert row.precision_mean == pytest.approx(fresh.metrics["precision_mean"],
                                                     rel=5.1e-6)  # the CSV keeps 6 digits
     figures = sorted(p.name for p in (root / "reports" / "figures" / "sweep").iterdir())
-    assert len(figures) == total  # reused points got their figures back from MLflow
+    assert len(figures) == total + 1  # reused points got their figures back from MLflow; the chart
+    assert "precision_vs_alpha_beta_rank.png" in figures
     assert not [f for f in figures if f.startswith(".")]  # the killed run's temporary files are gone

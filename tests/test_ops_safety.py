@@ -99,14 +99,24 @@ def test_no_code_loads_pickles_or_unsafe_yaml():
     assert found == []
 
 
-def test_yaml_is_read_with_safe_load_everywhere():
-    """Every YAML read in the shipped code is ``yaml.safe_load`` (or ``safe_load_all``)."""
-    uses = []
+def test_yaml_is_read_by_the_one_bounded_safe_loader_everywhere():
+    """Every YAML read in the shipped code goes through ``nnsf.safe_yaml`` (a ``yaml.SafeLoader``
+    with bounds); elsewhere ``yaml`` is only written."""
+    import yaml
+
+    from nnsf.safe_yaml import BoundedLoader
+
+    uses, readers = [], 0
     for pkg in PACKAGES:
         for path in (PROJECT / pkg).rglob("*.py"):
-            uses += re.findall(r"\byaml\.(\w+)\(", path.read_text())
-    assert uses, "expected at least the params loader"
-    assert set(uses) <= {"safe_load", "safe_load_all", "safe_dump", "safe_dump_all", "dump"}
+            if path.name == "safe_yaml.py":
+                continue
+            text = path.read_text()
+            uses += re.findall(r"\byaml\.(\w+)\(", text)
+            readers += len(re.findall(r"\b(read_yaml|parse_yaml)\(", text))
+    assert readers >= 3, "expected at least the params, char_cfg and joints readers"
+    assert set(uses) <= {"safe_dump", "safe_dump_all", "dump"}, uses
+    assert issubclass(BoundedLoader, yaml.SafeLoader)
 
 
 # -- paths inside annotation and config files ---------------------------------------------
@@ -219,16 +229,18 @@ def _help_default_host(command: str) -> str | None:
 
 @pytest.mark.slow  # runs each server command's --help
 def test_every_documented_server_command_binds_to_loopback():
-    """Each server command in the README's code blocks binds to loopback, explicitly or by default.
+    """Each server command in the code blocks of the README and docs/ binds to loopback,
+    explicitly or by default.
 
     (The commands the code itself runs are checked live below.)
     """
-    readme = (PROJECT / "README.md").read_text()
-    blocks = re.findall(r"```[a-z]*\n(.*?)```", readme, re.DOTALL)
-    lines = [("README.md", line.strip()) for block in blocks
-             for line in block.replace("\\\n", " ").splitlines()
-             if SERVER_COMMANDS.search(line) and not line.lstrip().startswith("#")]
-    assert lines, "expected the README's server commands"
+    lines = []
+    for path in [PROJECT / "README.md", *sorted((PROJECT / "docs").glob("*.md"))]:
+        blocks = re.findall(r"```[a-z]*\n(.*?)```", path.read_text(), re.DOTALL)
+        lines += [(path.name, line.strip()) for block in blocks
+                  for line in block.replace("\\\n", " ").splitlines()
+                  if SERVER_COMMANDS.search(line) and not line.lstrip().startswith("#")]
+    assert {doc for doc, _ in lines} >= {"README.md", "operations.md"}, "expected documented server commands"
     defaults: dict[str, str | None] = {}
     for doc, line in lines:
         host = re.search(r"--host[ =]+[\"']?([^\s\"']+)", line)

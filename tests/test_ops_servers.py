@@ -109,13 +109,13 @@ def test_sweep_against_a_real_mlflow_server(tmp_path, prefect_api, monkeypatch):
         assert len(children) == 8 and all(c.info.status == "FINISHED" for c in children)
         table = sweep_table(root)
         from_server = {(float(c.data.params["alpha"]), float(c.data.params["beta"]),
-                        int(c.data.params["rank"])): c.data.metrics["precision_mean"] for c in children}
+                        int(c.data.params["rank"])): c.data.metrics["sweep/precision_mean"] for c in children}
         from_table = {(r.alpha, r.beta, int(r.rank)): r.precision_mean for r in table.itertuples()}
         assert from_table == pytest.approx(from_server, rel=5.1e-6)  # 6 significant digits
         figure = client.list_artifacts(children[0].info.run_id, "reports/figures/sweep")
         assert len(figure) == 1 and figure[0].path.endswith(".png")
         stored = list((store / "artifacts").rglob("*.png"))
-        assert len(stored) == 8  # proxied into the server's artifact destination
+        assert len(stored) == 8 + 1  # the points' and the parent's chart, proxied to the server
         assert not (root / "mlflow.db").exists()  # nothing was logged locally
     finally:
         pgid = server.pid

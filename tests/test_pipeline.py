@@ -30,7 +30,7 @@ pytestmark = pytest.mark.slow
 FLOWS = [sys.executable, "-m", "flows"]
 DVC = [sys.executable, "-m", "dvc"]
 ALL_STAGES = {"frames", "roto", "roto_eval", "data", "features", "factorize", "evaluate", "isomap", "sweep",
-              "heldout", "translate", "reshape", "styles", "animate"}
+              "heldout", "translate", "reshape", "styles", "animate", "results"}
 EXPERIMENT = "nnsf-e2e"
 
 #: Small enough for seconds per stage, big enough for 3 grouped folds.
@@ -52,6 +52,7 @@ dataset:
     facing: normalise
     center: true
     complete_grid: true
+    joint_map: null
 frames:
   characters: 1
   motions: [walk, wave]
@@ -123,7 +124,8 @@ translation:
   tempo: true
   ridge: 0.5
   smooth: 0.0
-  smooth_order: 2
+  transfer: recombine_swing
+  neutral: null
   max_iter: 20
   align_iter: 20
   bilinear_rank: 1
@@ -134,6 +136,8 @@ translation:
   max_cells: 2
   examples: 1
   methods: [nnsf, bilinear, mgpm, cbgpm, identity]
+  content_methods: [api, offset, spectral]
+  max_contents: 1
   content_clip: auto
   style: auto
 reshape:
@@ -275,15 +279,19 @@ def test_mlflow_has_stage_runs_and_nested_sweep_runs(pipeline):
     by_stage = runs.groupby("tags.nnsf.stage").size().to_dict()
     assert by_stage == {"frames": 1, "roto": 1, "roto_eval": 1, "data": 1, "features": 1, "factorize": 1,
                         "evaluate": 1, "isomap": 1, "sweep": 1, "sweep-point": 4, "heldout": 1,
-                        "heldout-run": 5, "translate": 1, "reshape": 1, "styles": 1, "animate": 1}
+                        "heldout-run": 5, "translate": 1, "reshape": 1, "styles": 1, "animate": 1,
+                        "results": 1}
     experiment = mlflow.get_experiment_by_name(EXPERIMENT)
     assert experiment.artifact_location == (pipeline.root / "mlartifacts").as_uri()
+    # MLflow 3's UI opens an experiment of this kind on its runs (not on the GenAI pages)
+    assert experiment.tags["mlflow.experimentKind"] == "custom_model_development"
 
     client = MlflowClient(pipeline.mlflow_uri)
     for stage in ("factorize", "evaluate"):
         row = runs[runs["tags.nnsf.stage"] == stage].iloc[0]
         assert row.filter(like="params.").notna().any(), stage
-        assert row.filter(like="metrics.").notna().any(), stage
+        metrics = row.filter(like="metrics.").dropna().index
+        assert len(metrics) and all(m.startswith(f"metrics.{stage}/") for m in metrics), stage
         assert row["tags.prefect.flow_run_id"], stage
     evaluate_id = runs.loc[runs["tags.nnsf.stage"] == "evaluate", "run_id"].iloc[0]
     assert _artifact_files(client, evaluate_id, ".png"), "evaluate logged no figure"
@@ -300,13 +308,14 @@ def test_mlflow_has_stage_runs_and_nested_sweep_runs(pipeline):
     assert points == {(a, b, 4) for a in (0.0, 0.01) for b in (0.0, 1.0)}
     for child in children["run_id"]:
         assert _artifact_files(client, child, ".png"), f"sweep point {child} logged no figure"
+    assert _artifact_files(client, parent, "precision_vs_alpha_beta_rank.png"), "the sweep run has no chart"
 
     # The comparison table is what MLflow holds for the nested runs (without
     # run ids or wall times, which would make the versioned file vary).
     table = pd.read_csv(pipeline.root / "reports/sweep.csv")
     assert "run_id" not in table and "seconds" not in table
     from_runs = {(float(a), float(b), int(k)): float(p) for a, b, k, p in children[
-        ["params.alpha", "params.beta", "params.rank", "metrics.precision_mean"]].itertuples(index=False)}
+        ["params.alpha", "params.beta", "params.rank", "metrics.sweep/precision_mean"]].itertuples(index=False)}
     from_table = {(float(a), float(b), int(k)): float(p) for a, b, k, p in table[
         ["alpha", "beta", "rank", "precision_mean"]].itertuples(index=False)}
     assert from_table == pytest.approx(from_runs, rel=5.1e-6)  # the CSV keeps 6 significant digits
@@ -421,12 +430,13 @@ def test_changing_alpha_reruns_only_its_dependents(pipeline):
     params["nnsf"]["alpha"] = 0.05
     (pipeline.root / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     # Directly out of date: the stages that read nnsf.alpha.  isomap follows
-    # because the model it reads changes; data, features and sweep stay.
+    # because the model it reads changes, and results because their reports do;
+    # data, features and sweep stay.
     status = run(DVC + ["status", "--json"], pipeline.root, pipeline.env)
     assert set(json.loads(status.stdout)) == {"factorize", "evaluate"}
     rerun = run(FLOWS + ["repro"], pipeline.root, pipeline.env, timeout=600)
     assert rerun.returncode == 0, rerun.stdout[-3000:] + rerun.stderr[-3000:]
-    assert stages_run(rerun.stdout) == {"factorize", "evaluate", "isomap"}
+    assert stages_run(rerun.stdout) == {"factorize", "evaluate", "isomap", "results"}
 
 
 def test_pipeline_flow_fails_cleanly_on_bad_input_without_retrying(pipeline):

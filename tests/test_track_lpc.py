@@ -8,8 +8,8 @@ import pytest
 
 from nnsf.errors import InputError
 from nnsf.frames.annotation import read_annotation
-from nnsf.roto.lpc import BODIES, read_tiles, track_lpc
-from nnsf.roto.real import score_silhouette
+from nnsf.roto.lpc import read_tiles, track_lpc
+from nnsf.roto.real import annotated_names, score_silhouette
 
 ANNOTATIONS = Path(__file__).resolve().parent / "data" / "lpc"
 LPC = Path(__file__).resolve().parents[2] / "shared" / "data" / "lpc-bodies"
@@ -17,7 +17,11 @@ needs_lpc = pytest.mark.skipif(not (LPC / "male.png").is_file(),
                                reason=f"the LPC sprite sheets are not at {LPC}")
 
 
+BODIES = annotated_names(ANNOTATIONS)
+
+
 def test_every_body_has_a_valid_walk_row_annotation():
+    assert len(BODIES) == 5
     for body in BODIES:
         ann = read_annotation(ANNOTATIONS / f"{body}.annotation.json")
         assert ann.image_size == (64, 64) and len(ann.frames) == 9
@@ -41,7 +45,7 @@ def test_tiles_and_a_tracked_walk_row(tmp_path):
     rgb, alpha = read_tiles(LPC / "male.png", ann.frames)
     assert rgb.shape == (9, 64, 64, 3) and alpha.shape == (9, 64, 64)
     assert (rgb[alpha == 0] == 255).all()                       # composited over white
-    table, tracked = track_lpc(LPC, ANNOTATIONS, methods=("ours",), bodies=("male",))
+    table, tracked = track_lpc(LPC, ANNOTATIONS, methods=("ours",), names=("male",))
     row = table.iloc[0]
     assert row["frames"] == 7 and row["keyframe_score"] >= 0.95
     assert row["score"] >= 0.8 and np.isfinite(tracked[("male", "ours")]).all()

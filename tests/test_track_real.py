@@ -1,10 +1,11 @@
-"""Tracking on real cartoon frames (Kenney toon walk cycles) scored against alpha silhouettes."""
+"""Tracking on real cartoon frames scored against their alpha silhouettes (nnsf.roto.real), on the
+Kenney toon walk cycles and their hand-made keyframe annotations."""
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from nnsf.roto.real import score_silhouette, silhouette_boundary, track_kenney
+from nnsf.roto.real import annotated_names, score_silhouette, silhouette_boundary, track_frames
 
 PROJECT = Path(__file__).resolve().parents[1]
 KENNEY = PROJECT.parent / "shared" / "data" / "kenney-toon"
@@ -38,14 +39,14 @@ def test_kenney_walk_cycles():
         pytest.skip(f"shared Kenney frames not found at {KENNEY}")
     if not (ANNOTATIONS / "robot.annotation.json").is_file():
         pytest.skip(f"hand annotation {ANNOTATIONS / 'robot.annotation.json'} not present")
-    table, tracked = track_kenney(KENNEY, ANNOTATIONS, characters=("robot",))
+    table, tracked = track_frames(KENNEY, ANNOTATIONS, names=("robot",))
     s = table.set_index("tracker")["score"]
     assert set(s.index) == {"ours", "agarwala", "lk"}
     # the space-time tracker stays on the outline far more often than per-frame LK
     assert s["ours"] > s["lk"] + 0.1
     assert s["ours"] > 0.5
     # ... without buying that score by shrinking: it keeps the keyframes' curve length and
-    # covers more outline than before the fix (length 0.52, coverage 0.64 on the robot)
+    # covers most of the outline the keyframes cover
     t = table.set_index("tracker")
     assert t.loc["ours", "length_ratio"] == pytest.approx(1.0, abs=0.1)
     assert t.loc["ours", "coverage"] > 0.75
@@ -53,9 +54,9 @@ def test_kenney_walk_cycles():
 
 
 def test_kenney_target_with_the_project_options():
-    """Issue 17's target, 0.70 of outline samples within 1.5 px of the silhouette, with
-    params.yaml's tracker: on these flat-colour sprites ``snap_to: auto`` snaps to the colour
-    edge.  Without the snap the same solve scores 0.636."""
+    """With params.yaml's tracker at least 0.70 of the outline samples lie within 1.5 px of the
+    silhouette: on these flat-colour sprites ``snap_to: auto`` snaps to the colour edge, and
+    the snap adds to the score of the same solve without it."""
     if not KENNEY.is_dir():
         pytest.skip(f"shared Kenney frames not found at {KENNEY}")
     from nnsf import params
@@ -64,12 +65,12 @@ def test_kenney_target_with_the_project_options():
 
     opts = track_options(params.load(PROJECT / "params.yaml"))
     assert opts["snap"] > 0 and opts["snap_to"] == "auto"
-    table, _ = track_kenney(KENNEY, ANNOTATIONS, methods=("ours",), **opts)
-    assert len(table) == 6
+    table, _ = track_frames(KENNEY, ANNOTATIONS, methods=("ours",), **opts)
+    assert len(table) == len(annotated_names(ANNOTATIONS)) == 6
     assert set(table["snap"]) == {"edge"} and (table["stroke_share"] < 0.1).all()   # flat colour
     s = silhouette_summary(table, 1.5)
     assert s["trackers"]["ours"] >= 0.70
     assert s["length_ratio"]["ours"] == pytest.approx(1.0, abs=0.1)
-    off, _ = track_kenney(KENNEY, ANNOTATIONS, methods=("ours",), characters=("robot",),
+    off, _ = track_frames(KENNEY, ANNOTATIONS, methods=("ours",), names=("robot",),
                           **{**opts, "snap": 0.0})
     assert table.set_index("character").loc["robot", "score"] > off["score"].iloc[0] + 0.05

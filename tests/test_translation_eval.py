@@ -33,9 +33,11 @@ def _params(**over):
         "unify": {"margin": 0.5},
         "translation": {
             "rank": 8, "alpha": 0.01, "beta": 10.0, "label": "motion", "basis": "aligned",
-            "synthesis": "consensus", "amplitude": "restore", "tempo": False, "ridge": 0.5, "smooth": 0.0, "smooth_order": 1,
+            "synthesis": "consensus", "amplitude": "restore", "tempo": False, "ridge": 0.5, "smooth": 0.0,
+            "transfer": "recombine_swing", "neutral": None,
             "max_iter": 40, "align_iter": 20, "bilinear_rank": 1, "max_sources": 2, "max_cells": 3,
             "examples": 1, "methods": list(STAGE_METHODS), "gp_rank": 4, "gp_phase_bins": 2, "gp_max_iter": 10,
+            "content_methods": ["api", "offset", "spectral", "real"], "max_contents": 2,
         },
     }
     p["translation"].update(over)
@@ -111,11 +113,21 @@ def test_heldout_stage_writes_tables_figures_and_one_run_per_method(unified, tmp
     assert res.metrics["target_dtw_error"] == float(target["checks"]["dtw_error <= 0.17"]["met"])
     assert res.runs["nnsf"].metrics["dtw_error"] == pytest.approx(summary["methods"]["nnsf"]["dtw_error"],
                                                                  rel=5.1e-6)  # the file keeps 6 digits
+    # Leave one content out beside it: two folds, every method, per-style and per-content tables.
+    content = json.loads((reports / "heldout_content.json").read_text())
+    assert content["protocol"] == "leave one content out" and len(content["folds"]) == 2
+    assert set(content["methods"]) == {"api", "offset", "spectral", "real"}
+    assert {"style_lr", "content_lr", "style_angles", "style_nn1", "jerk_ratio"} <= set(content["methods"]["api"])
+    assert content["target"]["method"] == "api" and isinstance(content["target"]["met"], bool)
+    assert {"style", "method", "style_lr"} <= set(pd.read_csv(reports / "plots" / "heldout_content_by_style.csv"))
+    assert {"content", "method"} <= set(pd.read_csv(reports / "plots" / "heldout_content_by_content.csv"))
+    assert res.metrics["content_out_style_lr"] == content["methods"]["api"]["style_lr"]
     # Same inputs, same bytes.
     again = tmp_path / "again"
     heldout(_params(), unified / "features.csv", again, mapper=lambda fn, xs: [fn(x) for x in xs],
             unifier_json=unified / "unifier.json")
-    for f in ("heldout.csv", "heldout.json", "plots/heldout_by_style.csv"):
+    for f in ("heldout.csv", "heldout.json", "plots/heldout_by_style.csv", "heldout_content.csv",
+              "heldout_content.json", "plots/heldout_content_by_style.csv"):
         assert (reports / f).read_bytes() == (again / f).read_bytes(), f
 
 

@@ -27,8 +27,8 @@ CASES = [(stage, str(folder), []) for stage, folders in pipeline.OUTPUT_FOLDERS.
 CASES += [(command, "blocked/out", ["--out", "blocked/out"])
           for command in ("translate", "reshape")]
 # The evaluations on external data also need --data (any existing folder: the output check comes first).
-CASES += [(command, "blocked/out", ["--data", ".", "--out", "blocked/out"])
-          for command in ("reshape-eval", "roto-real")]
+CASES += [("reshape-eval", "blocked/out", ["--data", ".", "--out", "blocked/out"]),
+          ("roto-real", "blocked/out", ["--data", ".", "--annotations", ".", "--out", "blocked/out"])]
 
 
 def _files(root: Path) -> set[str]:

@@ -28,10 +28,12 @@ from nnsf.errors import InputError
 from nnsf.reshape.formats import read_character
 from nnsf.datasets import synthetic, views
 from nnsf.factor.style_model import StyleModel, translate as style_translate
-from nnsf.factor.timewarp import resample_clip
+from nnsf.animate.progress import phased
+from nnsf.datasets import contract
 from nnsf.io import atomic_path, check_writable
 from nnsf.reshape.animator import BACKGROUND, Animator, canvas
 from nnsf.reshape.character import MAX_SIZE, Character
+from nnsf.skeleton.layout import BONE_NAMES, bone_lengths
 from nnsf.params import ARM_CHOICES, HEAD_CHOICES
 from nnsf.reshape.drive import read_motion
 from nnsf.reshape.render_pool import render_frames
@@ -58,12 +60,14 @@ class Motion:
 
 
 def read_motion_spec(spec, view: str = "auto", fps: float | None = None, clip: str | None = None,
-                     elevation: float = 0.0) -> Motion:
+                     elevation: float = 0.0, family=None) -> Motion:
     """A motion from a ``.bvh``, a contract ``.csv`` or ``synthetic:<character>/<motion>[/<frames>]``.
 
     A BVH is projected in ``view`` (:mod:`nnsf.datasets.views`; ``auto``
     picks the one it moves most in) and resampled to ``fps`` (default: the
-    file's rate).  Raises :class:`InputError` naming the file and field.
+    file's rate); ``family`` is its skeleton family (a joint map,
+    :func:`nnsf.datasets.joint_map.read_joint_map`; None detects it).
+    Raises :class:`InputError` naming the file and field.
     """
     text = str(spec)
     if text.startswith("synthetic:"):
@@ -92,11 +96,17 @@ def read_motion_spec(spec, view: str = "auto", fps: float | None = None, clip: s
         views.check_view(view)
         # Motion capture is often 120 fps: 30 is smooth for drawn animation.
         clip_obj, picked = views.load_clip_in_view(p, view=view, fps=float(fps) if fps else 30.0,
-                                                   elevation=elevation)
+                                                   elevation=elevation, family=family)
         return Motion(name=p.stem, points=clip_obj.points, fps=clip_obj.fps, depth=clip_obj.depth,
-                      view=picked, source=str(p))
+                      view=picked, source=str(p), notes=list(clip_obj.notes))
     if p.suffix.lower() == ".csv":
         name, _, pts = read_motion(p, clip)
+        # Two connected key points at one place: the clip's problem, named (unifying it would fail).
+        short = np.flatnonzero(~(np.median(bone_lengths(pts), axis=0) > 0))
+        if short.size:
+            a, b = BONE_NAMES[short[0]].split("-")
+            raise InputError(p, f"{name}: {a}, {b}", "key points at distinct places",
+                             reason=f"{a} and {b} coincide in most frames")
         return Motion(name=name, points=pts, fps=float(fps) if fps else SYNTHETIC_FPS, source=str(p))
     raise InputError(p, "file", "a .bvh or .csv motion file", p.suffix or "no extension")
 
@@ -132,10 +142,29 @@ def output_targets(out) -> dict[str, Path]:
     return {"png": out, "sheet": out.with_name(out.name + "_sheet.png")}
 
 
+def write_keypoints(path, points, motion: str, style: str) -> Path:
+    """Write key points ``(T, 17, 2)`` as one clip of the feature-matrix contract (docs/formats.md §3.1).
+
+    The clip is ``<motion>`` (``<motion>-as-<style>`` when styled); ``character`` holds the style
+    (``none`` when unstyled), ``motion`` the motion's name.  Written atomically.
+    """
+    import pandas as pd
+
+    P = np.asarray(points, dtype=float).reshape(len(points), -1)
+    clip = motion if style == "none" else f"{motion}-as-{style}"
+    table = pd.concat([pd.DataFrame({"clip": clip, "frame": np.arange(len(P)), "character": style,
+                                     "motion": motion}),
+                       pd.DataFrame(P, columns=list(contract.COLUMNS[4:]))], axis=1)
+    contract.write_table(path, contract.validate(table, path))
+    return Path(path)
+
+
+@phased("animate")
 def animate_files(character, motion, style="none", model=None, view="auto", out="animation.mp4",
                   fps=None, joints=None, source_style=None, n_vertices=800, max_frames=5000,
                   outputs=None, progress=True, size=512, clip=None, arms=None, workers=None,
-                  head=None, mask=None, max_size=MAX_SIZE) -> AnimateResult:
+                  head=None, mask=None, max_size=MAX_SIZE, joint_map=None, keypoints=None,
+                  phases=None) -> AnimateResult:
     """Run the whole job (module docstring) and write the outputs; returns what was written and the times.
 
     Parameters
@@ -159,6 +188,11 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
     fps : output frame rate (default: the motion's).
     workers : processes that render the frames (default: the CPUs this process may use, at most 8;
         :func:`nnsf.reshape.render_pool.render_frames`); the frames are the same for any number.
+    joint_map : the skeleton family of a BVH motion (:func:`nnsf.datasets.joint_map.read_joint_map`).
+    keypoints : a CSV path: the key points that drive the drawing (styled, retargeted; the
+        drawing's pixels) are written there in the feature-matrix contract (docs/formats.md §3.1).
+    progress : lines on stderr as the phases go; ``phases`` (given by the decorator) times them
+        (:class:`nnsf.animate.progress.Phases`).
     """
     views.check_view(view)
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, (int, np.integer))
@@ -172,11 +206,12 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
     # Every output folder is checked before any work (a file in the way, a read-only
     # disk): one line naming the folder, and nothing rendered in vain.
 
-    for folder in sorted({path if kind == "png" else path.parent for kind, path in targets.items()}):
+    written = [path if kind == "png" else path.parent for kind, path in targets.items()]
+    for folder in sorted(set(written + ([Path(keypoints).parent] if keypoints is not None else []))):
         check_writable(folder)
-    seconds: dict[str, float] = {}
-    cpu: dict[str, float] = {}
+    ph = phases
     t0, c0 = time.perf_counter(), time.process_time()
+    ph.start("load", "reading the character and the motion")
     # ---- load: check everything before any work, so bad input leaves nothing behind
     style = "none" if style is None else str(style)
     sm = None
@@ -184,18 +219,20 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
         if model is None:
             raise InputError("--model", "model", "a style model file (nnsf styles) for --style " + style)
         sm = model if isinstance(model, StyleModel) else StyleModel.load(model)
-        sm.check_style(style, "--style")
+        style = sm.check_style(style, "--style")
         if source_style is not None:
-            sm.check_style(source_style, "--source-style")
+            source_style = sm.check_style(source_style, "--source-style")
     ch = (character if isinstance(character, Character)
           else read_character(character, joints, size, mask=mask, max_size=max_size))
     arms, head = arms or ch.arms or "motion", head or ch.head or "motion"
-    mo = motion if isinstance(motion, Motion) else read_motion_spec(motion, view=view, fps=fps, clip=clip)
+    mo = motion if isinstance(motion, Motion) else read_motion_spec(motion, view=view, fps=fps, clip=clip,
+                                                                    family=joint_map)
     points, depth = mo.points[:max_frames], None if mo.depth is None else mo.depth[:max_frames]
-    learned = sm.meta.get("view") if sm is not None else None
-    if learned not in (None, "auto") and mo.view is not None and learned != mo.view:
-        mo.notes.append(f"{sm.path}: the styles were learned in the {learned} view; this motion is seen "
-                        f"in the {mo.view} view (--view {learned} matches the model)")
+    if sm is not None:
+        # The model's view for the motion's: said now, before anything is rendered.
+        _, note = sm.pick_view(mo.view)
+        if note:
+            mo.notes.append(note)
     if ch.body == "quadruped" and arms != "motion":
         mo.notes.append(f"--arms {arms}: {ch.name} is a quadruped; its front legs always swing about "
                         "their drawn pose (docs/method.md §12)")
@@ -204,55 +241,47 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
         mo.notes.append(f"{ch.name} is a quadruped drawn from the side: a front view swings its legs "
                         "towards the camera, out of the picture (--view side shows them)")
     out_fps = float(fps) if fps else mo.fps
-    seconds["load"], cpu["load"] = time.perf_counter() - t0, time.process_time() - c0
+    ph.stop()
+    for note in list(ch.notes) + mo.notes:
+        _say(progress, f"animate: note: {note}")
     if mo.view is not None:
         _say(progress, f"animate: view {mo.view}" + (" (auto: the view the motion moves most in)"
                                                      if view == "auto" else ""))
     _say(progress, f"animate: {len(points)} frames of {mo.name} at {out_fps:g} fps onto {ch.name} "
                    f"({ch.shape[1]}x{ch.shape[0]} px), style {style}")
     # ---- translate
-    t, c = time.perf_counter(), time.process_time()
-    moved = points if sm is None else style_translate(points, style, sm, source_style=source_style)
-    if depth is not None and len(moved) != len(depth):
-        # The style's tempo resampled the motion (nnsf.translate); the depths follow.
-
-        depth = resample_clip(depth, len(moved))
-    moved = moved[:max_frames]              # a slower style's tempo may lengthen the motion
-    depth = None if depth is None else depth[:max_frames]
-    if len(moved) != len(points):
-        _say(progress, f"animate: {len(points)} -> {len(moved)} frames at the tempo of style {style}")
-    seconds["translate"], cpu["translate"] = time.perf_counter() - t, time.process_time() - c
-    # ---- rig: parts, mesh, deformer (once per character)
-    t, c = time.perf_counter(), time.process_time()
+    ph.start("translate", f"performing the motion in style {style}")
+    moved = points if sm is None else style_translate(points, style, sm, source_style=source_style,
+                                                      view=mo.view, fps=mo.fps)
+    # ---- mesh: parts, mesh, deformer (once per character)
+    ph.start("mesh", f"meshing {ch.name} ({ch.shape[1]}x{ch.shape[0]} px)")
     animator = Animator(ch, n_vertices=n_vertices)
-    seconds["rig"], cpu["rig"] = time.perf_counter() - t, time.process_time() - c
     # ---- retarget
-    t, c = time.perf_counter(), time.process_time()
+    ph.start("retarget", "fitting the motion to the drawing's proportions")
     kp = animator.retarget(moved, arms, head, source=mo.source or mo.name)
-    seconds["retarget"], cpu["retarget"] = time.perf_counter() - t, time.process_time() - c
     # ---- deform
-    t, c = time.perf_counter(), time.process_time()
+    ph.start("deform", f"deforming the mesh over {len(kp)} frames")
     V = animator.deformer.run(kp)
     orders, _ = animator.orders(V, moved, depth)
-    seconds["deform"], cpu["deform"] = time.perf_counter() - t, time.process_time() - c
+    ph.stop()
     _say(progress, f"animate: deformed {len(V)} frames ({animator.mesh.n_vertices} vertices) in "
-                   f"{seconds['deform']:.2f} s")
+                   f"{ph.seconds['mesh'] + ph.seconds['deform']:.2f} s")
     # ---- render
-    t, c = time.perf_counter(), time.process_time()
+    ph.start("render", f"rendering {len(V)} frames")
     offset, sz = canvas(V, shape=ch.shape)
     renderer = animator.renderer(sz)
     step = max(1, len(V) // 10)
     said = [0]
 
     def rendered(done, total):
+        ph.step(done, total, "frames")
         if done - said[0] >= step or done == total:
             said[0] = done
             _say(progress, f"animate: rendered frame {done}/{total}")
 
     images = render_frames(renderer, V, orders, offset, BACKGROUND, sz, workers=workers, progress=rendered)
-    seconds["render"], cpu["render"] = time.perf_counter() - t, time.process_time() - c
     # ---- encode
-    t, c = time.perf_counter(), time.process_time()
+    ph.start("encode", "writing " + ", ".join(sorted(targets)))
     files = {}
     if "mp4" in targets:
         files["mp4"] = write_mp4(targets["mp4"], images, out_fps)
@@ -271,7 +300,10 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
             if not cv2.imwrite(str(tmp), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR)):
                 raise OSError(f"could not write {targets['sheet']}")
         files["sheet"] = Path(targets["sheet"])
-    seconds["encode"], cpu["encode"] = time.perf_counter() - t, time.process_time() - c
+    if keypoints is not None:       # last, beside finished videos: a failed encode leaves no table
+        write_keypoints(keypoints, kp[:len(images)], mo.name, style)
+    ph.stop()
+    seconds, cpu = dict(ph.seconds), dict(ph.cpu_seconds)
     seconds["total"], cpu["total"] = time.perf_counter() - t0, time.process_time() - c0
     return AnimateResult(files=files, seconds=seconds, cpu_seconds=cpu, frames=len(images), fps=out_fps, view=mo.view,
                          style=style, character=ch.name, motion=mo.name, notes=list(ch.notes) + mo.notes)

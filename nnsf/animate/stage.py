@@ -5,7 +5,6 @@ from pathlib import Path
 
 from nnsf.animate.animation import animate_files
 from nnsf.datasets.views import check_view
-from nnsf.errors import InputError
 from nnsf.io import atomic_dir, write_json
 from nnsf.params import checked, require, source_of
 from nnsf.pipeline import ANIMATE_DIR, STYLES_MODEL, StageResult
@@ -25,12 +24,8 @@ def animate(params: dict, model=STYLES_MODEL, out_dir=ANIMATE_DIR) -> StageResul
             ("character", "motion", "style", "view", "fps", "n_vertices", "max_frames", "output")}
     spec["arms"] = checked(params, "animate.arms", None)     # absent: the character YAML's choice, else motion
     spec["head"] = checked(params, "animate.head", None)
-    for key in ("character", "motion"):
-        text = str(spec[key])
-        if not text.startswith("synthetic:") and ("/" in text or "." in text):
-            p = Path(text)
-            if p.is_absolute() or ".." in p.parts:
-                raise InputError(src, f"animate.{key}", "a relative path inside the project", text)
+    # Character and motion paths were checked by require() with nnsf.params.project_path, the
+    # rule `nnsf check` applies: relative, inside the project once symbolic links are resolved.
     check_view(spec["view"], src, "animate.view")
     out_dir = Path(out_dir)
     with atomic_dir(out_dir) as tmp:

@@ -81,6 +81,9 @@ class BVH:
         One row per frame: positions in file units, rotations in degrees.
     frame_time : float
         Seconds per frame.
+    notes : list[str]
+        What the reader tolerated, one line each (a ``Frames:`` count off by a
+        row or two).
     """
 
     source: str
@@ -94,6 +97,7 @@ class BVH:
     channel_is_rotation: np.ndarray
     motion: np.ndarray
     frame_time: float
+    notes: list = field(default_factory=list)
     _index: dict = field(default_factory=dict, repr=False)
 
     def __post_init__(self):
@@ -111,6 +115,13 @@ class BVH:
         fps = 1.0 / self.frame_time
         whole = round(fps)
         return float(whole) if whole > 0 and abs(fps - whole) <= 1e-3 * fps else fps
+
+    @property
+    def site_kinds(self) -> np.ndarray:
+        """Per node, ``(J,)`` int: 0 a joint, 1 an End Site, 2 an End Site whose OFFSET is zero
+        (it coincides with its joint, so it marks no point of its own)."""
+        void = self.is_end_site & ~np.any(self.offsets != 0, axis=1)
+        return self.is_end_site.astype(np.int64) + void
 
     @property
     def joint_names(self) -> tuple[str, ...]:
@@ -181,12 +192,17 @@ def parse_bvh(text: str, source="<string>") -> BVH:
         raise InputError(source, f"line {line_no - 1}", "Frame Time: a positive number of seconds",
                          frame_time)
     motion = _parse_motion(text[pos:], line_no, n_frames, len(ch_node), source)
+    notes = []
+    if len(motion) != n_frames:
+        notes.append(f"{source}: line {frames_line}: Frames: says {n_frames}, the file has {len(motion)} "
+                     f"motion lines; all {len(motion)} were read")
     return BVH(
         source=str(source), names=tuple(names), parents=np.array(parents, dtype=np.int64),
         offsets=np.array(offsets, dtype=np.float64).reshape(-1, 3),
         is_end_site=np.array(ends, dtype=bool), channels=tuple(chans),
         channel_node=np.array(ch_node, dtype=np.int64), channel_axis=np.array(ch_axis, dtype=np.int64),
         channel_is_rotation=np.array(ch_rot, dtype=bool), motion=motion, frame_time=frame_time,
+        notes=notes,
     )
 
 
@@ -349,18 +365,26 @@ def _header_value(text, pos, line_no, key, source, cast):
     return v, pos, line_no
 
 
+#: Motion lines the data may have beyond or short of the ``Frames:`` count and still be read
+#: whole (with a note): exporters that count the T-pose or drop the last frame are off by one.
+FRAME_COUNT_SLACK = 2
+
+
 def _parse_motion(block: str, first_line: int, n_frames, n_channels, source) -> np.ndarray:
     """Rows of ``n_channels`` numbers from ``block`` (whose first line is line
-    ``first_line`` of the file), exactly ``n_frames`` of them.
+    ``first_line`` of the file): ``n_frames`` of them, or up to
+    :data:`FRAME_COUNT_SLACK` more or fewer (every complete row is kept).
 
     The fast path hands the whole block to ``np.loadtxt`` (C parser); any
     problem falls back to a line-by-line pass that finds the line to blame.
     """
     if n_channels == 0:
         raise InputError(source, "CHANNELS", "at least one channel in the hierarchy", 0)
+    lo, hi = max(n_frames - FRAME_COUNT_SLACK, 1), n_frames + FRAME_COUNT_SLACK
     try:
         data = np.loadtxt(io.StringIO(block), dtype=np.float64, ndmin=2, comments=None)
-        ok = data.shape == (n_frames, n_channels) and bool(np.isfinite(data).all())
+        ok = (lo <= data.shape[0] <= hi and data.shape[1] == n_channels
+              and bool(np.isfinite(data).all()))
     except ValueError:
         ok = False
     if ok:
@@ -375,9 +399,9 @@ def _parse_motion(block: str, first_line: int, n_frames, n_channels, source) -> 
         lineno = first_line + i
         last = lineno
         rows += 1
-        if rows > n_frames:
-            raise InputError(source, f"line {lineno}", f"exactly {n_frames} motion lines (Frames:)",
-                             "more lines")
+        if rows > hi:
+            raise InputError(source, f"line {lineno}", f"{n_frames} motion lines as Frames: says "
+                             f"(give or take {FRAME_COUNT_SLACK})", "more lines")
         if len(vals) != n_channels:
             raise InputError(source, f"line {lineno}",
                              f"{n_channels} values per motion line (one per channel)", len(vals))
@@ -388,7 +412,7 @@ def _parse_motion(block: str, first_line: int, n_frames, n_channels, source) -> 
                 raise InputError(source, f"line {lineno}", "numeric motion values", v) from None
             if not math.isfinite(x):
                 raise InputError(source, f"line {lineno}", "finite motion values", v)
-    if rows < n_frames:
+    if rows < lo:
         raise InputError(source, f"line {last + 1}",
                          f"{n_frames} motion lines as Frames: says (file truncated?)", rows)
     raise InputError(source, "MOTION", "a readable motion block")  # pragma: no cover

@@ -20,11 +20,15 @@ prefix).  It may name its motion file with ``"bvh": "relative/path.bvh"``;
 such paths must stay inside the folder given.
 
 Problems never stop the whole folder: a bad or unlabelled clip, a label file
-whose BVH is missing (Bandai-Namco's ``dance-long``) or a style seen in only
-one motion each become a line of the returned ``report`` and the rest is read.
+that cannot be read or whose BVH is missing, two label files that give one
+clip different labels (the clip is left out), a link leading out of the
+folder, a byte-identical copy of another clip (read once) or a style seen in
+only one motion each become a line of the returned ``report`` and the rest is
+read.
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import re
 from dataclasses import dataclass, field
@@ -33,12 +37,14 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from nnsf.datasets.bvh import forward_kinematics, read_bvh
+from nnsf.datasets.bvh import MAX_BVH_BYTES, forward_kinematics, read_bvh
 from nnsf.datasets.projection import detect_up_axis, project, resample, up_rotation
-from nnsf.datasets.bvh_skeletons import FAMILIES, SkeletonFamily, detect_family, keypoints_3d
+from nnsf.datasets.bvh_detect import detect_family
+from nnsf.datasets.bvh_skeletons import FAMILIES, SkeletonFamily, check_bones, keypoints_3d
 from nnsf.datasets.contract import validate
+from nnsf.datasets.joint_map import check_joint_map
 from nnsf.errors import InputError
-from nnsf.io import read_text
+from nnsf.io import read_bytes, read_text
 from nnsf.skeleton.layout import FEATURE_COLUMNS, JOINT_INDEX, N_JOINTS
 
 __all__ = [
@@ -76,6 +82,7 @@ class BVHClip:
     points3d : ``(F, 17, 3)`` key points in Y-up world axes before projection.
     fps : frame rate of the rows; ``source_fps``: the file's.
     family : skeleton family used; ``up``: the file's detected up axis.
+    notes : what the reader tolerated (a header frame count off by a row), one line each.
     """
 
     name: str
@@ -88,6 +95,7 @@ class BVHClip:
     family: str
     up: str
     yaw: np.ndarray = field(repr=False, default=None)
+    notes: list = field(default_factory=list)
 
 
 @dataclass
@@ -185,33 +193,66 @@ def labels_from_json(path, root, lists: LabelLists | None) -> tuple[ClipLabels, 
     return ClipLabels(motion, style, str(path)), bvh
 
 
+#: Frames a clip may have once resampled (about 5.5 hours at 30 fps; each frame's 17 points
+#: and their projections take a few kB): ``Frame Time`` x ``Frames`` is checked against it
+#: before any resampled array is made.
+MAX_RESAMPLED_FRAMES = 600_000
+
+
+def family_for(bvh, family=None, source=None) -> SkeletonFamily:
+    """The skeleton family of a parsed file: detected (``None``), a built-in name, or given."""
+    source = bvh.source if source is None else source
+    if family is None:
+        return detect_family(bvh.names, source, bvh.site_kinds)
+    if isinstance(family, SkeletonFamily):
+        check_joint_map(family, bvh.names, source, bvh.site_kinds)
+        return family
+    if family not in FAMILIES:
+        raise InputError(source, "family", f"one of {', '.join(FAMILIES)}", family)
+    return FAMILIES[family]
+
+
+def check_duration(bvh, fps: float | None, source=None) -> int:
+    """Frames of the clip at ``fps`` (None: its own rate); :class:`InputError` above
+    :data:`MAX_RESAMPLED_FRAMES`, naming ``Frame Time`` (checked before any allocation)."""
+    source = bvh.source if source is None else source
+    duration = max(bvh.n_frames - 1, 0) / bvh.fps          # as resample_times measures it, s
+    rate = bvh.fps if fps is None else float(fps)
+    n = float(np.floor(duration * rate + 0.5)) + 1.0       # a float: a huge Frame Time must not overflow
+    if not n <= MAX_RESAMPLED_FRAMES:
+        raise InputError(source, "Frame Time", f"a clip of at most {MAX_RESAMPLED_FRAMES} frames at "
+                         f"{rate:g} fps (Frame Time x Frames = {duration:.6g} s would make {n:.3g})",
+                         bvh.frame_time)
+    return int(n)
+
+
 def load_clip(path, fps: float | None = 30, azimuth: float = 0.0, elevation: float = 0.0,
               facing: str = "normalise", center: bool = True, up: str = "auto",
               family: str | SkeletonFamily | None = None, window: float = 1.0,
               scale: float = 1.0) -> BVHClip:
-    """Read one BVH file and project its 17 key points (see :func:`read_folder`)."""
+    """Read one BVH file and project its 17 key points (see :func:`read_folder`).
+
+    Raises :class:`InputError` for a skeleton no family clearly fits, key
+    points that coincide (:func:`~nnsf.datasets.bvh_skeletons.check_bones`)
+    or a clip too long to resample (:func:`check_duration`).
+    """
     path = Path(path)
     bvh = read_bvh(path)
-    if family is None:
-        fam = detect_family(bvh.names, path)
-    elif isinstance(family, SkeletonFamily):
-        fam = family
-    else:
-        if family not in FAMILIES:
-            raise InputError(path, "family", f"one of {', '.join(FAMILIES)}", family)
-        fam = FAMILIES[family]
+    fam = family_for(bvh, family, path)
+    out_fps = bvh.fps if fps is None else float(fps)
+    check_duration(bvh, fps, path)
     P, G = forward_kinematics(bvh, end_sites=True, return_rotations=True)
     K = keypoints_3d(bvh, P, G, fam)
+    check_bones(K, fam, bvh.names, path, bvh.site_kinds)
     if up == "auto":
         up = detect_up_axis(K, JOINT_INDEX["head_top"], (JOINT_INDEX["l_ankle"], JOINT_INDEX["r_ankle"]))
-    out_fps = bvh.fps if fps is None else float(fps)
     K = resample(K, bvh.fps, out_fps) * float(scale)
     win = max(int(round(window * out_fps)), 1)
     proj = project(K, azimuth=azimuth, elevation=elevation, up=up, facing=facing,
                    across=FACING_PAIRS, root=JOINT_INDEX["pelvis"], center=center, window=win)
     return BVHClip(name=path.stem, path=path, points=proj.xy, depth=proj.depth,
                    points3d=K @ up_rotation(up).T, fps=out_fps, source_fps=bvh.fps,
-                   family=fam.name, up=up, yaw=proj.yaw)
+                   family=fam.name, up=up, yaw=proj.yaw, notes=list(bvh.notes))
 
 
 def _data_folder(folder: Path) -> Path:
@@ -220,6 +261,62 @@ def _data_folder(folder: Path) -> Path:
     if (folder / "data").is_dir():
         return folder / "data"
     return folder
+
+
+def _clip_labels(p: Path, key: Path, folder: Path, from_json: list, report: list) -> ClipLabels:
+    """The labels of clip ``p`` (resolved ``key``): its label file's, else its name's.
+
+    Two label files that disagree leave the clip out (which is right cannot be
+    told); a file name that disagrees with its label file is a warning.
+    """
+    if not _inside(folder, key):
+        # The frame folders' rule: a file, or what a link in it points
+        # to, must stay inside the folder given.
+        raise InputError(p, "file", f"a .bvh file inside the dataset folder {folder} "
+                         "(symbolic links included)", f"a link to {key}")
+    labels = None
+    if from_json:
+        said = {(lab.motion, lab.style) for lab, _ in from_json}
+        files = ", ".join(str(js) for _, js in from_json)
+        if len(said) > 1:
+            raise InputError(p, "labels", "one content/style from its label files",
+                             reason=f"{files} say " + ", ".join(f"{lab.motion}/{lab.style}"
+                                                               for lab, _ in from_json))
+        if len(from_json) > 1:
+            report.append(f"note: {p}: labels: {files} label it alike; read once")
+        labels = from_json[0][0]
+    by_name = None
+    try:
+        by_name = labels_from_name(p)
+    except InputError:
+        if labels is None:
+            raise
+    if labels is None:
+        return by_name
+    if by_name is not None and (by_name.motion, by_name.style) != (labels.motion, labels.style):
+        report.append(f"warning: {p}: labels: file name says {by_name.motion}/{by_name.style}, "
+                      f"label file says {labels.motion}/{labels.style}; using the label file")
+    return labels
+
+
+def _identical_files(keys: list[Path], clips: dict[Path, Path]) -> list[tuple[Path, list[Path]]]:
+    """Groups of byte-identical files among ``keys``: ``[(first by name, [the copies])]``.
+
+    Only files of equal size are hashed (SHA-256).
+    """
+    by_size: dict[int, list[Path]] = {}
+    for k in keys:
+        by_size.setdefault(k.stat().st_size, []).append(k)
+    out = []
+    for same_size in by_size.values():
+        if len(same_size) < 2:
+            continue
+        by_hash: dict[str, list[Path]] = {}
+        for k in sorted(same_size, key=lambda k: (k.stem, str(k))):
+            digest = hashlib.sha256(read_bytes(clips[k], MAX_BVH_BYTES, "a readable .bvh file")).hexdigest()
+            by_hash.setdefault(digest, []).append(k)
+        out += [(group[0], group[1:]) for group in by_hash.values() if len(group) > 1]
+    return sorted(out, key=lambda g: g[0].stem)
 
 
 def read_folder(path, fps: float | None = 30, azimuth: float = 0.0, elevation: float = 0.0,
@@ -271,7 +368,7 @@ def read_folder(path, fps: float | None = 30, azimuth: float = 0.0, elevation: f
     report: list[str] = []
 
     # 1) label files and the clips they name
-    labelled: dict[Path, ClipLabels] = {}
+    labelled: dict[Path, list[tuple[ClipLabels, Path]]] = {}
     for js in sorted(data.glob("*.json")):
         try:
             labels, bvh_path = labels_from_json(js, folder, lists)
@@ -282,38 +379,55 @@ def read_folder(path, fps: float | None = 30, azimuth: float = 0.0, elevation: f
             report.append(f"skipped label: {js}: bvh: expected an existing motion file for "
                           f"{labels.motion}/{labels.style}, got {bvh_path.name!r} (missing)")
             continue
-        labelled[bvh_path.resolve()] = labels
+        labelled.setdefault(bvh_path.resolve(), []).append((labels, js))
 
-    # 2) every clip: labels from its JSON, else from its name
+    # 2) every clip's labels: from its JSON, else from its name
     clips = {p.resolve(): p for p in sorted(data.glob("*.bvh"))}
     for p in labelled:
         clips.setdefault(p, p)
-    rows_xy, rows_depth, meta = [], [], []
-    for key in sorted(clips, key=lambda p: p.stem):
+    chosen: dict[Path, ClipLabels] = {}
+    stems: dict[str, Path] = {}
+    for key in sorted(clips, key=lambda p: (p.stem, str(p))):
         p = clips[key]
         try:
-            if not _inside(folder, key):
-                # The frame folders' rule: a file, or what a link in it points
-                # to, must stay inside the folder given.
-                raise InputError(p, "file", f"a .bvh file inside the dataset folder {folder} "
-                                 "(symbolic links included)", f"a link to {key}")
-            labels = labelled.get(key)
-            by_name = None
-            try:
-                by_name = labels_from_name(p)
-            except InputError:
-                if labels is None:
-                    raise
-            if labels is None:
-                labels = by_name
-            elif by_name is not None and (by_name.motion, by_name.style) != (labels.motion, labels.style):
-                report.append(f"warning: {p}: labels: file name says {by_name.motion}/{by_name.style}, "
-                              f"label file says {labels.motion}/{labels.style}; using the label file")
+            chosen[key] = _clip_labels(p, key, folder, labelled.get(key, []), report)
+        except InputError as exc:
+            report.append(f"skipped: {exc}")
+            continue
+        if p.stem in stems:  # a label file's "bvh" may name a clip of the same name elsewhere
+            report.append(f"skipped: {p}: file name: expected a clip name of its own, got the name of "
+                          f"{stems[p.stem]}")
+            del chosen[key]
+            continue
+        stems[p.stem] = p
+
+    # 3) a byte-identical copy is the same take twice: kept once, else it would sit on both
+    #    sides of a cross-validation split (or, labelled differently, contradict itself)
+    for first, copies in _identical_files(list(chosen), clips):
+        names = ", ".join(str(clips[c]) for c in copies)
+        same = all((chosen[c].motion, chosen[c].style) == (chosen[first].motion, chosen[first].style)
+                   for c in copies)
+        if same:
+            report.append(f"skipped: {names}: file: expected a clip of its own, got a byte-identical copy "
+                          f"of {clips[first]}; that one is kept")
+        else:
+            labels = "; ".join(f"{clips[c].name} {chosen[c].motion}/{chosen[c].style}" for c in [first, *copies])
+            report.append(f"skipped: {clips[first]}, {names}: labels: expected one label for one take, got "
+                          f"byte-identical files labelled differently ({labels}); all are left out")
+            del chosen[first]
+        for c in copies:
+            del chosen[c]
+
+    rows_xy, rows_depth, meta = [], [], []
+    for key in sorted(chosen, key=lambda p: p.stem):
+        p, labels = clips[key], chosen[key]
+        try:
             clip = load_clip(p, fps=fps, azimuth=azimuth, elevation=elevation, facing=facing,
                              center=center, up=up, family=family, window=window, scale=scale)
         except InputError as exc:
             report.append(f"skipped: {exc}")
             continue
+        report.extend(f"note: {n}" for n in clip.notes)
         rows_xy.append(clip.points.reshape(len(clip.points), -1))
         rows_depth.append(clip.depth)
         meta.append((clip.name, len(clip.points), labels.style, labels.motion))

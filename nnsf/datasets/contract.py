@@ -50,7 +50,7 @@ def validate(table: pd.DataFrame, source, non_negative: bool = False) -> pd.Data
         r, c = np.argwhere(arr < 0)[0]
         raise InputError(source, FEATURE_COLUMNS[c], "non-negative unified features",
                          f"{arr[r, c]:.6g} at row {r + 1}")
-    table.loc[:, list(FEATURE_COLUMNS)] = arr
+    table[list(FEATURE_COLUMNS)] = arr      # whole columns: float64 even when a CSV held whole numbers
     dup = table.duplicated(["clip", "frame"])
     if dup.any():
         r = int(np.flatnonzero(dup)[0])

@@ -14,7 +14,8 @@ import pandas as pd
 from nnsf.datasets import bvh_source, contract, synthetic, views
 from nnsf.errors import InputError
 from nnsf.io import atomic_dir, write_json
-from nnsf.params import get, require, source_of
+from nnsf.datasets.joint_map import read_joint_map
+from nnsf.params import checked, get, require, source_of
 from nnsf.pipeline import FEATURES_DIR, RAW_DIR, StageResult
 from nnsf.skeleton import Unifier, to_points
 
@@ -80,6 +81,10 @@ def _data_bvh(params: dict, out_dir) -> StageResult:
         "facing": require(params, "dataset.bvh.facing"),
         "center": bool(require(params, "dataset.bvh.center")),
     }
+    joint_map = checked(params, "dataset.bvh.joint_map", None)
+    if joint_map is not None:
+        # A user's mapping for a skeleton no built-in family reads (docs/formats.md §3.3).
+        kw["family"] = read_joint_map(joint_map)
     view = _bvh_view(params)
     if view is not None:
         if view == "auto":
@@ -96,6 +101,8 @@ def _data_bvh(params: dict, out_dir) -> StageResult:
             view = max(views.VIEWS, key=lambda v: (var[v], -list(views.VIEWS).index(v)))
         kw["azimuth"] = views.VIEWS[view]
     table, report = bvh_source.read_folder(folder, **kw)
+    if joint_map is not None:
+        kw["family"] = joint_map            # described by its file
     if view is not None:
         kw["view"] = view
     if require(params, "dataset.bvh.complete_grid"):

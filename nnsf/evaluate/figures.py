@@ -198,3 +198,36 @@ def isomap_figure(embedding3d, labels, dims, rv, intrinsic_dim: int, path,
     ax.legend(loc="upper right", fontsize=10)
     fig.suptitle(title, fontsize=13)
     return save_figure(fig, path)
+
+
+def sweep_figure(table: pd.DataFrame, score: str, path) -> Path:
+    """Precision against α, β and rank: one panel per parameter, every sweep point a dot.
+
+    ``table`` has one row per point with columns ``alpha``, ``beta``, ``rank``
+    and ``score``; in each panel a point is drawn at its value of that
+    parameter (coloured by rank in the α and β panels, by β in the rank panel),
+    and the line joins the best score at each value, so the panel shows how
+    far the parameter alone can move the score.
+    """
+    fig = new_figure(12, 4)
+    axes = fig.subplots(1, 3, sharey=True)
+    ranks = sorted(table["rank"].unique())
+    betas = sorted(table["beta"].unique())
+    for ax, param, label in zip(axes, ("alpha", "beta", "rank"), ("α (sparsity)", "β (class term)", "rank k")):
+        by, groups = ("beta", betas) if param == "rank" else ("rank", ranks)
+        colors = categorical_colors(len(groups))
+        for color, value in zip(colors, groups):
+            part = table[table[by] == value]
+            ax.scatter(part[param], part[score], s=28, color=color, alpha=0.85,
+                       label=f"{'β' if by == 'beta' else 'k'} = {value:g}")
+        best = table.groupby(param)[score].max()
+        ax.plot(best.index, best.to_numpy(), color="black", linewidth=1.2, label="best at this value")
+        if param != "rank" and (table[param] > 0).any():
+            positive = table.loc[table[param] > 0, param]
+            ax.set_xscale("symlog", linthresh=float(positive.min()))
+        ax.set_xlabel(label)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="best")
+    axes[0].set_ylabel(score.replace("_", " "))
+    fig.suptitle(f"Sweep: {score.replace('_', ' ')} of {len(table)} points against α, β and rank")
+    return save_figure(fig, path)

@@ -1,6 +1,6 @@
-"""Held-out translation on a motion-capture folder, outside the DVC pipeline (issue 11).
+"""Held-out translation on a motion-capture folder, outside the DVC pipeline (docs/method.md §15.5).
 
-``python -m nnsf.evaluate.heldout_bvh --data FOLDER --out reports/heldout_bandai_namco_1_all150``
+``python -m nnsf.evaluate.heldout_bvh --data FOLDER --out reports/heldout_<name>``
 reads every labelled ``.bvh`` clip of ``FOLDER`` with the ``dataset.bvh``
 settings of ``params.yaml`` (keeping the motions every style performs),
 holds out every (style, content) cell (or ``--cells N`` of them, spread
@@ -9,10 +9,15 @@ evenly over the sorted grid) and scores every method of ``--methods`` with
 ``heldout`` stage runs, judges included.  The table is the raw key points in
 pixels: every cell's unifier, models and judges see its remaining clips only.
 
+``--protocol content`` runs leave one content out instead
+(:mod:`nnsf.evaluate.content_out`): ``--source STYLE`` names the style of the
+clips translated (default ``translation.neutral``; none: every other
+style's), ``--methods`` are then of :data:`nnsf.evaluate.content_out.METHODS`.
+
 Writes ``OUT.csv`` (one row per cell × method) and ``OUT.json`` (per method,
-per style and per content means; seconds per cell), after every finished
-cell, so an interrupted run keeps what it has.  ``--jobs`` processes (one
-BLAS thread each).
+per style and per content means; seconds per cell or fold, with the load
+average), after every finished cell or fold, so an interrupted run keeps
+what it has.  ``--jobs`` processes (one BLAS thread each).
 """
 from __future__ import annotations
 
@@ -27,7 +32,9 @@ import pandas as pd
 
 from nnsf.datasets import bvh_source
 from nnsf.datasets.stage import complete_grid as _complete_grid
+from nnsf.datasets.views import VIEWS
 from nnsf.errors import InputError
+from nnsf.evaluate import content_out
 from nnsf.evaluate.gp_translation import GP_TRANSLATION_METHODS, translation_gp_params
 from nnsf.evaluate.heldout_report import _target_check
 from nnsf.evaluate.translation import DEFAULT_VARIANTS, STAGE_METHODS, _pick, evaluate_cell, grid_cells
@@ -86,7 +93,7 @@ def markdown(summary: dict, key: str = "methods", only=None) -> str:
 
 
 def target_check(results: pd.DataFrame, method: str = "nnsf") -> dict:
-    """Issue 11's targets for ``method`` on these results
+    """The translation targets for ``method`` on these results
     (:func:`nnsf.evaluate.translation._target_check`)."""
     cols = ["dtw_error", *[c for c in results.columns if c.startswith(("style_", "content_"))]]
     means = results.groupby("method")[cols].mean()
@@ -111,11 +118,17 @@ def main(argv=None) -> int:
     ap.add_argument("--data", help="folder of labelled .bvh clips")
     ap.add_argument("--out", required=True, help="output path without suffix (.csv and .json are written)")
     ap.add_argument("--params", default="params.yaml")
+    ap.add_argument("--view", choices=("front", "side", "three-quarter"), default=None,
+                    help="project the clips in this view (default: dataset.bvh.azimuth)")
     ap.add_argument("--cells", type=int, default=0, help="cells to hold out, spread evenly (0: all)")
     ap.add_argument("--methods", default=",".join(STAGE_METHODS),
                     help="comma-separated methods of nnsf.evaluate.translation (default: every method "
                          "of the heldout stage)")
     ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--protocol", choices=("cell", "content"), default="cell",
+                    help="leave one cell out (default) or leave one content out")
+    ap.add_argument("--source", default=None,
+                    help="--protocol content: the style of the clips translated (default: translation.neutral)")
     ap.add_argument("--markdown", choices=("methods", "per_style", "per_content"),
                     help="print that table of an existing OUT.json and exit")
     ap.add_argument("--only", default="", help="with --markdown: comma-separated methods to show")
@@ -130,7 +143,7 @@ def main(argv=None) -> int:
     try:
         params = load(a.params)
         kw = {"fps": float(require(params, "dataset.bvh.fps")),
-              "azimuth": float(require(params, "dataset.bvh.azimuth")),
+              "azimuth": VIEWS[a.view] if a.view else float(require(params, "dataset.bvh.azimuth")),
               "elevation": float(require(params, "dataset.bvh.elevation")),
               "facing": require(params, "dataset.bvh.facing"),
               "center": bool(require(params, "dataset.bvh.center"))}
@@ -140,6 +153,8 @@ def main(argv=None) -> int:
     except InputError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    if a.protocol == "content":
+        return _content_out(a, params, table, tp, kw)
     methods = tuple(m for m in a.methods.split(",") if m)
     bad = [m for m in methods if m not in STAGE_METHODS]
     if bad or not methods:
@@ -189,6 +204,77 @@ def main(argv=None) -> int:
             flush()
             print(f"{i + 1}/{len(jobs)} {j[1]}/{j[2]} {parts[-1]['cpu_seconds'].iloc[0]:.1f} s cpu", flush=True)
     return 0
+
+
+def _content_out(a, params, table, tp, bvh) -> int:
+    """``--protocol content``: every fold in turn (or over ``--jobs`` processes), written after each."""
+    methods = content_out.METHODS if a.methods == ",".join(STAGE_METHODS) else \
+        tuple(m for m in a.methods.split(",") if m)
+    bad = [m for m in methods if m not in content_out.METHODS]
+    if bad or not methods:
+        print(f"error: --methods: expected a comma-separated list of {', '.join(content_out.METHODS)}, got "
+              f"{a.methods!r}", file=sys.stderr)
+        return 2
+    source = a.source if a.source is not None else tp.get("neutral")
+    styles = set(table["character"].astype(str))
+    if source is not None and source not in styles:
+        print(f"error: --source: expected a style of {a.data} ({', '.join(sorted(styles))}), got {source!r}",
+              file=sys.stderr)
+        return 2
+    folds = content_out.content_folds(table, source)
+    if a.cells:
+        folds = _pick(folds, a.cells)
+    kw = dict(translator_params=tp, methods=methods, source_style=source, fps=float(bvh["fps"]),
+              margin=float(require(params, "unify.margin")), seed=int(require(params, "seed")))
+    out = Path(a.out)
+    parts, seconds = [], {}
+
+    def flush():
+        res = pd.concat(parts, ignore_index=True)
+        write_csv(out.with_suffix(".csv"), res.round(4))
+        fit = [v["fit_seconds"] for v in seconds.values()]
+        tr = [v["translate_seconds"] for v in seconds.values()]
+        write_json(out.with_suffix(".json"), {
+            "data": Path(a.data).name, "bvh": bvh, "protocol": "leave one content out",
+            "source_style": source, "translation": dict(tp), "folds": len(seconds), "folds_planned": len(folds),
+            "methods_run": list(methods),
+            "seconds_per_fold": {"fit_mean": _round(np.mean(fit)), "fit_max": _round(np.max(fit)),
+                                 "translate_mean": _round(np.mean(tr)), "translate_max": _round(np.max(tr)),
+                                 "fit_plus_translate_max": _round(max(f + t for f, t in zip(fit, tr))),
+                                 "jobs": a.jobs, "load_average": _round(os.getloadavg()[0])},
+            "target": content_out.target_check(res),
+            **content_out.summary_tables(res)})
+
+    jobs = [(table, c, kw) for c in folds]
+    if a.jobs > 1:
+        from concurrent.futures import ProcessPoolExecutor
+        os.environ.setdefault("OMP_NUM_THREADS", "1")
+        with ProcessPoolExecutor(a.jobs) as pool:
+            for c, (rows, info) in zip(folds, pool.map(_fold, jobs)):
+                parts.append(rows)
+                seconds[c] = info
+                flush()
+                print(f"{len(seconds)}/{len(folds)} {c} fit {info['fit_seconds']:.1f} s", flush=True)
+    else:
+        for job in jobs:
+            c = job[1]
+            rows, info = _fold(job)
+            parts.append(rows)
+            seconds[c] = info
+            flush()
+            print(f"{len(seconds)}/{len(folds)} {c} fit {info['fit_seconds']:.1f} s, translate "
+                  f"{info['translate_seconds']:.2f} s", flush=True)
+    return 0
+
+
+def _fold(args):
+    """One leave-one-content-out fold (one BLAS thread): its rows and seconds."""
+    from threadpoolctl import threadpool_limits
+
+    table, content, kw = args
+    with threadpool_limits(1):
+        rows, info = content_out.evaluate_content(table, content, **kw)
+    return rows, {k: info[k] for k in ("fit_seconds", "translate_seconds", "cells")}
 
 
 if __name__ == "__main__":

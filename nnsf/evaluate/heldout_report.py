@@ -1,11 +1,16 @@
-"""The ``heldout`` stage: leave-one-cell-out style translation, written as a report (docs/method.md §15.5).
+"""The ``heldout`` stage: held-out style translation, written as a report (docs/method.md §15.5).
 
-The protocol and its scores are :mod:`nnsf.evaluate.translation`
-(:func:`~nnsf.evaluate.translation.evaluate_cell`, library functions that
-refit every model through :mod:`nnsf.factor` on the cell's remaining clips,
-never through a stage); this module runs it over the grid's cells, writes
-``reports/heldout*`` (tables, figures, a stick-figure GIF) and checks the
-targets.
+Two protocols, each library functions that refit every model through
+:mod:`nnsf.factor` on the remaining clips, never through a stage:
+
+* leave one cell out (:func:`~nnsf.evaluate.translation.evaluate_cell`): the
+  paper's situation, the content known from other styles;
+* leave one content out (:func:`~nnsf.evaluate.content_out.evaluate_content`):
+  the user's, an action the style library does not hold, through
+  :func:`nnsf.translate`.
+
+This module runs them, writes ``reports/heldout*`` (tables, figures, a
+stick-figure GIF) and checks the targets.
 """
 from __future__ import annotations
 
@@ -21,12 +26,14 @@ from nnsf.evaluate.scores import SyntheticTruth, UnifiedTruth
 from nnsf.evaluate.translation import (
     CellJob, DEFAULT_VARIANTS, STAGE_METHODS, SUMMARY_METRICS, TARGET_BASELINES, TARGET_CONTENT, TARGET_DTW, TARGET_STYLE, _pick, grid_cells, per_style, run_cell, summarise,
 )
+from nnsf.evaluate import content_out
 from nnsf.evaluate.translation_figures import per_style_figure, strip_figure
-from nnsf.factor.style_model import check_translator, translator_params
+from nnsf.factor.style_model import check_translator, dataset_fps, translator_params
 from nnsf.io import read_json, write_csv, write_json
 from nnsf.params import require, source_of
 from nnsf.pipeline import FEATURES_CSV, RAW_DIR, REPORTS, StageResult
 from nnsf.publish import publish_stage
+from nnsf.skeleton.unify import UNIFIER
 from nnsf.stick import write_stick_gif
 
 
@@ -70,7 +77,9 @@ def write_heldout(params: dict, features_csv=FEATURES_CSV, reports=REPORTS, mapp
     Writes ``reports/heldout.csv`` (cell × method), ``reports/heldout.json``
     (per-method means, the target check, skipped styles),
     ``reports/plots/heldout_by_style.csv``, ``reports/figures/heldout_by_style.png``,
-    ``reports/figures/heldout_strip.png`` and ``reports/figures/heldout_example.gif``.
+    ``reports/figures/heldout_strip.png`` and ``reports/figures/heldout_example.gif``;
+    then leave one content out (:func:`write_content_out`) with
+    ``translation.content_methods`` over ``translation.max_contents`` folds.
     Returns a StageResult whose ``runs`` hold one StageResult per method.
 
     Raises InputError for bad parameters, a table without any cell to hold
@@ -91,7 +100,8 @@ def write_heldout(params: dict, features_csv=FEATURES_CSV, reports=REPORTS, mapp
     max_cells = int(require(params, "translation.max_cells"))
     n_examples = int(require(params, "translation.examples"))
     margin = float(require(params, "unify.margin"))
-    check_translator(params, tp)
+    check_translator(params, tp, require(params, "translation.synthesis"))
+    content_methods = tuple(require(params, "translation.content_methods"))
 
     table = contract.read_table(features_csv)
     gp = [m for m in methods if m in GP_TRANSLATION_METHODS]
@@ -101,7 +111,7 @@ def write_heldout(params: dict, features_csv=FEATURES_CSV, reports=REPORTS, mapp
         if unifier_json is None:        # a table in pixels: the generator's pixels are the truth
             truth = SyntheticTruth(seed=seed)
         else:
-            truth = UnifiedTruth(SyntheticTruth(seed=seed), read_json(Path(unifier_json)))
+            truth = UnifiedTruth(SyntheticTruth(seed=seed), read_json(Path(unifier_json), UNIFIER))
     report = skipped_styles(table)
     cells = grid_cells(table)
     if not cells:
@@ -153,6 +163,10 @@ def write_heldout(params: dict, features_csv=FEATURES_CSV, reports=REPORTS, mapp
             figures / "heldout_example.gif", [ex[m]["synth"], ex[m]["real"]],
             titles=[f"{m}: {c} as {s}", f"real (hidden): {c}, {s}"], fps=12))
 
+    content = write_content_out(table, params, tp, content_methods, reports, margin=margin, seed=seed,
+                                max_sources=max_sources or None)
+    artifacts += content["artifacts"]
+
     runs = {}
     for m, vals in per_method.items():
         runs[m] = StageResult(params={"method": m, **({"variant": repr(variants[m])} if m in variants else {})},
@@ -162,7 +176,7 @@ def write_heldout(params: dict, features_csv=FEATURES_CSV, reports=REPORTS, mapp
     result = StageResult(
         params={f"translation_{k}": v for k, v in tp.items()} | {"cells": len(cells),
                                                                 "methods": ",".join(methods)},
-        metrics={f"nnsf_{k}": v for k, v in main.items() if v is not None} | (
+        metrics={f"nnsf_{k}": v for k, v in main.items() if v is not None} | content["metrics"] | (
             {} if target["met"] is None else
             {"target_met": float(target["met"]), "targets_passed": float(target["passed"]),
              **{"target_" + _metric_name(k): float(c["met"]) for k, c in target["checks"].items()}}),
@@ -173,13 +187,52 @@ def write_heldout(params: dict, features_csv=FEATURES_CSV, reports=REPORTS, mapp
     return result
 
 
+def write_content_out(table, params, tp, methods, reports, *, margin, seed, max_sources=None) -> dict:
+    """Leave one content out on ``table`` (pixels): ``reports/heldout_content.csv`` (cell × method),
+    ``reports/heldout_content.json`` (per method, per style and per content means, the target check),
+    ``reports/plots/heldout_content_by_style.csv`` and ``…_by_content.csv``.
+
+    The source clips are ``translation.neutral``'s when it is set (and the fold's model reads an
+    unknown style as it), else every other style's.  ``translation.max_contents`` folds, spread over
+    the sorted contents (0: all).  Returns ``{"artifacts": [...], "metrics": {...}}`` (``content_*``
+    means of the default call, ``api``).
+    """
+    reports = Path(reports)
+    source = tp.get("neutral")
+    folds = _pick(content_out.content_folds(table, source), int(require(params, "translation.max_contents")))
+    if not folds:
+        return {"artifacts": [], "metrics": {}}
+    results, seconds = content_out.leave_one_content_out(
+        table, folds, translator_params=tp, methods=methods, source_style=source, margin=margin,
+        fps=dataset_fps(params), seed=seed, max_sources=max_sources)
+    tables = content_out.summary_tables(results)
+    target = content_out.target_check(results)
+    write_csv(reports / "heldout_content.csv", results.round(6))
+    for key, by in (("per_style", "style"), ("per_content", "content")):
+        rows = [{by: k.split("/")[0], "method": k.split("/")[1], **v} for k, v in tables[key].items()]
+        write_csv(reports / "plots" / f"heldout_content_by_{by}.csv", pd.DataFrame(rows))
+    # Files hold only what the inputs determine: the seconds go to MLflow.
+    write_json(reports / "heldout_content.json", {
+        "protocol": "leave one content out", "source_style": source, "folds": folds,
+        "target": target, **tables})
+    api = tables["methods"].get("api", {})
+    metrics = {f"content_out_{k}": v for k, v in api.items() if isinstance(v, (int, float)) and v is not None}
+    metrics["content_out_fit_seconds_max"] = max(v["fit_seconds"] for v in seconds.values())
+    metrics["content_out_translate_seconds_max"] = max(v["translate_seconds"] for v in seconds.values())
+    if target["met"] is not None:
+        metrics["content_out_target_met"] = float(target["met"])
+    return {"artifacts": [reports / "heldout_content.csv", reports / "heldout_content.json"],
+            "metrics": metrics}
+
+
 def _metric_name(check: str) -> str:
     """``"style_lr >= 0.45"`` -> ``"style_lr"`` (an MLflow metric name)."""
     return check.split(" ")[0]
 
 
 def _target_check(per_method: dict, method: str = "nnsf") -> dict:
-    """Issue 11's targets for ``method``, each recorded as passed or not.
+    """The translation targets (:data:`nnsf.evaluate.translation.TARGET_DTW` and the others) for
+    ``method``, each recorded as passed or not.
 
     ``checks``: ``dtw_error <= 0.17`` and, for every judge family, ``style_<f> >= 0.45`` and
     ``content_<f> >= 0.70`` -- each ``{"value", "target", "met"}``.  ``met`` is true only when

@@ -1,6 +1,6 @@
 """How a held-out translation is scored (docs/method.md §15.5), apart from the independent judges.
 
-* ``dtw_error`` and ``bone_error`` (:func:`_compare`): mean per-joint error
+* ``dtw_error`` and ``bone_error`` (:func:`compare_clips`): mean per-joint error
   after DTW alignment (:func:`nnsf.factor.timewarp.dtw_align`) and the mean
   bone-length difference over the aligned frame pairs, template units;
 * ``jerk`` (:func:`jerk`): mean |second difference| of the key points;
@@ -100,11 +100,11 @@ class ClipClassifiers:
     in style s?"): ``predict_style(F, content)`` first subtracts the mean
     training vector of that content, ``predict_content(F, style)`` the mean
     training vector of that style, so each judges how a clip departs from
-    the average of the known label.  On the real Bandai-Namco clips
-    (leave-one-cell-out, real hidden clips) conditioning raised the content
-    accuracy from 76 % to 80 % and left the style accuracy unchanged; LDA with
-    shrinkage beat logistic regression and 1-NN on these features, and the
-    four feature groups beat any subset.  ``condition_content=False`` gives
+    the average of the known label.  On real motion capture (leave one cell
+    out, real hidden clips) conditioning raised the content accuracy and left
+    the style accuracy as it was; LDA with shrinkage did better than logistic
+    regression and 1-NN on these features, and the four feature groups better
+    than any subset.  ``condition_content=False`` gives
     the unconditioned content classifier.
     """
 
@@ -170,7 +170,7 @@ def _bone_error(A, B, path) -> float:
     return float(np.abs(la - lb).mean())
 
 
-def _compare(X_hats: dict, X_ref) -> dict:
+def compare_clips(X_hats: dict, X_ref) -> dict:
     """DTW error, path and bone error of every synthesised clip against one reference clip.
 
     Clips of equal length share one batched DTW.

@@ -28,7 +28,7 @@ from nnsf.factor.figures import fold_figure
 from nnsf.io import read_npz, write_csv, write_json
 from nnsf.params import require, source_of
 from nnsf.pipeline import (
-    FEATURES_CSV, MODEL_PATH, REPORTS, StageResult, check_rank, label_column, need_several, nnsf_params,
+    FEATURES_CSV, MODEL_PATH, NNSF_MODEL, REPORTS, StageResult, check_rank, label_column, need_several, nnsf_params,
 )
 from nnsf.publish import publish_stage, publishing, recover
 
@@ -83,16 +83,18 @@ def evaluate(params: dict, features_csv=FEATURES_CSV, reports=REPORTS, mapper=No
         raise
     summary = summarise(folds_table)
     reports = Path(reports)
-    # Wall times vary from run to run; they go to MLflow, not into the
-    # versioned tables (whose hashes must depend on the inputs only).
+    # Wall times vary from run to run, and iteration counts with the float noise of
+    # another CPU wherever a tolerance stops a fit: both go to MLflow, not into the
+    # versioned tables.
     fit_seconds = float(folds_table["seconds"].sum())
+    iterations = folds_table.groupby("method", sort=False)["n_iter"].mean()
     chance = 1.0 / len(np.unique(y))
     metrics = _evaluate_metrics(summary, nnsf_rank, label, n_splits, chance)
     # The files are published as one set (nnsf.publish: staged, committed,
     # moved, manifest reports/evaluate.manifest.json last): a killed run
     # never leaves some new files beside old ones.
     with publishing(reports, "evaluate") as out:
-        write_csv(out / "cv_folds.csv", folds_table.drop(columns=["seconds"]))
+        write_csv(out / "cv_folds.csv", folds_table.drop(columns=["seconds", "n_iter"]))
         write_csv(out / "precision_vs_rank.csv", summary.drop(columns=["seconds_mean"], errors="ignore"))
         write_csv(out / "plots" / "precision_vs_rank.csv", wide(summary, "precision_mean"))
         write_csv(out / "plots" / "recon_error_vs_rank.csv", wide(summary, "recon_error_mean"))
@@ -107,6 +109,7 @@ def evaluate(params: dict, features_csv=FEATURES_CSV, reports=REPORTS, mapper=No
     flat = {f"{m}_{k}": v for m, d in metrics["methods"].items() for k, v in d.items()
             if isinstance(v, (int, float))}
     flat["cv_fit_seconds"] = round(fit_seconds, 3)
+    flat.update({f"{m}_iterations_mean": float(n) for m, n in iterations.items()})
     return StageResult(
         params={"ranks": ",".join(map(str, ranks)), "methods": ",".join(methods), "folds": n_splits,
                 "max_iter": max_iter, "seed": seed, "label": label, "rank": nnsf_rank, **kw,
@@ -182,10 +185,7 @@ def isomap(params: dict, model=MODEL_PATH, features_csv=FEATURES_CSV, reports=RE
     seed = int(require(params, "seed"))
 
     recover(reports, "factorize", wait=True)  # the model of a killed factorize: its set is settled first
-    fitted = read_npz(model)
-    for key in ("V_encoded", "character"):
-        if key not in fitted:
-            raise InputError(model, key, "an array written by the factorize stage")
+    fitted = read_npz(model, NNSF_MODEL, what="model written by the factorize stage")
     V, characters = fitted["V_encoded"], fitted["character"]
     rows = stratified_sample(characters, samples, seed)
     with warnings.catch_warnings(record=True) as caught:

@@ -28,12 +28,11 @@ __all__ = ["TRANSLATION_STYLE", "per_style_figure", "strip_figure"]
 TRANSLATION_STYLE: dict[str, dict] = {
     "nnsf": {"color": "#d62728", "label": "NNSF, V_content U_style (ours)"},
     "nnsf_swapped": {"color": "#ff9896", "label": "NNSF, swapped reading (V_style U_content)"},
-    "nnsf_beta0": {"color": "#1f77b4", "label": "NNSF, β = 0 (NNSC)"},
     "nnsf_refit": {"color": "#aec7e8", "label": "NNSF, per-style refit of the source clip (method §8.1)"},
     "bilinear": {"color": "#9467bd", "label": "Bilinear (T&F), per-frame"},
     "bilinear_template": {"color": "#c5b0d5", "label": "Bilinear (T&F), cell template"},
     "nnsf_nosmooth": {"color": "#e377c2", "label": "NNSF without the smoothness term"},
-    "nnsf_restore": {"color": "#f7b6d2", "label": "NNSF, content amplitude only (previous default)"},
+    "nnsf_restore": {"color": "#f7b6d2", "label": "NNSF, content amplitude only"},
     "mgpm": {"color": "#ff7f0e", "label": "MGPM (Wang et al. 2007)"},
     "cbgpm": {"color": "#8c564b", "label": "CBGPM (after Ma et al. 2009)"},
     "offset": {"color": "#bcbd22", "label": "Source clip + the style's mean pose offset"},

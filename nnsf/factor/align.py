@@ -5,14 +5,11 @@ means the same in both.  :func:`refit_basis` gives a style its own basis
 by basis steps only (the projected-gradient U step of Algorithm 1, lines
 1-3, on the objective of Eq. 5 with the style's weights fixed), starting
 from the pooled fit's U₀, so atom ``i`` starts as atom ``i`` of U₀;
-:func:`match_atoms` is the fallback for bases from separate fits: the
-Hungarian matching of atoms by cosine similarity
-(``scipy.optimize.linear_sum_assignment``).
+:func:`atom_cosines` measures how far a style turned each atom.
 """
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from nnsf.factor.updates import _basis_step
 
@@ -76,25 +73,6 @@ def _refit_from_grams(VtV, VtX, U0, *, max_iter, tol, ridge):
     return U
 
 
-def _free_basis_step(U, VtV, VtX, step):
-    """Projected gradient step on U ≥ 0 with backtracking, row lengths free.
-
-    Like :func:`nnsf.factor.nnsf._basis_step` without the normalisation:
-    the candidate is accepted when ⟨UUᵀ, VᵀV⟩ − 2⟨VᵀX, U⟩ does not rise.
-    """
-    def fit(B):
-        return np.vdot(B @ B.T, VtV) - 2.0 * np.vdot(VtX, B)
-
-    grad = VtV @ U - VtX
-    current = fit(U)
-    for _ in range(30):
-        cand = np.maximum(U - step * grad, 0.0)
-        if fit(cand) <= current:
-            return cand, step * 1.2
-        step *= 0.5
-    return U, step
-
-
 def atom_cosines(U_ref, U) -> np.ndarray:
     """Cosine similarity of every atom pair, ``(k_ref, k)``; rows of zero norm give 0."""
     A = np.asarray(U_ref, dtype=float)
@@ -102,28 +80,3 @@ def atom_cosines(U_ref, U) -> np.ndarray:
     na = np.linalg.norm(A, axis=1, keepdims=True)
     nb = np.linalg.norm(B, axis=1, keepdims=True)
     return (A / np.where(na > 0, na, 1.0)) @ (B / np.where(nb > 0, nb, 1.0)).T
-
-
-def match_atoms(U_ref, U) -> tuple[np.ndarray, np.ndarray]:
-    """Order the atoms of ``U`` like those of ``U_ref`` (Hungarian, cosine similarity).
-
-    Parameters
-    ----------
-    U_ref, U : arrays (k, d), the same number of atoms.
-
-    Returns
-    -------
-    perm : int array (k,)
-        ``U[perm]`` has its atom ``i`` matched to atom ``i`` of ``U_ref``;
-        the matching maximises the summed cosine similarity
-        (:func:`scipy.optimize.linear_sum_assignment`).
-    cosine : array (k,)
-        Cosine similarity of each matched pair.
-    """
-    C = atom_cosines(U_ref, U)
-    if C.shape[0] != C.shape[1]:
-        raise ValueError(f"match_atoms: both bases need the same number of atoms, got {C.shape}")
-    rows, cols = linear_sum_assignment(-C)
-    perm = np.empty(C.shape[0], dtype=int)
-    perm[rows] = cols
-    return perm, C[np.arange(C.shape[0]), perm]

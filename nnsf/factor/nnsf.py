@@ -23,7 +23,7 @@ from sklearn.decomposition._nmf import _initialize_nmf
 from sklearn.utils._param_validation import Interval, StrOptions
 from sklearn.utils.validation import check_array, check_is_fitted, check_non_negative, validate_data
 
-from nnsf.factor.updates import CHUNK_ROWS, _class_map, _residual_norm, _solve, weights_for_basis
+from nnsf.factor.updates import CHUNK_ROWS, class_map, residual_norm, solve, weights_for_basis
 
 
 class NNSF(TransformerMixin, BaseEstimator):
@@ -221,7 +221,7 @@ class NNSF(TransformerMixin, BaseEstimator):
         U /= norms[:, None]
         V *= norms[None, :]
 
-        V, U, W, history, mode = _solve(
+        V, U, W, history, mode = solve(
             X, V, U, labels, alpha=float(self.alpha), beta=beta, max_iter=self.max_iter,
             tol=float(self.tol), v_update=self.v_update, eps=float(self.eps),
         )
@@ -238,8 +238,8 @@ class NNSF(TransformerMixin, BaseEstimator):
         if labels is not None:
             encoded = weights_for_basis(X, U, alpha=float(self.alpha), max_iter=self._transform_iters(),
                                         tol=float(self.tol))
-            self.class_map_ = _class_map(encoded, labels, len(self.classes_), self.eps)
-        self.reconstruction_err_ = _residual_norm(X, V, U)
+            self.class_map_ = class_map(encoded, labels, len(self.classes_), self.eps)
+        self.reconstruction_err_ = residual_norm(X, V, U)
         return V
 
     # ------------------------------------------------------------ transform

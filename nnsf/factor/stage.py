@@ -26,17 +26,21 @@ from nnsf.errors import InputError
 from nnsf.factor.figures import basis_figure, objective_figure
 from nnsf.factor.nnsf import NNSF
 from nnsf.factor.style_model import (
-    check_translator, dataset_view, file_sha256, fit_model, translator_params, unify_table,
+    check_translator, dataset_fps, dataset_view, file_sha256, fit_model, translator_params, unify_table,
 )
 from nnsf.factor.translate import StyleTranslator, to_character_points
 from nnsf.io import atomic_dir, read_json, write_json, write_npz
-from nnsf.params import require
+from nnsf.factor.style_names import check_aliases
+from nnsf.params import Params, require, source_of
 from nnsf.pipeline import (
     FEATURES_CSV, MODEL_PATH, REPORTS, STYLES_MODEL, TRANSLATION_DIR, StageResult, check_rank, label_column,
     nnsf_params, read_unifier,
 )
 from nnsf.publish import publish_stage
 from nnsf.skeleton import Unifier
+
+#: The camera views `nnsf styles` learns from a folder of motion capture.
+MODEL_VIEWS: tuple[str, ...] = ("front", "side", "three-quarter")
 from nnsf.stick import write_stick_gif, write_stick_strip
 
 
@@ -70,13 +74,14 @@ def translate(params: dict, features_csv=FEATURES_CSV, out_dir=TRANSLATION_DIR,
                content_clip=clip, style=target, out_dir=out_dir)
 
 
-def styles(params: dict, features_csv=FEATURES_CSV, out=STYLES_MODEL) -> StageResult:
+def styles(params: dict, features_csv=FEATURES_CSV, out=STYLES_MODEL, aliases=None) -> StageResult:
     """Fit the style translator (``translation.*``) on every clip and save it (``models/styles.npz``).
 
-    The model file (:mod:`nnsf.factor.style_model`) holds the translator,
+    The model file (:mod:`nnsf.factor.model_file`) holds the translator,
     the training characters' unifier (``unifier.json`` beside
-    ``features_csv``) and the feature table's SHA-256; ``nnsf animate`` and
-    :func:`nnsf.translate` apply it to new motion.
+    ``features_csv``), the view the dataset is seen in and the feature
+    table's SHA-256; ``nnsf animate`` and :func:`nnsf.translate` apply it to
+    new motion.
     """
     tp = translator_params(params)
     check_translator(params, tp)
@@ -84,9 +89,11 @@ def styles(params: dict, features_csv=FEATURES_CSV, out=STYLES_MODEL) -> StageRe
     table = contract.read_table(features_csv, non_negative=True)
     unifier = read_unifier(features_csv.parent)
     started = time.perf_counter()
-    tr = fit_model(table, unifier, tp, out, features_sha256=file_sha256(features_csv),
-                   source=str(features_csv), view=dataset_view(params))
+    (view,) = fit_model([(dataset_view(params), table, unifier)], tp, out,
+                        features_sha256=file_sha256(features_csv), source=str(features_csv),
+                        fps=dataset_fps(params), aliases=aliases)
     seconds = time.perf_counter() - started
+    tr = view.translator
     return StageResult(
         params={f"translation_{k}": v for k, v in tp.items()},
         metrics={"styles": len(tr.styles_), "contents": len(tr.contents_), "frames": len(table),
@@ -147,8 +154,10 @@ def factorize(params: dict, features_csv=FEATURES_CSV, model=MODEL_PATH, reports
             objective_figure(est.objective_, staged / "figures" / "objective.png"),
             basis_figure(U, V, staged / "figures" / "basis.png"),
         ]
-        # Files hold only what the inputs determine; wall time goes to MLflow.
-        write_json(staged / "factorize.json", {"rank": rank, "label": label, **metrics})
+        # Files hold only what the inputs determine: wall time, and the iteration count
+        # a tolerance decides (float noise of another CPU can move it), go to MLflow.
+        write_json(staged / "factorize.json",
+                   {"rank": rank, "label": label, **{k: v for k, v in metrics.items() if k != "n_iter"}})
         return StageResult(
             params={"rank": rank, "max_iter": max_iter, "seed": seed, "label": label, **kw},
             metrics={**metrics, "fit_seconds": round(seconds, 3)}, artifacts=figs,
@@ -166,34 +175,58 @@ def _macro_precision(y_true, y_pred) -> float:
 
 
 
-def styles_by_hand(params: dict, data=None, out=Path("models/styles.npz")):
+def styles_by_hand(params: dict, data=None, out=Path("models/styles.npz"), joint_map=None, aliases=None,
+                   views=MODEL_VIEWS):
     """``nnsf styles``: fit and save a model from a features folder or a folder of BVH clips.
 
     ``data`` None reads ``data/features`` (the pipeline's configured
     dataset); a folder with ``features.csv`` and ``unifier.json`` is read as
     it is; any other folder is read as labelled BVH clips with the
-    ``dataset.bvh`` settings, unified with ``unify.margin``.  Returns the
-    stage's :class:`~nnsf.pipeline.StageResult`.
+    ``dataset.bvh`` settings (``joint_map``, a joint-map YAML, replaces
+    ``dataset.bvh.joint_map``), projected in each of ``views`` (default:
+    front, side and three-quarter) and unified with ``unify.margin``: one
+    translator per view, all in one file, so ``nnsf animate`` finds the view
+    its motion is seen in.  ``aliases`` (``{name: style}``) go into the model
+    (:mod:`nnsf.factor.style_names`).  Returns the stage's
+    :class:`~nnsf.pipeline.StageResult` and the BVH reader's report (skipped
+    files, conflicts, duplicates, notes; one line each).
     """
     folder = Path("data/features") if data is None else Path(data)
     if not folder.is_dir():
         raise InputError(folder, "--data", "a folder of labelled .bvh clips or a features folder")
     if (folder / "features.csv").is_file():
-        return styles(params, features_csv=folder / "features.csv", out=out)
+        if aliases:
+            table = contract.read_table(folder / "features.csv")
+            check_aliases(aliases, table["character"], "--alias", "alias")
+        return styles(params, features_csv=folder / "features.csv", out=out, aliases=aliases), []
+    bad = [v for v in views if v not in MODEL_VIEWS]
+    if bad or not views:
+        raise InputError("--views", "views", "a non-empty list of " + ", ".join(MODEL_VIEWS), ",".join(views))
     tp = translator_params(params)
     check_translator(params, tp)
-    bvh_params = dict(params)
-    bvh_params["dataset"] = {**params.get("dataset", {}), "name": "bvh", "path": str(folder)}
-    with tempfile.TemporaryDirectory(prefix="nnsf-styles-") as tmp:
-        data_stage(bvh_params, out_dir=Path(tmp) / "raw")
-        raw = contract.read_table(Path(tmp) / "raw" / "keypoints.csv")
-    table, unifier = unify_table(raw, float(require(params, "unify.margin")), folder)
-    tr = fit_model(table, unifier, tp, out, source=str(folder), view=dataset_view(bvh_params))
-    return StageResult(params={f"translation_{k}": v for k, v in tp.items()},
-                       metrics={"styles": len(tr.styles_), "contents": len(tr.contents_),
-                                "frames": len(table)}, artifacts=[Path(out)])
-
-
+    fitted, frames, report = [], 0, []
+    for view in views:
+        bvh_params = Params(params)
+        bvh_params.source = source_of(params)
+        bvh = {**params.get("dataset", {}).get("bvh", {}), "view": view}
+        if joint_map is not None:
+            bvh["joint_map"] = str(joint_map)
+        bvh_params["dataset"] = {**params.get("dataset", {}), "name": "bvh", "path": str(folder), "bvh": bvh}
+        with tempfile.TemporaryDirectory(prefix="nnsf-styles-") as tmp:
+            data_stage(bvh_params, out_dir=Path(tmp) / "raw")
+            raw = contract.read_table(Path(tmp) / "raw" / "keypoints.csv")
+            if not report:     # the folder reader reports the same files in every view
+                report = list(read_json(Path(tmp) / "raw" / "characters.json").get("report", []))
+        if aliases:
+            check_aliases(aliases, raw["character"], "--alias", "alias")
+        table, unifier = unify_table(raw, float(require(params, "unify.margin")), folder)
+        fitted.append((view, table, unifier))
+        frames = len(table)
+    models = fit_model(fitted, tp, out, source=str(folder), fps=dataset_fps(bvh_params), aliases=aliases)
+    tr = models[0].translator
+    return StageResult(params={f"translation_{k}": v for k, v in tp.items()} | {"views": ",".join(views)},
+                       metrics={"styles": len(tr.styles_), "contents": len(tr.contents_), "frames": frames,
+                                "views": len(models)}, artifacts=[Path(out)]), report
 
 
 def translate_clip(params: dict, features_csv=Path("data/features/features.csv"),
@@ -221,7 +254,8 @@ def translate_clip(params: dict, features_csv=Path("data/features/features.csv")
     """
     features_csv, unifier_json, out_dir = Path(features_csv), Path(unifier_json), Path(out_dir)
     tp = translator_params(params)
-    check_translator(params, tp)
+    synthesis = require(params, "translation.synthesis")
+    check_translator(params, tp, synthesis)
     table = contract.read_table(features_csv, non_negative=True)
     clips = table["clip"].astype(str).to_numpy()
     chars = table["character"].astype(str).to_numpy()
@@ -234,14 +268,14 @@ def translate_clip(params: dict, features_csv=Path("data/features/features.csv")
     styles = sorted(set(chars))
     if style not in styles:
         raise InputError(features_csv, "style", f"a character (style) of the table: {styles}", style)
-    unifier = Unifier.from_dict(read_json(unifier_json))
+    unifier = Unifier.from_dict(read_json(unifier_json), unifier_json)
     if style not in unifier.scales:
         raise InputError(unifier_json, "characters", f"the target style {style!r}", sorted(unifier.scales))
     rows = clips == content_clip
     src_style, content = chars[rows][0], motions[rows][0]
     X = contract.features(table)
     tr = StyleTranslator(**tp).fit(X, motions, chars, clips)
-    X_hat = tr.synthesize_cell(content, style, X[rows], src_style)
+    X_hat = tr.synthesize_cell(content, style, X[rows], src_style, synthesis=synthesis)
     P_hat = to_character_points(X_hat, style, unifier)
     name = f"{content_clip}-as-{style}"
 
@@ -265,12 +299,13 @@ def translate_clip(params: dict, features_csv=Path("data/features/features.csv")
         write_stick_strip(tmp / "translation_strip.png", seqs, titles=titles, n_frames=8)
         write_json(tmp / "translation.json", {
             "content_clip": content_clip, "source_style": src_style, "content": content,
-            "target_style": style, "frames": int(len(X_hat)), "synthesis": tp["synthesis"],
+            "target_style": style, "frames": int(len(X_hat)), "synthesis": synthesis,
             "real_reference": real[0] if real else None,
             "files": ["translated_features.csv", "translated_pixels.csv", "translation.gif",
                       "translation_strip.png"]})
     return StageResult(
-        params={"content_clip": content_clip, "style": style} | {f"translation_{k}": v for k, v in tp.items()},
+        params={"content_clip": content_clip, "style": style, "translation_synthesis": synthesis}
+        | {f"translation_{k}": v for k, v in tp.items()},
         metrics={"frames": int(len(X_hat)), "feature_min": float(X_hat.min())},
         artifacts=[out_dir / "translation.gif", out_dir / "translation_strip.png",
                    out_dir / "translated_pixels.csv"])

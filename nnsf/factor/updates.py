@@ -8,7 +8,7 @@
   multiplicative update of V (β = 0); :func:`_class_weight_step`: line 4 with
   the class term;
 * :func:`class_map_from_grams`: Eq. 8, W = (VᵀV)⁻¹ VᵀY in row form;
-* :func:`_solve`: the iteration (line 5) until C settles.
+* :func:`solve`: the iteration (line 5) until C settles.
 
 The paper's Eq. 6 (re-modelling V on the eigenvectors of a correlation
 matrix) is not implemented: docs/method.md §7 gives the reasons (rank one as
@@ -39,7 +39,7 @@ def _one_hot(labels, r, dtype):
     return sp.csr_matrix((np.ones(n, dtype=dtype), (np.arange(n), labels)), shape=(n, r))
 
 
-def _class_map(V, labels, r, eps):
+def class_map(V, labels, r, eps):
     """W* = (VᵀV + εI)⁻¹ VᵀY for integer labels, ``(k, r)``."""
     Y = _one_hot(labels, r, V.dtype)
     return class_map_from_grams(V.T @ V, np.asarray((Y.T @ V).T), eps)
@@ -98,7 +98,7 @@ def _basis_step(U, VtV, VtX, step):
     return U, step
 
 
-def _solve(X, V, U, labels, *, alpha, beta, max_iter, tol, v_update, eps):
+def solve(X, V, U, labels, *, alpha, beta, max_iter, tol, v_update, eps):
     """Run NNSF iterations from (V, U); return V, U, W, objective history, update mode.
 
     With the class term, the rows are first sorted by class (a copy of X and
@@ -206,7 +206,7 @@ def _weight_pass(X, V, U, alpha, chunk=CHUNK_ROWS):
     return VtV, VtX, v_sum
 
 
-def _residual_norm(X, V, U, chunk=CHUNK_ROWS):
+def residual_norm(X, V, U, chunk=CHUNK_ROWS):
     """‖X − VU‖_F by blocks of rows (no n × d temporary)."""
     total = 0.0
     for start in range(0, X.shape[0], chunk):

@@ -9,28 +9,50 @@ import pandas as pd
 
 from nnsf.errors import InputError
 from nnsf.frames.annotation import Annotation, check_relative, read_annotation
+from nnsf.io import PNG_SIGNATURE, decode_image, png_header, read_npz
+from nnsf.names import safe_name
+from nnsf.schema import Array
 
-PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-#: The 12 bytes every complete PNG ends with: IEND chunk (length 0, type, CRC).
-PNG_IEND = b"\x00\x00\x00\x00IEND\xaeB`\x82"
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".webp")
 
+#: The arrays of a rendered clip's ``truth.npz`` (:func:`nnsf.frames.render.render_clip`; T frames,
+#: C side curves of S samples, P control points, an H x W canvas): what :func:`read_truth` accepts.
+TRUTH = {
+    "keypoints": Array("f", ("T", 17, 2)),
+    "sides": Array("f", ("T", "C", "S", 2)),
+    "side_names": Array("U", ("C",)),
+    "control": Array("f", ("T", "C", "P", 2)),
+    "fit_error": Array("f", ("T", "C")),
+    "visible": Array("b", ("T", "C", "S")),
+    "draw_order": Array("U", (None,)),
+    "alpha": Array("u", ("T", "H", "W")),
+    "size": Array("iu", ()),
+}
 
-def _decode(path: Path, source, field_name: str) -> np.ndarray:
-    """Decode one frame file to RGB uint8 ``(H, W, 3)``; InputError on a bad file."""
+
+def read_truth(folder) -> dict[str, np.ndarray]:
+    """A rendered clip's ground truth ``<folder>/truth.npz``, checked against :data:`TRUTH`."""
+    return read_npz(Path(folder) / "truth.npz", TRUTH, what="file of a rendered clip's ground truth")
+
+
+def _decode(path: Path, source, field_name: str, size: tuple[int, int] | None = None,
+            size_from: str = "the clip's image size") -> np.ndarray:
+    """Decode one frame file to RGB uint8 ``(H, W, 3)``; InputError on a bad file.
+
+    A PNG's header is checked first (:func:`nnsf.io.png_header`: complete,
+    undamaged, and ``size`` = (width, height) when given), so a truncated
+    frame or one claiming a huge size is refused before it is decoded, and
+    the decoder's messages never reach stderr (:func:`nnsf.io.decode_image`).
+    """
     try:
         data = path.read_bytes()
     except OSError as exc:
         raise InputError(path, field_name, "a readable image file", reason=str(exc)) from None
-    if data.startswith(PNG_SIGNATURE) and not data.rstrip(b"\x00").endswith(PNG_IEND):
-        # libpng may decode a cut-off file into a partly grey picture without
-        # complaint; a PNG is complete only when it ends with its IEND chunk.
-        raise InputError(path, field_name, "a complete PNG file (ending in an IEND chunk)",
-                         f"a truncated PNG of {len(data)} bytes")
-    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) if data else None
-    if img is None:
-        raise InputError(path, field_name, "an image OpenCV can decode (PNG, JPEG, ...)",
-                         f"an unreadable file of {len(data)} bytes")
+    if size is not None and data.startswith(PNG_SIGNATURE):
+        got = png_header(data, path, field_name)
+        if got != tuple(size):
+            raise _size_error(path, size, got, size_from)
+    img = decode_image(data, path, field_name)
     if img.dtype == np.uint16:
         img = (img >> 8).astype(np.uint8)
     if img.ndim == 2:
@@ -41,6 +63,11 @@ def _decode(path: Path, source, field_name: str) -> np.ndarray:
         a = img[..., 3:4].astype(np.float32) / 255.0
         img = np.rint(rgb * a + 255.0 * (1 - a)).astype(np.uint8)
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def _size_error(path: Path, want, got, size_from: str) -> InputError:
+    return InputError(path, "image size", f"{want[0]}x{want[1]} px (width x height), {size_from}; "
+                      "every frame of a clip must have the same size", f"{got[0]}x{got[1]}")
 
 
 def frame_paths(folder, annotation: Annotation | None = None) -> list[Path]:
@@ -90,17 +117,14 @@ def read_clip(folder, annotation: Annotation | str | Path | None = None) -> np.n
     paths = frame_paths(folder, annotation)
     frames = []
     want = tuple(annotation.image_size) if annotation is not None else None   # (w, h)
+    what = "the annotation's image_size" if annotation is not None else f"the size of {paths[0].name}"
     for i, p in enumerate(paths):
-        img = _decode(p, annotation.source if annotation else folder, f"frames[{i}]")
+        img = _decode(p, annotation.source if annotation else folder, f"frames[{i}]", want, what)
         got = (img.shape[1], img.shape[0])
         if want is None:
             want = got
         elif got != want:
-            what = ("the annotation's image_size" if annotation is not None
-                    else f"the size of {paths[0].name}")
-            raise InputError(p, "image size", f"{want[0]}x{want[1]} px (width x height), {what}; "
-                             "every frame of a clip must have the same size",
-                             f"{got[0]}x{got[1]}")
+            raise _size_error(p, want, got, what)
         frames.append(img)
     return np.stack(frames)
 
@@ -110,7 +134,8 @@ INDEX_COLUMNS = ("clip", "character", "motion", "folder", "frames")
 
 
 def read_index(frames_dir) -> pd.DataFrame:
-    """``<frames_dir>/index.csv`` checked: columns, unique clips, folders inside ``frames_dir``."""
+    """``<frames_dir>/index.csv`` checked: columns, unique clips, each clip id a safe file name
+    (:func:`nnsf.names.safe_name`), folders inside ``frames_dir`` once symbolic links are resolved."""
     path = Path(frames_dir) / "index.csv"
     if not path.is_file():
         raise InputError(path, "file", "the frame-set index written by the render_frames stage")
@@ -126,6 +151,12 @@ def read_index(frames_dir) -> pd.DataFrame:
     dup = index["clip"].duplicated()
     if dup.any():
         raise InputError(path, "clip", "each clip once", index["clip"][dup].iloc[0])
-    for i, f in enumerate(index["folder"]):
+    root = Path(frames_dir).resolve()
+    for i, (clip, f) in enumerate(zip(index["clip"], index["folder"])):
+        # A clip id names the stages' output files (<tracks>/<clip>/curves.npz, <clip>.xml).
+        safe_name(clip, path, f"clip (row {i + 1})")
         check_relative(f, path, f"folder (row {i + 1})")
+        if not (Path(frames_dir) / f).resolve().is_relative_to(root):
+            raise InputError(path, f"folder (row {i + 1})", "a folder inside the frame set "
+                             "(symbolic links resolved)", f)
     return index

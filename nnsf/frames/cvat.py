@@ -54,7 +54,7 @@ SHAPES = ("polyline", "points")
 CVAT_FRAME_PATTERN = "frame_{:06d}.png"
 
 
-def _parse_points(text, path, where: str, n: int | None = None) -> list[list[float]]:
+def parse_points(text, path, where: str, n: int | None = None) -> list[list[float]]:
     pts = []
     try:
         for pair in (text or "").strip().split(";"):
@@ -70,7 +70,7 @@ def _parse_points(text, path, where: str, n: int | None = None) -> list[list[flo
     return pts
 
 
-def _meta(root) -> dict:
+def task_meta(root) -> dict:
     out = {}
     meta = root.find("meta")
     node = None
@@ -118,7 +118,7 @@ def read_cvat_video(path, clip: str | None = None, character: str = "unknown",
     version = (root.findtext("version") or "").strip()
     if version != "1.1":
         raise InputError(path, "<version>", '"1.1" (export format "CVAT for video 1.1")', version)
-    meta = _meta(root)
+    meta = task_meta(root)
 
     curves: dict[int, dict[str, list]] = {}          # frame -> curve name -> points
     joints: dict[int, dict[str, list]] = {}          # frame -> joint name -> [x, y]
@@ -126,9 +126,14 @@ def read_cvat_video(path, clip: str | None = None, character: str = "unknown",
     tracks = root.findall("track")
     if not tracks:
         raise InputError(path, "<track>", "at least one track (export as CVAT for video 1.1)")
+    seen: dict[str, str] = {}      # label -> id of the track that has it
     for track in tracks:
         tid, label = track.get("id", "?"), track.get("label", "")
         where = f"track id={tid} label={label!r}"
+        if label in seen:
+            raise InputError(path, f"track id={tid} label", f"each label in one track; track id={seen[label]} "
+                             "has this label too (merge the two tracks in CVAT)", label)
+        seen[label] = tid
         if label in SIDE_INDEX:
             kind, target = "polyline", curves
         elif label in JOINT_INDEX:
@@ -137,6 +142,7 @@ def read_cvat_video(path, clip: str | None = None, character: str = "unknown",
             raise InputError(path, f"track id={tid}", "a label naming a side curve (" + ", ".join(
                 SIDE_NAMES[:2]) + ", ...) or a key point (" + ", ".join(JOINTS[:3]) + ", ...)",
                 label)
+        used = 0
         for shape in track:
             if shape.tag not in SHAPES and shape.tag != "attribute":
                 raise InputError(path, where, "polyline shapes for curves and points shapes for "
@@ -151,15 +157,19 @@ def read_cvat_video(path, clip: str | None = None, character: str = "unknown",
             if shape.get("keyframe", "0") != "1" or shape.get("outside", "0") != "0":
                 continue
             f = int(fr)
-            pts = _parse_points(shape.get("points"), path, f"{where} frame={f}",
+            pts = parse_points(shape.get("points"), path, f"{where} frame={f}",
                                 n=1 if kind == "points" else None)
             slot = target.setdefault(f, {})
             if label in slot:
                 raise InputError(path, f"{where} frame={f}", f"one keyframe of {label!r} per frame",
                                  "two tracks with this label")
             slot[label] = pts if kind == "polyline" else pts[0]
+            used += 1
             if kind == "polyline":
                 where_curve.setdefault(label, where)
+        if not used:   # a track none of whose shapes is a keyframe would vanish from the annotation
+            raise InputError(path, where, f'at least one <{kind}> with keyframe="1" and outside="0" '
+                             "(mark the annotated frames as keyframes in CVAT)", "none")
     if not curves:
         raise InputError(path, "<polyline>", 'at least one polyline shape with keyframe="1" '
                          'and outside="0"')

@@ -17,7 +17,6 @@ Reading a drawing goes through the checks of this module, whatever the format
 """
 from __future__ import annotations
 
-import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -25,6 +24,7 @@ import cv2
 import numpy as np
 
 from nnsf.errors import InputError
+from nnsf.io import MAX_IMAGE_PIXELS, read_image as io_read_image
 from nnsf.skeleton import JOINT_INDEX, JOINTS, N_JOINTS, rest_pose
 
 #: What a character's skeleton stands on (:attr:`Character.body`).
@@ -34,7 +34,7 @@ SNAP_SHARE = 0.05
 #: Drawings over this many megapixels are downscaled to it (``--max-size``).
 MAX_SIZE = 4.0
 #: Images over this many pixels are refused before they are decoded (400 MB as RGBA).
-DECODE_LIMIT = 100_000_000
+DECODE_LIMIT = MAX_IMAGE_PIXELS
 
 
 @dataclass
@@ -173,27 +173,16 @@ def largest_component(mask: np.ndarray, source="<memory>") -> tuple[np.ndarray, 
 
 # --------------------------------------------------------------------------- images
 
-def png_size(path: Path) -> tuple[int, int] | None:
-    """``(width, height)`` from a PNG's header, or None if the file is not a PNG."""
-    with open(path, "rb") as f:
-        head = f.read(24)
-    if len(head) < 24 or head[:8] != b"\x89PNG\r\n\x1a\n" or head[12:16] != b"IHDR":
-        return None
-    return struct.unpack(">II", head[16:24])
-
-
 def read_image(path, source, field: str) -> np.ndarray:
-    """An image file as OpenCV reads it (BGR[A], 8 or 16 bits); its size is checked before decoding."""
+    """An image file as OpenCV reads it (BGR[A], 8 bits; 16 bits are shifted down).
+
+    :func:`nnsf.io.read_image` checks a PNG's whole structure and its size (at most
+    :data:`DECODE_LIMIT` pixels) before any pixel is decoded.
+    """
     path = Path(path)
     if not path.is_file():
         raise InputError(source, field, "an existing image file", str(path))
-    size = png_size(path)
-    if size is not None and size[0] * size[1] > DECODE_LIMIT:
-        raise InputError(path, "size", f"an image of at most {DECODE_LIMIT / 1e6:g} megapixels",
-                         f"{size[0]}x{size[1]} px in its header")
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise InputError(source, field, "an image OpenCV can read (PNG, JPEG, ...)", str(path))
+    img = io_read_image(path, field)
     if img.dtype == np.uint16:  # textures are only displayed: 8 bits
         img = (img >> 8).astype(np.uint8)
     if img.dtype != np.uint8:

@@ -151,7 +151,7 @@ def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", fr
     unit = vec / np.maximum(length, 1e-12)[..., None]
     if arms == "drawing":
         unit = _swing_about_drawing(unit, rest)
-    drawn_len = mot.bone_ratio / drawn.bone_ratio * med  # = drawn bone lengths
+    drawn_len = np.linalg.norm(rest[[c for _, c in BONES]] - rest[[p for p, _ in BONES]], axis=1)
     placed = np.zeros(N_JOINTS, dtype=bool)
     placed[0] = True
     if rigid_torso:

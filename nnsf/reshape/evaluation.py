@@ -42,7 +42,9 @@ from nnsf.pipeline import StageResult
 from nnsf.reshape.animator import Animator, canvas
 from nnsf.reshape.artefacts import FrameMeasures, width_stats
 from nnsf.reshape.deform import Deformer
-from nnsf.reshape.formats import read_character, read_yaml
+from nnsf.reshape.formats import read_character
+from nnsf.safe_yaml import read_yaml
+from nnsf.names import safe_name
 from nnsf.reshape.stage import report, write_sheet
 
 #: Per-frame measures whose worst frame and mean a row keeps.
@@ -122,7 +124,8 @@ def evaluate_item(item: dict) -> dict:
             worst = [int(t) for t in np.argsort(-score, kind="stable") if t not in pick][:2]
             white = [_over_white(images[t]) for t in pick + worst]
             labels = [f"t={t}" for t in pick] + [f"worst t={t}" for t in worst]
-            sheet = (f"{ch.name}_{name}", np.stack(white), labels)
+            sheet = (safe_name(ch.name, ch.source, "name") + "_" + safe_name(name, item["motion"], "motion"),
+                     np.stack(white), labels)
     return {"rows": rows, "frames": per_frame, "sheet": sheet, "notes": ch.notes}
 
 

@@ -25,7 +25,7 @@ AnimatedDrawings folder, ``<stem>.yaml`` beside a PNG) or given as the character
     extra_arms: follow         # optional: follow (turn with the driven arm of their side) | body
     depth: [left_arm over torso]   # optional: parts always drawn over others
 
-Every YAML is read by :func:`read_yaml`, the one place that parses YAML here.
+Every YAML is read by :func:`nnsf.safe_yaml.read_yaml` (bounded, safe).
 """
 from __future__ import annotations
 
@@ -33,12 +33,12 @@ import re
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from nnsf.datasets.synthetic import CHARACTER_NAMES
-from nnsf.errors import InputError, read_text
+from nnsf.errors import InputError
 from nnsf.frames.render import render_character
 from nnsf.io import atomic_path, read_json, write_json
+from nnsf.safe_yaml import read_yaml
 from nnsf.params import ARM_CHOICES, HEAD_CHOICES
 from nnsf.reshape import character as C
 from nnsf.reshape.character import Character
@@ -57,22 +57,10 @@ AD_TO_OURS: dict[str, str] = {
 AD_JOINTS = tuple(AD_TO_OURS.values()) + ("hip", "torso")
 #: ``head_top`` stops this share of the way from the neck to where the torso → neck ray leaves the mask.
 HEAD_TOP_SHARE = 0.9
-#: The largest YAML or skeleton a reader takes: bytes, joints.
-MAX_YAML_BYTES, MAX_JOINTS = 1_000_000, 256
+#: The most joints a skeleton may list.
+MAX_JOINTS = 256
 CHOICES = {"arms": ARM_CHOICES, "head": HEAD_CHOICES, "extra_arms": ("follow", "body")}
 FORMAT, VERSION = "nnsf.character", 1
-
-
-def read_yaml(path):
-    """A YAML file's content (plain data only), or :class:`InputError` naming the file and the line."""
-    try:
-        return yaml.safe_load(read_text(path, MAX_YAML_BYTES, "a YAML file"))
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        raise InputError(path, f"line {mark.line + 1}" if mark is not None else "file", "plain YAML",
-                         reason=getattr(exc, "problem", None) or str(exc).splitlines()[0]) from None
-    except RecursionError:
-        raise InputError(path, "file", "YAML nested at most a few hundred levels deep") from None
 
 
 def _point(v, source, field: str) -> np.ndarray:

@@ -31,6 +31,8 @@ from nnsf.errors import InputError
 from nnsf.io import atomic_dir, atomic_path, write_json
 from nnsf.params import RESHAPE_FORMATS, checked, source_of
 from nnsf.pipeline import RESHAPE_DIR, TRANSLATION_DIR, StageResult
+from nnsf.names import safe_name
+from nnsf.params import project_path
 from nnsf.reshape import depth as depth_mod
 from nnsf.reshape.animator import BACKGROUND, Animation, Animator, canvas
 from nnsf.reshape.character import Character
@@ -50,18 +52,16 @@ def resolve_character(spec, size: int = 512, root=Path("."), source="params.yaml
     if not isinstance(spec, (str, Path)) or not str(spec):
         raise InputError(source, "reshape.character", "a character name or path", spec)
     text = str(spec)
-    if not ("/" in text or "\\" in text or text.endswith((".json", ".yaml", ".yml", ".png"))):
+    full = project_path(text, source, "reshape.character", root)
+    if full is None:
         try:
             return synthetic_character(text, size)
         except ValueError as exc:
             raise InputError(source, "reshape.character", "a built-in character name or a character "
                              "file/folder", reason=str(exc)) from None
-    p = Path(text)
-    if p.is_absolute() or ".." in p.parts:
-        raise InputError(source, "reshape.character", "a relative path inside the project", text)
-    if not (Path(root) / p).exists():
+    if not full.exists():
         raise InputError(source, "reshape.character", "an existing character file or folder", text)
-    return read_character(Path(root) / p)
+    return read_character(full)
 
 
 def extra_arms_notes(character: Character, arms: str, setting: str) -> list[str]:
@@ -97,9 +97,12 @@ def write_sheet(path, images, labels, scale: float = 0.5) -> Path:
     return Path(path)
 
 
-def _params(params: dict) -> dict:
-    """The ``reshape`` section, each field checked by the params schema (defaults when absent); errors
-    name the params file it came from."""
+def stage_params(params: dict) -> dict:
+    """The ``reshape`` section, each field checked by the params schema (defaults when absent).
+
+    The ranges are :data:`nnsf.params.SCHEMA`'s, the ones ``nnsf check`` applies; errors name the
+    params file the section came from.
+    """
     defaults = {"clip": None, "character": "bruno", "character_size": 512, "n_vertices": 800,
                 "subkeys_per_limb": 4, "method": "ours", "propagation": "limb-frame", "fps": 24,
                 "max_frames": 240, "formats": list(FORMATS), "depth_overrides": [], "arms": None, "head": None}
@@ -115,11 +118,12 @@ def reshape(params: dict, motion_csv=TRANSLATION_DIR / "translated_features.csv"
 
     ``character_path`` (with ``joints`` for a PNG) overrides ``reshape.character``.
     """
-    p = _params(params)
+    p = stage_params(params)
     source = source_of(params)
     character = (read_character(character_path, joints) if character_path is not None
                  else resolve_character(p["character"], p["character_size"], source=source))
     clip, frame_ids, points = read_motion(motion_csv, p["clip"])
+    name = safe_name(character.name, character.source or source, "name") + "_" + safe_name(clip, motion_csv, "clip")
     points, frame_ids = points[: p["max_frames"]], frame_ids[: p["max_frames"]]
     animator = Animator(character, p["n_vertices"], p["method"], p["subkeys_per_limb"], p["propagation"])
     overrides = depth_mod.parse_overrides(p["depth_overrides"], len(points), source=source)
@@ -131,7 +135,6 @@ def reshape(params: dict, motion_csv=TRANSLATION_DIR / "translated_features.csv"
     renderer = animator.renderer(size)
     images = np.stack([renderer.render(v + offset, o, BACKGROUND) for v, o in zip(anim.frames, anim.orders)])
     numbers = report(animator, anim)
-    name = f"{character.name}_{clip}"
     out_dir = Path(out_dir)
     artifacts = []
     with atomic_dir(out_dir) as tmp:

@@ -5,7 +5,8 @@
 * :mod:`nnsf.roto.solve`   — :func:`track_clip` ("ours", "agarwala", "lk");
 * :mod:`nnsf.roto.metrics` — point-to-curve error, PCK, simulated-user edit ratio;
 * :mod:`nnsf.roto.figures` — the overlay figure (paper Fig. 5);
-* :mod:`nnsf.roto.real`    — real frames (Kenney walk cycles) scored against silhouettes;
+* :mod:`nnsf.roto.real`    — annotated real frames scored against their silhouettes
+  (:mod:`nnsf.roto.lpc`: the same for LPC sprite sheets);
 * :mod:`nnsf.roto.options` — the ``track:`` section of params.yaml as TrackOptions;
 * :mod:`nnsf.roto.tracks`  — the TRACKS format (``curves.npz``), read and checked;
 * :mod:`nnsf.roto.keypoints` — key points from the tracked curves (Eq. 2-3);

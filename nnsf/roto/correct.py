@@ -35,16 +35,19 @@ import numpy as np
 from nnsf.errors import InputError
 from nnsf.frames.annotation import read_annotation
 from nnsf.frames.clips import read_clip
-from nnsf.frames.cvat import _meta, _parse_points
+from nnsf.frames.cvat import task_meta, parse_points
 from nnsf.frames.clips import read_index
-from nnsf.roto.tracks import read_tracks
-from nnsf.io import atomic_path, read_npz, write_npz
+from nnsf.roto.tracks import TRACKS, read_tracks
+from nnsf.io import atomic_path, read_bytes, read_npz, write_npz
+from nnsf.names import inside
 from nnsf.roto.curves import project_to_polyline
 from nnsf.roto.solve import ClipTracker, TrackOptions, plan
 from nnsf.roto.options import method as _method
 from nnsf.roto.options import track_options
 
 DECIMALS = 2
+#: Largest corrections file read (bytes), as for CVAT imports (nnsf.frames.cvat).
+MAX_CVAT_BYTES = 256_000_000
 KEYFRAME_ATTRIBUTE = "nnsf_keyframe"
 
 
@@ -116,6 +119,19 @@ def export_cvat(path, control, names, n_points, keyframes, clip: str, image_size
 
 
 # --------------------------------------------------------------------------- import
+def _parse(path: Path):
+    """The XML root of a corrections file: bounded in size, no DOCTYPE or ENTITY, well-formed."""
+    if not path.is_file():
+        raise InputError(path, "file", "an existing CVAT XML file (CVAT for video 1.1)")
+    data = read_bytes(path, MAX_CVAT_BYTES, "a readable CVAT XML file")
+    if b"<!DOCTYPE" in data or b"<!ENTITY" in data:
+        raise InputError(path, "file", "CVAT XML without DOCTYPE or ENTITY declarations")
+    try:
+        return ET.fromstring(data)
+    except ET.ParseError as exc:
+        raise InputError(path, f"line {exc.position[0]}", "well-formed XML", str(exc)) from None
+
+
 def read_cvat_curves(path, clip: str, names: list[str], n_points, n_frames: int
                      ) -> tuple[dict[int, dict[str, np.ndarray]], set[int]]:
     """Per-frame polylines of a CVAT for video 1.1 file written for ``clip``.
@@ -124,36 +140,45 @@ def read_cvat_curves(path, clip: str, names: list[str], n_points, n_frames: int
     only shapes with ``outside="0"`` are read (every such shape, whatever its
     ``keyframe`` flag: CVAT exports the frames it interpolates as well).
     InputError naming ``path`` and the field for a file of another clip
-    (``<meta><task><name>``), a frame outside 0..n_frames-1, a label that is
-    not one of ``names``, a vertex count other than the curve's, malformed
-    points or XML.
+    (``<meta><task><name>``), another export format ("CVAT for images"), no
+    ``<track>``, a frame outside 0..n_frames-1, a label that is not one of
+    ``names`` or that two tracks share, a track without polylines or with
+    other shapes, no shape inside the frame, a vertex count other than the
+    curve's, malformed points or XML: nothing in the file is dropped silently.
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "file", "an existing CVAT XML file (CVAT for video 1.1)")
-    data = path.read_bytes()
-    if b"<!DOCTYPE" in data or b"<!ENTITY" in data:
-        raise InputError(path, "file", "CVAT XML without DOCTYPE or ENTITY declarations")
-    try:
-        root = ET.fromstring(data)
-    except ET.ParseError as exc:
-        raise InputError(path, f"line {exc.position[0]}", "well-formed XML", str(exc)) from None
+    root = _parse(path)
     if root.tag != "annotations" or (root.findtext("version") or "").strip() != "1.1":
         raise InputError(path, "<version>", '"1.1" under <annotations> (CVAT for video 1.1)',
                          (root.findtext("version") or "").strip() or root.tag)
-    meta = _meta(root)
+    if root.find("image") is not None:
+        raise InputError(path, "<image>", "a CVAT for video 1.1 export (<track> elements); this is a "
+                         '"CVAT for images" export: export the task again as CVAT for video 1.1')
+    meta = task_meta(root)
     if meta.get("name") != clip:
         raise InputError(path, "<meta><task><name>", f"the clip {clip!r} (corrections of that clip)",
                          meta.get("name"))
+    tracks = root.findall("track")
+    if not tracks:
+        raise InputError(path, "<track>", "at least one <track> of the clip's curves (CVAT for video 1.1)")
     count = {n: int(c) for n, c in zip(names, n_points)}
     out: dict[int, dict[str, np.ndarray]] = {}
     marked: set[int] = set()
-    for track in root.findall("track"):
+    seen: dict[str, str] = {}      # label -> id of the track that has it
+    for track in tracks:
         tid, label = track.get("id", "?"), track.get("label", "")
         if label not in count:
             raise InputError(path, f"track id={tid} label", "one of the clip's curves ("
                              + ", ".join(names[:3]) + (", ..." if len(names) > 3 else "") + ")",
                              label)
+        if label in seen:
+            raise InputError(path, f"track id={tid} label", f"each curve in one track; track id={seen[label]} "
+                             "has this label too (merge the two tracks in CVAT)", label)
+        seen[label] = tid
+        other = [shape.tag for shape in track if shape.tag != "polyline"]
+        if other or track.find("polyline") is None:
+            raise InputError(path, f"track id={tid} label={label!r}", "<polyline> shapes (the curve's "
+                             "control points)", f"<{other[0]}>" if other else "no shape")
         for shape in track.findall("polyline"):
             fr = shape.get("frame", "")
             where = f"track id={tid} label={label!r} frame"
@@ -162,12 +187,15 @@ def read_cvat_curves(path, clip: str, names: list[str], n_points, n_frames: int
             if shape.get("outside", "0") != "0":
                 continue
             f = int(fr)
-            pts = _parse_points(shape.get("points"), path, f"track id={tid} frame={f}",
+            pts = parse_points(shape.get("points"), path, f"track id={tid} frame={f}",
                                 n=count[label])
             out.setdefault(f, {})[label] = np.array(pts, np.float64)
             for a in shape.findall("attribute"):
                 if a.get("name") == KEYFRAME_ATTRIBUTE and (a.text or "").strip().lower() == "true":
                     marked.add(f)
+    if not out:
+        raise InputError(path, "<polyline>", 'at least one polyline inside the frame (outside="0")',
+                         "every shape is outside")
     return dict(sorted(out.items())), marked
 
 
@@ -346,10 +374,10 @@ def simulate_user(tracker, names: list[str], kfs: dict, truth: np.ndarray, n_poi
 # --------------------------------------------------------------------------- the track command
 def _clip_tracks(frames_dir: Path, tracks_dir: Path, row):
     ann = read_annotation(frames_dir / row.folder / "annotation.json")
-    path = tracks_dir / row.clip / "curves.npz"
+    path = inside(tracks_dir, row.clip, "curves.npz", source=frames_dir / "index.csv", field="clip")
     control, names, n_points = read_tracks(path, ann)
 
-    z = read_npz(path)
+    z = read_npz(path, TRACKS, what="file of tracked curves")
     keys = [int(k) for k in z["keyframes"]] if "keyframes" in z else ann.keyframe_indices
     return ann, path, control, names, n_points, keys
 
@@ -360,7 +388,8 @@ def export_clips(frames_dir, tracks_dir, out_dir) -> list[Path]:
     written = []
     for row in read_index(frames_dir).itertuples():
         ann, _, control, names, n_points, keys = _clip_tracks(frames_dir, tracks_dir, row)
-        written.append(export_cvat(out_dir / f"{row.clip}.xml", control, names, n_points, keys,
+        target = inside(out_dir, f"{row.clip}.xml", source=frames_dir / "index.csv", field="clip")
+        written.append(export_cvat(target, control, names, n_points, keys,
                                    row.clip, ann.image_size))
     return written
 
@@ -378,13 +407,7 @@ def apply_corrections(params: dict, xml_path, frames_dir, tracks_dir, clip: str 
     xml_path, frames_dir, tracks_dir = Path(xml_path), Path(frames_dir), Path(tracks_dir)
     index = read_index(frames_dir)
     if clip is None:
-        if not xml_path.is_file():
-            raise InputError(xml_path, "file", "an existing CVAT XML file (CVAT for video 1.1)")
-        try:
-            clip = _meta(ET.fromstring(xml_path.read_bytes())).get("name")
-        except ET.ParseError as exc:
-            raise InputError(xml_path, f"line {exc.position[0]}", "well-formed XML",
-                             str(exc)) from None
+        clip = task_meta(_parse(xml_path)).get("name")
     rows = [r for r in index.itertuples() if r.clip == clip]
     if not rows:
         raise InputError(xml_path, "<meta><task><name>", "a clip of " + str(frames_dir / "index.csv")

@@ -122,16 +122,21 @@ def project_to_polyline(points: np.ndarray, polyline: np.ndarray) -> tuple[np.nd
     Returns ``dist (..., N)`` and ``nearest (..., N, 2)`` (px); brute force
     over all M-1 segments, exact.  :func:`nearest_vertex` gives the index.
     """
-    dist, nearest, _ = _project(points, polyline)
+    dist, nearest, _ = polyline_projection(points, polyline)
     return dist, nearest
 
 
 def nearest_vertex(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
     """Index (..., N) of the polyline vertex closest to each point's projection."""
-    return _project(points, polyline)[2]
+    return polyline_projection(points, polyline)[2]
 
 
-def _project(points, polyline):
+def polyline_projection(points, polyline):
+    """``(dist, nearest, vertex)`` of each point's projection onto a polyline (brute force, exact).
+
+    The shapes of :func:`project_to_polyline`, plus ``vertex (..., N)``: the
+    index of the polyline vertex nearest the projection.
+    """
     q = np.asarray(points, np.float64)[..., :, None, :]            # (..., N, 1, 2)
     c = np.asarray(polyline, np.float64)
     a = c[..., None, :-1, :]                                        # (..., 1, M-1, 2)

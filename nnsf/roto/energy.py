@@ -51,8 +51,8 @@ business (it measures motion against the start's).  The same hidden sides are dr
 terms towards whatever covers them (the near arm passing over the torso's
 hidden side), so off-edge samples lose their ribbon residuals too.  Both
 only in proportion to the start's confidence: a confident start needs no
-image evidence where there is none; an unconfident one (the Kenney walks,
-where both limb tracks miss the far keyframe by 7 px) still needs it.
+image evidence where there is none; an unconfident one (small sprites whose
+limb tracks both miss the far keyframe by several px) still needs it.
 Along its own outline a sample sees the same colours and the same edge
 wherever it slides, so nothing in the image fixes its place along the
 curve, which is what the key points are read from (the curve ends): the
@@ -62,7 +62,7 @@ is trusted.
 Why the length terms look like this.  Derivatives are per sample step, so
 |c'| ≈ L/(n-1) for a curve of length L.  The squared form (Agarwala et al.; docs/method.md §2.2),
 |c_t'|² - |c_{t+1}'|², is then in px² of a sample step: ≈ 0.7 px² for a
-10 px Kenney limb side sampled 12 times, so halving that curve cost less
+10 px limb side of a small sprite sampled 12 times, so halving that curve cost less
 than one unit, while the sketch and colour terms (weight 100 on 2K·3
 residuals per sample) gain far more by pulling the samples together onto
 the part of the edge whose ribbon matches best (uniform colour away from the

@@ -17,8 +17,8 @@ import pandas as pd
 
 from nnsf.errors import InputError
 from nnsf.frames.annotation import read_annotation
-from nnsf.frames.clips import read_clip, read_index
-from nnsf.io import read_npz, write_csv, write_json
+from nnsf.frames.clips import read_clip, read_index, read_truth
+from nnsf.io import write_csv, write_json
 from nnsf.params import TRACKERS, require
 from nnsf.pipeline import FRAMES_DIR, REPORTS, StageResult, failures, map_items
 from nnsf.publish import publish_stage
@@ -27,14 +27,14 @@ from nnsf.roto.figures import roto_overlay
 from nnsf.roto.keypoints import fit_keypoint_model, keypoints_from_curves
 from nnsf.roto.metrics import curve_errors, edit_ratio, error_summary, length_ratio, pck, reverse_errors, symmetric_summary
 from nnsf.roto.options import track_options
-from nnsf.roto.stage import _load
+from nnsf.roto.stage import load_clip
 
 def _evaluate_item(item: dict) -> dict:
     """All metrics of one (clip, tracker) pair (module-level, picklable)."""
     clip, method = item["clip"], item["method"]
     try:
-        ann, frames = _load(item)
-        truth = read_npz(Path(item["frames_dir"]) / item["folder"] / "truth.npz")
+        ann, frames = load_clip(item)
+        truth = read_truth(Path(item["frames_dir"]) / item["folder"])
         side_names = [str(n) for n in truth["side_names"]]
         res = edit_ratio(frames, ann, truth["sides"], side_names, method, tol=item["tol"],
                          max_edits=item["max_edits"], **item["options"])
@@ -128,7 +128,7 @@ def evaluate_tracking(params: dict, frames_dir=FRAMES_DIR, reports=REPORTS, mapp
         folder = frames_dir / first.folder
         ann = read_annotation(folder / "annotation.json")
         frames = read_clip(folder, ann)
-        truth = read_npz(folder / "truth.npz")
+        truth = read_truth(folder)
         side_names = [str(n) for n in truth["side_names"]]
         names = keep[0]["names"]
         true_sides = truth["sides"][:, [side_names.index(n) for n in names]]

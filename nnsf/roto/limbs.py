@@ -193,8 +193,7 @@ def limb_init(fwd: np.ndarray, bwd: np.ndarray, colour: np.ndarray, P: np.ndarra
        them) are left out (if that leaves less than a fifth, the limb is
        matched against this frame's colours, all samples, instead).  Matching
        the keyframe's colours rather than the previous frame's keeps small
-       errors from piling up (mid-interval error of a limb swinging out and
-       back, toy clip of the tests: 3.0 -> 0.6 px).  A fine search (±1.5 px by
+       errors from piling up over the interval.  A fine search (±1.5 px by
        0.5 and ±4° by 2, then ±0.5 px and ±1° by 1) polishes the flow's
        motion; if that still costs more than ``search_cost``, a grid search
        (±9 px by 3, ±20° by 5: each grid point within the fine search's reach
@@ -209,9 +208,9 @@ def limb_init(fwd: np.ndarray, bwd: np.ndarray, colour: np.ndarray, P: np.ndarra
        by ±90° in 6° steps (:data:`HINGE_ANGLES`), each
        turn with shifts of ±6 px by 3 on the blurred frame, polishes the best
        and takes it on the same terms: a limb swinging about its joint faster
-       than the grid's ±20° (bruno's jump: PCK 0.785 -> 0.826).  Turning
-       about the distal end too fitted the outline as well but swapped
-       joints on the 48-frame benchmark clip (PCK 0.801 -> 0.758).
+       than the grid's ±20°.  It turns about the proximal end only: turning
+       about the distal end too fits the outline as well but can swap the
+       limb's two joints.
        **Hierarchy**: a limb with a parent (``parents``, :func:`limb_parents`:
        the forearm hangs from the upper arm, the shin from the thigh) is
        tracked after its parent, and its hinge search starts from the
@@ -220,8 +219,7 @@ def limb_init(fwd: np.ndarray, bwd: np.ndarray, colour: np.ndarray, P: np.ndarra
        motion carries the limb's proximal end (the elbow, the knee): a
        forearm swinging with its upper arm and bending about the elbow at
        once, the elbow itself moving 20-50 px a frame, which neither flow,
-       grid nor a turn about the forearm's own displaced end finds (bruno's
-       jump: PCK 0.826 -> 0.894).
+       grid nor a turn about the forearm's own displaced end finds.
 
     The forward track (from t = 0) and the backward one (from T-1) each miss
     the other keyframe, by e_f and e_b px (largest control-point error).  Both

@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from nnsf.roto import curves
-from nnsf.roto.curves import _project, nearest_vertex, project_to_polyline  # noqa: F401  (re-exported for callers)
+from nnsf.roto.curves import polyline_projection, nearest_vertex, project_to_polyline  # noqa: F401  (re-exported for callers)
 from nnsf.roto.solve import ClipTracker, TrackOptions, plan
 from nnsf.roto.correct import simulate_user
 
@@ -51,7 +51,7 @@ def curve_errors(control: np.ndarray, truth: np.ndarray, n_samples: int = 32,
     for cnt in np.unique(counts[counts >= 2]):
         sel = counts == cnt
         S = curves.sample(control[sel][:, :cnt], n_samples)
-        d, _, k = _project(S, truth[sel])
+        d, _, k = polyline_projection(S, truth[sel])
         out[sel] = d
         if visible is not None:
             vis[sel] = np.take_along_axis(np.asarray(visible)[sel], k, -1)
@@ -75,7 +75,7 @@ def reverse_errors(control: np.ndarray, truth: np.ndarray, n_samples: int = 64) 
     for cnt in np.unique(counts[counts >= 2]):
         sel = counts == cnt
         S = curves.sample(control[sel][:, :cnt], n_samples)
-        out[sel] = _project(truth[sel], S)[0]
+        out[sel] = polyline_projection(truth[sel], S)[0]
     return out
 
 

@@ -1,10 +1,11 @@
-"""Tracking on real cartoon frames: the Kenney toon walk cycles, scored against alpha silhouettes.
+"""Tracking on real cartoon frames, scored against their alpha silhouettes.
 
-The frames (96×128 RGBA, exact alpha) are read from the folder given with --data; the
-keyframe annotations (walk0 and walk7, format v1) are hand-made files in
-``tests/data/kenney/<character>.annotation.json``.  Frames are composited
-over a plain white background (as :func:`nnsf.frames.clips.read_clip` does)
-before tracking.  Score: the share of tracked outline samples within
+The frames are RGBA PNGs with an exact alpha, one folder per character,
+``<data>/<character>/<frame>.png``; the keyframe annotations (format v1,
+formats §2.2) are hand-made files ``<annotations>/<character>.annotation.json``
+naming the frames, and every annotated character is tracked.  Frames are
+composited over a plain white background (as :func:`nnsf.frames.clips.read_clip`
+does) before tracking.  Score: the share of tracked outline samples within
 ``tol`` px of the silhouette boundary (where a limb lies over the body its
 true edge is a colour edge, not the silhouette, so no tracker reaches 1;
 the annotated keyframes' own score is the ceiling to compare with).
@@ -30,17 +31,17 @@ from scipy.spatial import cKDTree
 from nnsf.roto import curves
 from nnsf.errors import InputError
 from nnsf.frames.annotation import read_annotation
-from nnsf.io import write_csv, write_json
+from nnsf.io import read_image, write_csv, write_json
 from nnsf.params import TRACKERS
 from nnsf.roto.figures import roto_overlay
-from nnsf.roto.metrics import _project, length_ratio
+from nnsf.roto.metrics import polyline_projection, length_ratio
 from nnsf.roto.snap import resolve_target
 from nnsf.roto.solve import interpolate_clip, keyframe_curves, track_clip
 
 #: the rows of the real-frame reports: the three trackers and the do-nothing floor
 REPORTED = ("ours", "agarwala", "lk", "linear")
-CHARACTERS = ("female_adventurer", "female_person", "male_adventurer", "male_person", "robot",
-              "zombie")
+#: px from the silhouette that count as on it, by default
+TOL = 1.5
 _UP = 4  # upsampling factor for the sub-pixel silhouette boundary
 
 
@@ -108,7 +109,7 @@ def covered_boundary(control: np.ndarray, alpha: np.ndarray, tol: float = 1.5,
         lo, hi = poly.min(0) - tol, poly.max(0) + tol
         box = np.flatnonzero(((pts >= lo) & (pts <= hi)).all(1) & ~near)
         if box.size:
-            d = _project(pts[box], poly)[0]
+            d = polyline_projection(pts[box], poly)[0]
             near[box[d <= tol]] = True
     return float(ds[near].sum())
 
@@ -144,8 +145,8 @@ def read_rgba(folder: Path, names: list[str]) -> tuple[np.ndarray, np.ndarray]:
     """Frames composited over white (T, H, W, 3) uint8 RGB and their alpha (T, H, W) uint8."""
     rgb, alpha = [], []
     for n in names:
-        img = cv2.imread(str(Path(folder) / n), cv2.IMREAD_UNCHANGED)
-        if img is None or img.ndim != 3 or img.shape[2] != 4:
+        img = read_image(Path(folder) / n)
+        if img.ndim != 3 or img.shape[2] != 4:
             raise InputError(Path(folder) / n, "file", "a readable RGBA PNG")
         a = img[..., 3:4].astype(np.float32) / 255.0
         comp = np.rint(img[..., :3].astype(np.float32) * a + 255.0 * (1 - a)).astype(np.uint8)
@@ -154,13 +155,19 @@ def read_rgba(folder: Path, names: list[str]) -> tuple[np.ndarray, np.ndarray]:
     return np.stack(rgb), np.stack(alpha)
 
 
-def track_kenney(data_root, annotations_dir, methods=TRACKERS,
-                 characters=CHARACTERS, tol: float = 1.5, **options) -> tuple[pd.DataFrame, dict]:
-    """Run the trackers on the Kenney walk cycles and score them against the silhouettes.
+def annotated_names(annotations_dir) -> list[str]:
+    """The characters of an annotation folder: the stems of its ``<name>.annotation.json``."""
+    return sorted(p.name.removesuffix(".annotation.json")
+                  for p in Path(annotations_dir).glob("*.annotation.json"))
 
-    data_root : the ``kenney-toon`` folder; annotations_dir : folder with
-    ``<character>.annotation.json``.  Characters without an annotation are
-    skipped.  Returns a table (character, tracker, score over the in-between
+
+def track_frames(data_root, annotations_dir, methods=TRACKERS, names=None,
+                 tol: float = TOL, **options) -> tuple[pd.DataFrame, dict]:
+    """Run the trackers on annotated frame folders and score them against the silhouettes.
+
+    data_root : the folder of ``<character>/`` frame folders; annotations_dir :
+    folder with ``<character>.annotation.json``; names : the characters to
+    track (default: every annotated one).  Returns a table (character, tracker, score over the in-between
     frames, keyframe score = the annotation's own score, coverage and
     length ratio, see the module notes) and
     ``{(character, tracker): (T, N, P, 2) control}`` for figures.  The
@@ -168,11 +175,8 @@ def track_kenney(data_root, annotations_dir, methods=TRACKERS,
     (:func:`nnsf.roto.solve.interpolate_clip`), the floor a tracker must beat.
     """
     rows, tracked = [], {}
-    for ch in characters:
-        path = Path(annotations_dir) / f"{ch}.annotation.json"
-        if not path.is_file():
-            continue
-        ann = read_annotation(path)
+    for ch in annotated_names(annotations_dir) if names is None else names:
+        ann = read_annotation(Path(annotations_dir) / f"{ch}.annotation.json")
         frames, alpha = read_rgba(Path(data_root) / ch, ann.frames)
         score_trackers(ch, ann, frames, alpha, methods, tol, options, rows, tracked)
     return pd.DataFrame(rows), tracked
@@ -181,7 +185,7 @@ def track_kenney(data_root, annotations_dir, methods=TRACKERS,
 def score_trackers(name, ann, frames, alpha, methods, tol: float, options: dict, rows: list, tracked: dict) -> None:
     """Track one annotated character with every method and score it against its silhouettes.
 
-    Appends one row per method to ``rows`` (see :func:`track_kenney`) and the
+    Appends one row per method to ``rows`` (see :func:`track_frames`) and the
     control points to ``tracked[(name, method)]``.  ``"linear"`` is the
     keyframes interpolated linearly, the floor a tracker must beat.  The
     ``snap`` column says what snap "ours" ended with (``none`` for the
@@ -206,7 +210,7 @@ def score_trackers(name, ann, frames, alpha, methods, tol: float, options: dict,
 
 
 def silhouette_summary(table, tol: float) -> dict:
-    """Per tracker, the means over characters of a silhouette-scored table (Kenney, LPC).
+    """Per tracker, the means over characters of a silhouette-scored table.
 
     ``table`` has one row per (character, tracker) with ``score`` (share of
     outline samples within ``tol`` px of the silhouette), ``coverage``,
@@ -229,7 +233,7 @@ def silhouette_summary(table, tol: float) -> dict:
 
 def write_silhouette_report(table, tracked: dict, tol: float, annotations_dir, out_dir, stem: str,
                             wanted: str, frames_of, label: str, upscale: int = 1) -> dict:
-    """Write a real-frame report (Kenney, LPC): ``<stem>.csv``, ``<stem>.json`` and ``figures/<stem>.png``.
+    """Write a real-frame report: ``<stem>.csv``, ``<stem>.json`` and ``figures/<stem>.png``.
 
     ``table``/``tracked`` as :func:`score_trackers` fills them; ``wanted`` says
     what an empty table lacked (the :class:`InputError`'s expectation);
@@ -259,22 +263,23 @@ def write_silhouette_report(table, tracked: dict, tol: float, annotations_dir, o
     return summary
 
 
-def kenney_report(data_root, annotations_dir, out_dir, tol: float = 1.5, **options) -> dict:
-    """Track the Kenney walk cycles with the three trackers and write the report files.
+def frames_report(data_root, annotations_dir, out_dir, stem: str = "roto_frames", tol: float = TOL,
+                  **options) -> dict:
+    """Track annotated frame folders with the three trackers and write the report files.
 
-    Writes ``<out_dir>/roto_kenney.csv`` (character × tracker scores, plus
-    the ``linear`` interpolation of the keyframes as the floor),
-    ``<out_dir>/roto_kenney.json`` (per tracker: mean score over the
-    characters under ``trackers``, mean coverage and length ratio under
-    ``coverage`` and ``length_ratio``, and the mean keyframe ceiling) and
-    ``<out_dir>/figures/roto_kenney.png`` (the tracked outlines of the first
+    Writes ``<out_dir>/<stem>.csv`` (character × tracker scores, plus the
+    ``linear`` interpolation of the keyframes as the floor),
+    ``<out_dir>/<stem>.json`` (per tracker: mean score over the characters
+    under ``trackers``, mean coverage and length ratio under ``coverage`` and
+    ``length_ratio``, and the mean keyframe ceiling) and
+    ``<out_dir>/figures/<stem>.png`` (the tracked outlines of the first
     character on four in-between frames).  Returns the JSON summary.
     """
     data_root, out_dir = Path(data_root), Path(out_dir)
     if not data_root.is_dir():
-        raise InputError(data_root, "folder", "the Kenney toon characters folder (female_adventurer/, robot/, ...)")
-    table, tracked = track_kenney(data_root, annotations_dir, methods=REPORTED, tol=tol, **options)
+        raise InputError(data_root, "folder", "a folder of <character>/ frame folders")
+    table, tracked = track_frames(data_root, annotations_dir, methods=REPORTED, tol=tol, **options)
     return write_silhouette_report(
-        table, tracked, tol, annotations_dir, out_dir, "roto_kenney",
+        table, tracked, tol, annotations_dir, out_dir, stem,
         "at least one <character>.annotation.json for a character in " + str(data_root),
-        lambda name, ann: read_rgba(data_root / name, ann.frames)[0], "Kenney toon")
+        lambda name, ann: read_rgba(data_root / name, ann.frames)[0], data_root.name)

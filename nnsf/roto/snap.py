@@ -1,11 +1,10 @@
 """The snap that can end "ours": each free control point moved across its curve, at most ``radius`` px.
 
 Why a step after the solve.  The space-time energy balances its image terms
-against the shape and motion terms, and on small frames (the 96×128 Kenney
-walk cycles, limbs 8-10 px wide) the balance leaves outlines a pixel or two
-beside the edge they follow: of the tracked Kenney samples 0.64 lie within
-1.5 px of the silhouette, 0.75 within 3 px.  A rotoscoping tool's "snap"
-does the last pixels without the shape terms.  Two targets
+against the shape and motion terms, and on small frames (sprites about
+100 px tall, limbs 8-10 px wide) the balance leaves outlines a pixel or two
+beside the edge they follow.  A rotoscoping tool's "snap" does the last
+pixels without the shape terms.  Two targets
 (``roto.snap_to``):
 
 * ``profile`` (:func:`profile_snap`): where the colours across the curve
@@ -16,7 +15,7 @@ does the last pixels without the shape terms.  Two targets
 * ``edge`` (:func:`edge_snap`): the largest colour-gradient magnitude.  On
   flat-colour art without outline strokes that is the part's boundary; on a
   drawn stroke it is one of the stroke's two sides, 1-1.5 px off its centre
-  line, so it is for flat-colour art only (README, tracking).
+  line, so it is for flat-colour art only (docs/results.md, tracking).
 * ``auto`` (:func:`auto_target`): ``edge`` on flat-colour art, no snap on
   stroked art, told apart by the user's own keyframes (:func:`stroke_share`).
 
@@ -50,9 +49,10 @@ STEP = 0.25
 #: the half-width of the 1-3 px strokes of line art at these sizes, inside a limb 8 px wide
 SIDE = 2.0
 #: ``auto`` takes a clip for stroked art when at least this share of its keyframe control points
-#: lie on a stroke.  Measured on the 23 annotated clips (README, tracking): flat-colour Kenney
-#: sprites 0-0.04 (a belt or strap 1-2 px wide), stroked rendered clips 0.17-0.58, LPC pixel art
-#: with dark outlines 0.68-1.0 (the orcs, whose outline is their skin's dark green, 0-0.01)
+#: lie on a stroke.  On the annotated clips the shares fall in separate groups: flat-colour
+#: sprites up to 0.04 (a belt or strap 1-2 px wide), stroked line art from 0.17, pixel art with
+#: dark outlines from 0.68, pixel art outlined in its own skin colour near 0; a tenth lies
+#: between the flat and the stroked groups, set from the shares, not from a tracking score
 STROKED = 0.1
 
 

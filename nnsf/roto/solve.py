@@ -20,11 +20,9 @@ All (interval, curve) problems of equal interval length and control-point
 count are solved together as one block-diagonal problem (they are
 independent; batching only removes Python overhead), coarse to fine on a
 ``cv2.pyrDown`` pyramid, from a start chosen by ``init`` (see
-:class:`TrackOptions`).  On the first four rendered clips (keyframes every
-8 frames) the key-point PCK of ours was 0.80 from ``linear``, 0.84 from
-``flow`` and 0.92 from ``limb`` (params.yaml's default), whose start alone
-already scores 0.92: the start decides where the joints go, the solve
-mostly brings the curves onto the outlines (mean error 1.5 -> 1.3 px).
+:class:`TrackOptions`).  The start decides where the joints go, so
+``limb`` (params.yaml's default) starts from each limb's own rigid motion;
+the solve then mostly brings the curves onto the outlines.
 """
 from __future__ import annotations
 
@@ -52,9 +50,9 @@ class TrackOptions:
 
     Weights multiply squared residuals (see :mod:`nnsf.roto.energy`);
     ``length_anchor`` weighs the anchor of the curve's length to the keyframes
-    relative to ``length`` (not in params.yaml; 4 measured on the Kenney walk
-    cycles: in-between lengths 0.97 of the keyframes', 0 restores the
-    adjacent-frame term alone, 0.84 there); ``K``
+    relative to ``length`` (not in params.yaml; with 4 the in-between curves of
+    real sprite walk cycles keep their keyframes' length, where the
+    adjacent-frame term alone, 0, lets them shrink); ``K``
     is the ribbon half-width in samples of 1 px (of each pyramid level);
     ``levels`` the pyramid depth (1 = full resolution only); ``edge_close``
     the edge map's closing radius (px; none on frames under 128 px, :func:`edge_close`).
@@ -432,8 +430,8 @@ def edge_close(radius: int, size: tuple[int, int]) -> int:
     and Agarwala's tracker, which has no colour terms to resist it, kept 0.50
     of the LPC outline samples within 1.5 px of the silhouette against 0.92
     for interpolating the keyframes without tracking (0.975 without the
-    closing).  Frames smaller than 128 px (the 96×128 Kenney frames, the
-    64×64 LPC tiles) get no closing; larger ones keep ``radius``.
+    closing).  Frames smaller than 128 px (small sprites, 64×64 LPC tiles)
+    get no closing; larger ones keep ``radius``.
     """
     return int(radius) if min(size) >= 128 else 0
 

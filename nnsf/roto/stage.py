@@ -22,6 +22,7 @@ import pandas as pd
 
 from nnsf.errors import InputError
 from nnsf.io import atomic_dir, write_json, write_npz
+from nnsf.names import inside
 from nnsf.pipeline import FRAMES_DIR, RAW_DIR, TRACKED_DIR, TRACKS_DIR, StageResult, failures, map_items
 from nnsf.datasets import contract
 from nnsf.frames.annotation import read_annotation
@@ -34,7 +35,7 @@ from nnsf.roto.options import track_options
 from nnsf.roto.solve import keyframe_curves, track_clip
 from nnsf.roto.tracks import read_tracks
 
-def _load(item: dict):
+def load_clip(item: dict):
     """(annotation, frames) of one indexed clip; InputError on bad input."""
     folder = Path(item["frames_dir"]) / item["folder"]
     ann = read_annotation(folder / "annotation.json")
@@ -47,9 +48,9 @@ def _load(item: dict):
 def _track_item(item: dict) -> dict:
     """Track one clip and write its curves.npz (module-level, picklable)."""
     clip = item["clip"]
-    out = Path(item["out"]) / clip
+    out = inside(item["out"], clip, source=Path(item["frames_dir"]) / "index.csv", field="clip")
     try:
-        ann, frames = _load(item)
+        ann, frames = load_clip(item)
         names, _ = keyframe_curves(ann)
         if not names:
             raise InputError(ann.source, "keyframes[0].curves", "at least one curve to track")
@@ -115,7 +116,8 @@ def _keypoints_item(item: dict) -> dict:
         ann = read_annotation(Path(item["frames_dir"]) / item["folder"] / "annotation.json")
         if ann.clip != clip:
             raise InputError(ann.source, "clip", f"the clip id {clip!r} of index.csv", ann.clip)
-        control, names, n_points = read_tracks(Path(item["tracks_dir"]) / clip / "curves.npz", ann)
+        control, names, n_points = read_tracks(inside(item["tracks_dir"], clip, "curves.npz",
+                                                      source=ann.source, field="clip"), ann)
         model = fit_keypoint_model(ann)
         kp = keypoints_from_curves(control, names, model, n_points)
         good = np.isfinite(kp).all(axis=(1, 2))

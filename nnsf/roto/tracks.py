@@ -14,6 +14,15 @@ import numpy as np
 from nnsf.errors import InputError
 from nnsf.frames.curves import SIDE_INDEX
 from nnsf.io import read_npz
+from nnsf.schema import Array
+
+#: The arrays of a ``curves.npz`` (nothing else is read from it; sizes named as in the docstring).
+TRACKS = {
+    "control": Array("f", ("T", "C", "P", 2)),
+    "curve_names": Array("U", ("C",)),
+    "n_points": Array("iu", ("C",), required=False),
+    "keyframes": Array("iu", (None,), required=False),
+}
 
 #: Tracked keyframe curves may differ from the annotation by at most this (px).
 KEYFRAME_TOL_PX = 0.5
@@ -31,10 +40,7 @@ def read_tracks(path, annotation) -> tuple[np.ndarray, list[str], np.ndarray]:
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "file", "the tracker's curves.npz for this clip (run the tracker)")
-    z = read_npz(path)
-    for key in ("control", "curve_names"):
-        if key not in z:
-            raise InputError(path, key, "an array of that name (see TRACKS format)")
+    z = read_npz(path, TRACKS, what="file of tracked curves")
     control, names = z["control"], z["curve_names"]
     T = len(annotation.frames)
     if control.ndim != 4 or control.shape[3] != 2 or control.shape[0] != T or control.shape[2] < 2:

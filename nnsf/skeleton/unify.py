@@ -23,12 +23,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from nnsf.errors import InputError
+from nnsf.schema import List, Map, Num, Optional, Record, Str, check
 from nnsf.skeleton.layout import BONE_NAMES, BONES, N_JOINTS, PARENTS, bone_lengths, to_features, to_points
 from nnsf.skeleton.template import TEMPLATE_BONE_LENGTHS
 
 # Bones whose lengths define the body scale s used for the root trajectory:
 # the spine chain and both legs (indices into BONES).
 _SCALE_BONES = [b for b, (p, c) in enumerate(BONES) if c in (1, 2, 3, 4, 5, 6, 7, 8)]
+#: A bone no longer than this share of the legs' length has no measurable length in its view
+#: (pixel precision, not a proportion: a drawn or captured bone is far longer).
+END_ON = 1e-3
 
 
 def difference_operator() -> np.ndarray:
@@ -67,16 +72,36 @@ class CharacterScale:
 def character_scale(points: np.ndarray) -> CharacterScale:
     """Fit r_b and s from one character's frames ``(n, 17, 2)`` (pixels).
 
-    Raises ``ValueError`` naming the bone when a bone has zero median length.
+    A bone seen end-on (a projected 3D skeleton's hips in a side view: no
+    measurable length, below :data:`END_ON` of the legs' length) tells nothing
+    of the character's proportions, so it gets the body's overall scale ``s``
+    instead of being stretched to the template's length.  Raises
+    ``ValueError`` when the body itself has no extent.
     """
     lengths = np.median(bone_lengths(points), axis=0)
-    bad = np.flatnonzero(~(lengths > 0))
-    if bad.size:
-        raise ValueError(f"bone {BONE_NAMES[bad[0]]} has zero median length")
-    ratio = TEMPLATE_BONE_LENGTHS / lengths
-    scale = TEMPLATE_BONE_LENGTHS[_SCALE_BONES].sum() / lengths[_SCALE_BONES].sum()
+    legs = lengths[_SCALE_BONES].sum()
+    if not (np.isfinite(lengths).all() and legs > 0):
+        bad = np.flatnonzero(~(lengths > 0))
+        raise ValueError(f"bone {BONE_NAMES[bad[0] if bad.size else _SCALE_BONES[0]]} has zero median length")
+    scale = TEMPLATE_BONE_LENGTHS[_SCALE_BONES].sum() / legs
+    end_on = lengths <= END_ON * legs
+    ratio = np.where(end_on, scale, TEMPLATE_BONE_LENGTHS / np.where(end_on, 1.0, lengths))
     return CharacterScale(bone_ratio=ratio, root_scale=float(scale),
                           root_ref=np.median(points[:, 0, :], axis=0))
+
+
+def _vector(n: int, lo: float = -1e12, hi: float = 1e12) -> List:
+    return List(Num(lo, hi), min_len=n, max_len=n)
+
+
+#: A unifier as :meth:`Unifier.to_dict` writes it (``unifier.json``, a model file's ``meta.unifier``).
+UNIFIER = Record({
+    "margin": Num(0.0, 1e6),
+    "offset": _vector(2),
+    "bones": Optional(List(Str(choices=tuple(BONE_NAMES)), min_len=len(BONE_NAMES), max_len=len(BONE_NAMES))),
+    "characters": Map(Record({"bone_ratio": _vector(len(BONE_NAMES), 1e-12), "root_scale": Num(1e-12, 1e12),
+                              "root_ref": _vector(2)}), max_len=100_000),
+})
 
 
 @dataclass
@@ -157,7 +182,12 @@ class Unifier:
         }
 
     @classmethod
-    def from_dict(cls, d: dict) -> "Unifier":
+    def from_dict(cls, d: dict, source="unifier") -> "Unifier":
+        """The unifier :meth:`to_dict` described; an :class:`~nnsf.errors.InputError` naming ``source``
+        and the field when ``d`` does not follow :data:`UNIFIER`."""
+        d = check(source, UNIFIER, d)
+        if "bones" in d and d["bones"] != list(BONE_NAMES):
+            raise InputError(source, "bones", "the bones of this nnsf's skeleton, in its order", d["bones"])
         return cls(
             margin=float(d["margin"]),
             offset=np.asarray(d["offset"], dtype=float),

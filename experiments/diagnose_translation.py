@@ -1,4 +1,13 @@
-"""Why the default translation loses style and content (issue 11, "What to build" 3).
+"""Question answered: at which step does the default style translation lose style and content?
+
+The steps of the synthesis (per-clip weights, the content's consensus weights with and without
+the temporal term, the amplitude restore, the tempo) scored one by one against the hidden real
+clips on 30 held-out Bandai-Namco-1 cells, for the first-order smoothness then in use.  Answer
+(``experiments/translation_diagnosis.{json,png}``): the consensus loses the amplitude (its swing
+is about half the real clips') and the first-order term damps motion with the jitter; it led to
+the second-order temporal term and to scaling the swing to the target style
+(``translation.smooth_order: 2``, ``amplitude: style``; method §8).  Ran against the code of its
+time; it is kept as a record and is not maintained with the library.
 
 For held-out cells of a labelled BVH folder (Bandai-Namco-1), this replays
 the default NNSF synthesis of :func:`nnsf.evaluate.translation.evaluate_cell`
@@ -28,12 +37,12 @@ the judges' own statistics of the synthesis sit from those of the hidden clip
 judges do: on the real training clips).  The judges see pixels: every step is
 mapped to the target character with the cell's inverse unification.
 
-    .venv/bin/python benchmarks/diagnose_translation.py --data ../shared/data/bandai-namco-1 \\
-        --cells 30 --jobs 2 --out reports/translation_diagnosis --set smooth=5.0 --set smooth_order=1 \\
+    .venv/bin/python experiments/diagnose_translation.py --data ../shared/data/bandai-namco-1 \\
+        --cells 30 --jobs 2 --out experiments/translation_diagnosis --set smooth=5.0 --set smooth_order=1 \\
         --candidates "smooth_order=2+smooth=20,smooth_order=2+smooth=20+amplitude=style"
 
 (the diagnosis of the previous default, first-order smoothness 5, and the two candidate fixes;
-``reports/translation_diagnosis.{json,png}`` hold that run's output; ``--redraw`` prints and
+``experiments/translation_diagnosis.{json,png}`` hold that run's output; ``--redraw`` prints and
 redraws them without recomputing).
 
 Writes ``OUT.json`` (means per step, per-joint error over time of every step)

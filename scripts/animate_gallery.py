@@ -1,6 +1,6 @@
 """Figure: every AnimatedDrawings character performing three motions through ``nnsf animate``.
 
-    .venv/bin/python benchmarks/animate_gallery.py --data ../shared/data --work /tmp/gallery \\
+    .venv/bin/python scripts/animate_gallery.py --data ../shared/data --work /tmp/gallery \\
         --out reports/figures/animate_characters.png
 
 For char1-char5 it runs the real command line three times: an AnimatedDrawings BVH

@@ -1,0 +1,167 @@
+"""The MP4 and GIF writers: H.264 that plays in a browser, written whole or not at all.
+
+The browser check runs Debian's ``chromium`` headless when it is installed (skipped otherwise),
+with an OpenCV ``mp4v`` file as the control it must refuse.
+"""
+from __future__ import annotations
+
+import os
+import resource
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from nnsf.io import WriteError
+from nnsf.reshape.video import read_gif, read_mp4, write_gif, write_mp4
+
+
+def _frames(T=24, H=61, W=87):
+    imgs = np.full((T, H, W, 3), 255, np.uint8)
+    for t in range(T):
+        imgs[t, 10:50, 3 * t: 3 * t + 12] = (200, 40, 20)
+    return imgs
+
+
+def test_mp4_is_h264_yuv420p_at_even_size_and_decodes_back(tmp_path):
+    import av
+
+    imgs = _frames()
+    path = write_mp4(tmp_path / "a.mp4", imgs, fps=12)
+    with av.open(str(path)) as c:
+        s = c.streams.video[0]
+        assert s.codec_context.name == "h264" and s.codec_context.pix_fmt == "yuv420p"
+        assert (s.codec_context.width, s.codec_context.height) == (88, 62)
+        assert s.average_rate == 12 and float(s.duration * s.time_base) == pytest.approx(2.0, abs=0.09)
+    back = read_mp4(path)
+    assert back.shape == (24, 62, 88, 3)
+    # lossy but close; the padding row and column are white
+    assert np.abs(back[:, :61, :87].astype(int) - imgs).mean() < 3.0
+    assert back[:, 61].min() > 235 and back[:, :, 87].min() > 235
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.mp4"]          # no temporary left
+
+
+def test_mp4_keeps_an_ntsc_rate_exact(tmp_path):
+    import av
+
+    path = write_mp4(tmp_path / "n.mp4", _frames(6), fps=30000 / 1001)
+    with av.open(str(path)) as c:
+        assert c.streams.video[0].average_rate.numerator == 30000
+
+
+def test_gif_decodes_back_with_held_frames_counted(tmp_path):
+    imgs = _frames(6)
+    imgs[3] = imgs[2]                                   # a held frame: Pillow writes it once
+    back = read_gif(write_gif(tmp_path / "a.gif", imgs, fps=10))
+    assert len(back) == 5
+
+
+class _FileSizeLimit:
+    """``ulimit -f`` for this process while in the block: a write past ``kb`` fails with EFBIG
+    as one on a full disk fails with ENOSPC (Python ignores SIGXFSZ), without a disk to fill."""
+
+    def __init__(self, kb: int):
+        self.kb = kb
+
+    def __enter__(self):
+        self.old = resource.getrlimit(resource.RLIMIT_FSIZE)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (self.kb * 1024, self.old[1]))
+
+    def __exit__(self, *exc):
+        resource.setrlimit(resource.RLIMIT_FSIZE, self.old)
+
+
+def _limited(kb: int):
+    def apply():
+        resource.setrlimit(resource.RLIMIT_FSIZE, (kb * 1024, kb * 1024))
+    return apply
+
+
+@pytest.mark.parametrize("writer", [write_mp4, write_gif])
+def test_a_full_disk_names_the_file_and_leaves_nothing(tmp_path, writer):
+    out = tmp_path / "full" / ("a.mp4" if writer is write_mp4 else "a.gif")
+    out.parent.mkdir()
+    imgs = np.random.default_rng(0).integers(0, 255, (30, 120, 160, 3), dtype=np.uint8)
+    with pytest.raises(WriteError) as err, _FileSizeLimit(16):
+        writer(out, imgs, 12)
+    assert str(err.value) == f"{out}: write: expected a file size the system allows (File too large [EFBIG])"
+    assert list(out.parent.iterdir()) == []
+
+
+@pytest.mark.slow
+def test_animate_on_a_full_disk_exits_2_naming_the_mp4_and_leaves_nothing(tmp_path):
+    nnsf = Path(sys.executable).with_name("nnsf")
+    out = tmp_path / "full" / "a.mp4"
+    out.parent.mkdir()
+    r = subprocess.run([str(nnsf), "animate", "--character", "bruno", "--motion", "synthetic:bruno/walk/12",
+                        "--out", str(out), "--vertices", "150", "--workers", "1"], capture_output=True,
+                       text=True, preexec_fn=_limited(16), timeout=300, cwd=tmp_path)
+    assert r.returncode == 2, r.stderr
+    err = r.stderr.strip().splitlines()
+    assert err[-1] == f"error: {out}: write: expected a file size the system allows (File too large [EFBIG])"
+    assert "Traceback" not in r.stderr
+    assert list(out.parent.iterdir()) == []
+
+
+def test_a_write_error_inside_the_encoder_is_a_write_error(tmp_path, monkeypatch):
+    import av
+
+    def refuse(*a, **k):
+        raise av.error.OSError(28, "No space left on device")   # what FFmpeg reports on ENOSPC
+    monkeypatch.setattr(av.container.OutputContainer, "mux", refuse)
+    with pytest.raises(WriteError, match=r"a\.mp4: write: expected free space on its disk"):
+        write_mp4(tmp_path / "a.mp4", _frames(4), fps=12)
+    assert list(tmp_path.iterdir()) == []
+
+
+# --------------------------------------------------------------------------- a browser plays it
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+
+_PAGE = """<!doctype html><html><body><pre id="out">pending</pre>
+<video id="v" src="{name}" muted playsinline></video>
+<script>
+const v = document.getElementById('v'), out = document.getElementById('out');
+v.addEventListener('error', () => {{ out.textContent = 'error ' + (v.error ? v.error.code : ''); }});
+v.addEventListener('loadedmetadata', () => v.play().then(
+  () => setTimeout(() => {{ out.textContent = `ok ${{v.videoWidth}} ${{v.videoHeight}} ${{v.duration}} ${{v.currentTime > 0}}`; }}, 300),
+  e => {{ out.textContent = 'play-error ' + e.name; }}));
+</script></body></html>
+"""
+
+
+def play_in_chromium(video: Path, timeout: float = 60.0) -> str:
+    """What headless Chromium makes of ``video``: ``ok W H DURATION PLAYED`` or ``error CODE``."""
+    page = video.with_suffix(".html")
+    page.write_text(_PAGE.format(name=video.name))
+    profile = video.parent / f".chromium-{video.stem}"
+    cmd = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+           "--disable-background-networking", "--disable-component-update", "--disable-sync",
+           f"--user-data-dir={profile}", "--allow-file-access-from-files",
+           "--autoplay-policy=no-user-gesture-required", "--virtual-time-budget=5000", "--dump-dom",
+           page.as_uri()]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout,
+                       env={**os.environ, "HOME": str(profile)})
+    start = r.stdout.find('<pre id="out">')
+    return r.stdout[start + len('<pre id="out">'):].split("<", 1)[0] if start >= 0 else f"no page: {r.stderr[-300:]}"
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed (apt-get install -y chromium)")
+def test_headless_chromium_plays_the_mp4_at_its_size_and_duration(tmp_path):
+    import cv2
+
+    path = write_mp4(tmp_path / "a.mp4", _frames(), fps=12)
+    width, height, duration, played = play_in_chromium(path).split()[1:]
+    assert (int(width), int(height)) == (88, 62)
+    assert float(duration) == pytest.approx(2.0, abs=0.09) and played == "true"
+    # The control: MPEG-4 Part 2 from OpenCV's writer, which this browser refuses.
+    bad = tmp_path / "b.mp4"
+    vw = cv2.VideoWriter(str(bad), cv2.VideoWriter_fourcc(*"mp4v"), 12.0, (88, 62))
+    for img in _frames():
+        vw.write(cv2.resize(img, (88, 62)))
+    vw.release()
+    assert play_in_chromium(bad).startswith("error"), "the browser check cannot tell a bad file"
