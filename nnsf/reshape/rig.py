@@ -16,10 +16,11 @@ hangs from, and each bone's radius.
   radius is the median distance to the silhouette's edge along its middle (the drawing's distance
   transform); an upper limb segment's is at most 1.5 times its lower segment's, so an upper arm
   drawn inside the body does not claim the body.
-* **Seams** (:meth:`Rig.cuts`): an edge between two parts is cut, so the parts can move apart
-  and a limb can lie over the body, unless one part hangs from the other and the edge lies within
-  the joint radius (1.5 × the thinner of the two parts' radii) of the joint between them.  There the two parts share
-  vertices, so the joint bends as one piece of paper and cannot crack.
+* **Joints** (:meth:`Rig.cuts`): a part and the part it hangs from are never cut apart along
+  their root cross-section (within :data:`ROOT_DEPTH` child radii of the line through the joint
+  across the child's bone); there the two share vertices, so the joint bends as one piece of paper
+  and cannot crack.  Elsewhere a boundary is only a candidate: :mod:`nnsf.reshape.mesh` cuts it
+  where one part lies over the other in the drawing, with an underlay beneath.
 """
 from __future__ import annotations
 
@@ -31,9 +32,11 @@ import numpy as np
 from nnsf.reshape.parts import JOINS, PART_BONES, PARTS
 from nnsf.skeleton import JOINT_INDEX as J, N_JOINTS
 
-#: The joint radius, in units of the thinner part's radius: the cut across a limb at its joint is
-#: shared whole, a crease drawn along the joint (a fist folded against its arm) is cut beyond it.
-JOINT_RADIUS = 1.5
+#: How far from a child's root cross-section (the line through its joint across its bone) its
+#: boundary with its parent stays joined, in units of the child's radius: the cut across a limb at
+#: its joint is shared whole, however wide; beyond it the boundary may be cut where the child lies
+#: over its parent (a fist folded on its arm).
+ROOT_DEPTH = 1.0
 #: An upper limb segment is at most this many times as thick as the segment below it.
 UPPER_TO_LOWER = 1.5
 
@@ -140,10 +143,18 @@ class Rig:
         H, W = mask.shape
         markers = np.zeros((H, W), np.int32)
         a, b = self.keypoints[self.bones[:, 0]], self.keypoints[self.bones[:, 1]]
-        for k in np.argsort(-self.radius, kind="stable"):
+        # A seed is no thicker than the lines drawn about its bone allow: a limb drawn inside the
+        # body's silhouette (an arm across the chest) has the silhouette's depth as its radius, and
+        # a seed that wide would flood the body.
+        edges = cv2.Canny(cv2.cvtColor(np.ascontiguousarray(texture[..., :3]), cv2.COLOR_RGB2GRAY), 50, 150) > 0
+        room = distance_transform(mask & ~edges)
+        lam = np.linspace(0.2, 0.8, 7)[:, None, None]
+        reach = np.median(sample(room, a[None] + lam * (b - a)[None]), axis=0)
+        seed = np.minimum(self.radius, np.maximum(reach, 1.0))
+        for k in np.argsort(-seed, kind="stable"):
             p, q = a[k] + 0.2 * (b[k] - a[k]), a[k] + 0.8 * (b[k] - a[k])
             cv2.line(markers, tuple(np.rint(p * 16).astype(int)), tuple(np.rint(q * 16).astype(int)),
-                     int(self.bones[k, 2]) + 1, max(1, int(0.5 * self.radius[k])), cv2.LINE_8, 4)
+                     int(self.bones[k, 2]) + 1, max(1, int(0.5 * seed[k])), cv2.LINE_8, 4)
         seeds = markers.copy()
         markers[~mask] = self.n_parts + 1
         cv2.watershed(np.ascontiguousarray(texture[..., 2::-1]), markers)
@@ -270,30 +281,41 @@ class Rig:
         """Part id ``(k,)`` of points ``(k, 2)``: the lowest :meth:`scores`."""
         return np.argmin(self.scores(points), axis=1)
 
-    def joint_radius(self) -> np.ndarray:
-        """``(K,)`` the radius about each key point within which a joint's parts stay joined, pixels."""
-        out = np.zeros(len(self.keypoints))
-        pr = self.part_radius()
-        for c in range(self.n_parts):
-            if self.joint[c] >= 0:
-                r = JOINT_RADIUS * min(pr[c], pr[self.parent[c]])
-                out[self.joint[c]] = max(out[self.joint[c]], r)
-        return out
+    def root_distance(self, points: np.ndarray, child: int, radius=None) -> np.ndarray:
+        """``(k,)`` how far points ``(k, 2)`` lie from ``child``'s root cross-section, in units of its
+        radius: |(x − joint) · u| / r, with u the direction of the child's bone that leaves the joint
+        and r ``radius`` (pixels; default :meth:`part_radius`)."""
+        j = self.joint[child]
+        bone = next((b for b in self.bones if b[2] == child and b[0] == j), None)
+        if bone is None:
+            return np.full(len(points), np.inf)
+        u = self.keypoints[bone[1]] - self.keypoints[j]
+        u = u / max(float(np.linalg.norm(u)), 1e-9)
+        r = self.part_radius()[child] if radius is None else radius
+        return np.abs((np.asarray(points, np.float64) - self.keypoints[j]) @ u) / max(float(r), 1e-9)
 
-    def cuts(self, midpoints: np.ndarray, p: np.ndarray, q: np.ndarray) -> np.ndarray:
-        """Which edges ``(e,)`` to cut: edge midpoints ``(e, 2)`` between triangles of parts ``p``, ``q``."""
+    def cuts(self, midpoints: np.ndarray, p: np.ndarray, q: np.ndarray, radius=None) -> np.ndarray:
+        """Which edges ``(e,)`` may be cut: edge midpoints ``(e, 2)`` between triangles of parts ``p``, ``q``.
+
+        A part and the part it hangs from stay joined along their whole boundary across the joint:
+        the edges within :data:`ROOT_DEPTH` child radii of the line through the joint across the
+        child's bone (its root cross-section), and everywhere if the child is fused.  Every other
+        edge between two parts is a candidate; the mesh cuts only the candidates where one part
+        lies over the other (:func:`nnsf.reshape.mesh.build_mesh`).  ``radius`` ``(P,)``: each part's
+        own half-width in pixels where known (> 0), else :meth:`part_radius` (the drawing's distance
+        transform, which sees the silhouette, not a limb drawn inside it).
+        """
         out = p != q
-        R = self.joint_radius()
         for a, b in {(int(x), int(y)) for x, y in zip(p[out], q[out])}:
             child = b if self.parent[b] == a else a if self.parent[a] == b else -1
             if child < 0:
                 continue
-            j = self.joint[child]
             sel = np.flatnonzero(out & (p == a) & (q == b))
             if child in self.fused:
                 out[sel] = False
                 continue
-            out[sel[np.linalg.norm(midpoints[sel] - self.keypoints[j], axis=1) <= R[j]]] = False
+            r = radius[child] if radius is not None and radius[child] > 0 else None
+            out[sel[self.root_distance(midpoints[sel], child, r) <= ROOT_DEPTH]] = False
         return out
 
     # ------------------------------------------------------------------ extra arms
