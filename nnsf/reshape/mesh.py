@@ -1,4 +1,4 @@
-"""One triangle mesh of a drawing's silhouette, cut along the seams between parts except at joints.
+"""One triangle mesh of a drawing's silhouette, cut only where a limb lies over another part.
 
 :func:`triangulate` meshes the silhouette:
 
@@ -18,7 +18,9 @@
 
 :func:`cut` duplicates the vertices along chosen edges: the mesh stays one connected piece
 wherever it is not cut, so the two sides of an uncut edge move together in every frame and no
-crack can open there.
+crack can open there.  :func:`build_mesh` cuts only where a limb lies over another part in the
+drawing, and puts an underlay of that part beneath every cut, so an opening cut shows the part
+beneath, never the page.
 """
 from __future__ import annotations
 
@@ -36,8 +38,10 @@ from nnsf.errors import InputError
 #: simplified outline and the triangles kept along it then cover every drawn pixel, thin strokes and
 #: pixels on the image's border too.
 GROW = 2
-#: Pixels past the body's convex hull that its underlay still covers.
-UNDERLAY_MARGIN = 2
+#: A limb covers a part where that part's region, closed with a disc of this many limb radii,
+#: reaches over it (:func:`_covered`): the disc bridges the limb's width (two radii) with room for
+#: a limb that widens.
+OVER_REACH = 1.5
 
 
 @dataclass
@@ -433,31 +437,29 @@ def split_seams(vertices: np.ndarray, triangles: np.ndarray, scores: np.ndarray,
 
 
 def build_mesh(character, rig, n_vertices: int = 800) -> Mesh:
-    """The character's mesh: triangulated, labelled by ``rig``, cut along seams, with a body underlay.
+    """The character's mesh: triangulated, labelled by ``rig``, cut where a limb lies over another
+    part, with underlays beneath every cut.
 
     * Parts: each vertex's lowest :meth:`~nnsf.reshape.rig.Rig.scores`, the triangles split along the
       boundaries (:func:`split_seams`), cleaned so each part is one region.
-    * Seams cut where :meth:`~nnsf.reshape.rig.Rig.cuts` says; a piece the cuts would set apart from
-      the rest (its part does not reach the joint it hangs from) stays joined where it touches: the
-      mesh is one connected piece.
-    * Underlays (:func:`_underlays`): copies of a limb's triangles over the body, put in the body,
-      sharing its vertices where they meet it: when the limb moves, the body under it is there
-      (textured by :func:`underlay_texture`).
+    * Cuts (:func:`_lying_over`): only where a limb lies over another part in the drawing, and not
+      across a joint (:meth:`~nnsf.reshape.rig.Rig.cuts`); parts side by side stay joined.  A piece
+      the cuts would set apart from the rest stays joined where it touches: the mesh is one
+      connected piece.
+    * Underlays (:func:`_underlays`): beneath every cut, copies of the limb's triangles where it
+      covers the part beneath, put in that part and sharing its vertices where they meet it: when
+      the limb moves, the part beneath is there (textured by :func:`underlay_texture`).
     """
     V, T, h = triangulate(character.mask, n_vertices)
     V, T, parts, _ = split_seams(V, T, rig.scores(V), chains=rig.chains())
     parts = _clean_labels(T, parts, shared_edges(T), rig.parent)
-    # The body's hull, where a limb drawn over the body gets an underlay, cuts the limb's triangles
-    # along a straight line (not a staircase of triangles that shows once the limb moves away).
-    body = np.unique(T[parts == 0])
-    if len(body) >= 3:
-        d = _hull_distance(V[body], V)
-        V, T, _, src = split_seams(V, T, np.column_stack([d, -d]))
-        parts = parts[src]
     pairs = shared_edges(T)
     a = T[pairs[:, 0], pairs[:, 1]]
     b = T[pairs[:, 0], (pairs[:, 1] + 1) % 3]
-    cut_edges = rig.cuts(0.5 * (V[a] + V[b]), parts[pairs[:, 0]], parts[pairs[:, 2]])
+    shape = np.asarray(character.mask).shape
+    cover, radius = _covered(V, T, parts, shape)
+    candidates = rig.cuts(0.5 * (V[a] + V[b]), parts[pairs[:, 0]], parts[pairs[:, 2]], radius)
+    cut_edges, under = _lying_over(V, T, parts, pairs, candidates, cover, rig)
     for _ in range(50):
         T2, origin = cut(T, len(V), cut_edges, pairs)
         comp = _components(T2)
@@ -465,23 +467,22 @@ def build_mesh(character, rig, n_vertices: int = 800) -> Mesh:
         if not loose.any():
             break
         cut_edges = cut_edges & ~(loose[pairs[:, 0]] | loose[pairs[:, 2]])
-    # Underlays: copies of a child's triangles joined to its parent's vertices where they meet it.
-    owner = _underlays(V, T, parts, rig)
-    under = owner >= 0
+    under[~cut_edges] = -1
+    copied, owner = _underlays(V, T, parts, pairs, under, cover)
     lookup = np.full((rig.n_parts, len(V)), -1, dtype=np.int64)
     own = np.repeat(parts, 3)
     lookup[own, origin[T2.ravel()]] = T2.ravel()
     extra = []
-    for p in np.unique(owner[under]):
-        for v in np.unique(T[owner == p]):
+    for p in np.unique(owner):
+        for v in np.unique(T[copied[owner == p]]):
             if lookup[p, v] < 0:
                 lookup[p, v] = len(origin) + len(extra)
                 extra.append(v)
     origin = np.concatenate([origin, np.asarray(extra, dtype=np.int64)])
-    tris = np.vstack([T2, lookup[owner[under][:, None], T[under]]])
-    layer = np.concatenate([np.zeros(len(T2), np.int64), np.ones(under.sum(), np.int64)])
-    all_parts = np.concatenate([parts, owner[under]])
-    # An underlay patch that shares no edge with its parent would float: it is left out.
+    tris = np.vstack([T2, lookup[owner[:, None], T[copied]]])
+    layer = np.concatenate([np.zeros(len(T2), np.int64), np.ones(len(copied), np.int64)])
+    all_parts = np.concatenate([parts, owner])
+    # An underlay patch that shares no edge with its part would float: it is left out.
     comp = _components(tris)
     keep = np.isin(comp, comp[layer == 0])
     tris, layer, all_parts = tris[keep], layer[keep], all_parts[keep]
@@ -491,34 +492,153 @@ def build_mesh(character, rig, n_vertices: int = 800) -> Mesh:
     return Mesh(vertices=V[origin[used]], triangles=remap[tris], parts=all_parts, layer=layer, spacing=float(h))
 
 
-def _underlays(V: np.ndarray, T: np.ndarray, parts: np.ndarray, rig) -> np.ndarray:
-    """For each triangle ``(t,)``, the part whose underlay copies it, or −1: a limb's triangles inside
-    the convex hull of the torso's are copied under the torso, so a limb drawn over the body leaves
-    the body whole when it moves away.
+def _raster(V: np.ndarray, T: np.ndarray, values: np.ndarray, shape) -> np.ndarray:
+    """``(H, W)`` int16: each triangle ``(t, 3)`` filled with its value ``(t,)``, −1 elsewhere."""
+    img = np.full(shape, -1, np.int16)
+    for tri, v in zip(np.rint(V[T] * 16).astype(np.int32), values.tolist()):
+        cv2.fillConvexPoly(img, tri, int(v), cv2.LINE_8, 4)
+    return img
+
+
+def _covered(V, T, parts, shape) -> tuple[dict, np.ndarray]:
+    """Where each limb covers another part in the drawing, ``{(under, limb): (H, W) bool}``, and each
+    limb's half-width ``(P,)`` in pixels (the largest distance inside its region, 0 for the body and
+    the head).
+
+    A limb of radius r lies over a part where that part is drawn on both sides of it: the part's
+    region closed (``cv2.morphologyEx``) with a disc of radius :data:`OVER_REACH` × r, which
+    bridges the limb's width, covers the limb there.  A limb beside a part (two legs pressed
+    together, an arm hanging at the body's side) is bridged only in the corner where they meet.
     """
-    owner = np.full(len(T), -1, dtype=np.int64)
-    body = parts == 0
-    if body.sum() >= 3:
-        inside = _hull_distance(V[np.unique(T[body])], V[T].mean(axis=1)) < 0
-        owner[(parts >= 2) & inside] = 0
-    return owner
+    lab = _raster(V, T, parts, shape)
+    present = sorted(set(np.unique(parts).tolist()))
+    radius = np.zeros(int(parts.max()) + 1)
+    out = {}
+    for o in present:
+        if o < 2:          # the body and the head lie over nothing
+            continue
+        box = _box(lab == o, 0)
+        y0, y1, x0, x1 = box
+        # The limb's own half-width, from its region (the drawing's distance transform does not
+        # see a limb drawn inside the body's silhouette).
+        radius[o] = float(cv2.distanceTransform(np.pad((lab[y0:y1, x0:x1] == o).astype(np.uint8), 1),
+                                                cv2.DIST_L2, 3).max())
+        R = max(2, int(round(OVER_REACH * radius[o])))
+        y0, y1, x0, x1 = _box(lab == o, R)
+        disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * R + 1, 2 * R + 1))
+        limb = lab[y0:y1, x0:x1] == o
+        for u in present:
+            region = (lab[y0:y1, x0:x1] == u).astype(np.uint8)
+            if u == o or not region.any():
+                continue
+            closed = cv2.morphologyEx(region, cv2.MORPH_CLOSE, disc, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+            f = (closed > 0) & limb
+            if f.any():
+                full = np.zeros(shape, bool)
+                full[y0:y1, x0:x1] = f
+                out[(u, o)] = full
+    return out, radius
 
 
-def _hull_distance(points: np.ndarray, query: np.ndarray) -> np.ndarray:
-    """Signed distance ``(k,)`` from ``query`` ``(k, 2)`` to the convex hull of ``points``: the largest
-    over the hull's edges of the distance past the edge's line (negative inside)."""
-    hull = cv2.convexHull(np.asarray(points, np.float32))[:, 0, :].astype(np.float64)
-    a, b = hull, np.roll(hull, -1, axis=0)
-    e = b - a
-    n = np.column_stack([e[:, 1], -e[:, 0]]) / np.maximum(np.linalg.norm(e, axis=1), 1e-12)[:, None]
-    if (n * (hull.mean(axis=0) - a)).sum(axis=1).mean() > 0:   # normals point out
-        n = -n
-    return ((query[:, None, :] - a[None]) * n[None]).sum(-1).max(axis=1)
+def _box(sel: np.ndarray, pad: int):
+    """``(y0, y1, x0, x1)`` of ``sel``'s bounding box grown by ``2 pad``, or None if empty."""
+    ys, xs = np.nonzero(sel)
+    if not len(ys):
+        return None
+    H, W = sel.shape
+    return (max(ys.min() - 2 * pad, 0), min(ys.max() + 2 * pad + 1, H),
+            max(xs.min() - 2 * pad, 0), min(xs.max() + 2 * pad + 1, W))
+
+
+def _lying_over(V, T, parts, pairs, candidates, cover, rig):
+    """Which of the ``candidates`` ``(e,)`` interior edges (``pairs`` ``(e, 4)``) to cut, and the part
+    lying under each cut ``(e,)`` (−1 where no underlay is needed).
+
+    A cut may open; what shows in the opening must never be the page.  So an edge between a limb
+    and another part is cut only when it lies over: the limb's triangle beside it, and the middle
+    of the limb beside it (the nearest point of its bones, ``rig`` a
+    :class:`~nnsf.reshape.rig.Rig`), lie where limbs cover that part (:func:`_covered`).  The part
+    beneath gets an underlay there (:func:`_underlays`), and however far the limb moves away, the
+    opening shows its colour.  Every other boundary stays joined by
+    shared vertices: parts side by side (two legs pressed together, an arm hanging against the
+    body's side, a thigh along a belt line) stretch apart rather than open, the head stays on the
+    body, and a continuous map of a joined mesh cannot open a crack.
+    """
+    centre = V[T].mean(axis=1)
+    p, q = parts[pairs[:, 0]], parts[pairs[:, 2]]
+    a = T[pairs[:, 0], pairs[:, 1]]
+    b = T[pairs[:, 0], (pairs[:, 1] + 1) % 3]
+    mid = 0.5 * (V[a] + V[b])
+    cut_edges = np.zeros(len(pairs), bool)
+    under = np.full(len(pairs), -1, dtype=np.int64)
+    for (u, o), f in sorted(cover.items()):
+        for side_u, side_o, tri_o in ((p, q, pairs[:, 2]), (q, p, pairs[:, 0])):
+            sel = np.flatnonzero(candidates & (side_u == u) & (side_o == o) & ~cut_edges)
+            if not len(sel):
+                continue
+            # Covered at the limb's middle beside the edge (the nearest point of its bones), not
+            # only in the corner where it meets the part: the limb can move away by its width and
+            # still uncover only underlay.  That point may lie in the next segment of the same limb
+            # (at an elbow): any limb's cover of the part counts there.
+            deep = _nearest_on_bones(rig, o, mid[sel])
+            f8 = f.astype(np.uint8)
+            anyf = np.zeros_like(f8)
+            for (uu, _), g in cover.items():
+                if uu == u:
+                    anyf |= g.astype(np.uint8)
+            # (the bones' joints lie on the boundary between segments, a pixel either side)
+            anyf = cv2.dilate(anyf, np.ones((5, 5), np.uint8))
+            over = _lookup(anyf, deep) > 0
+            # A run of boundary (edges joined end to end) that mostly lies over is cut whole: a
+            # limb left joined to the body by a few edges at its tip or its bend would drag the body
+            # with it.
+            hit = sel[over]
+            cut_edges[hit] = True
+            under[hit] = u
+    return cut_edges, under
+
+
+def _nearest_on_bones(rig, part: int, points: np.ndarray) -> np.ndarray:
+    """The nearest point ``(k, 2)`` of ``part``'s bones (rest key-point segments) to each of ``points``."""
+    bones = rig.bones[rig.bones[:, 2] == part]
+    a, b = rig.keypoints[bones[:, 0]], rig.keypoints[bones[:, 1]]
+    d = b - a
+    t = np.clip(np.einsum("kbx,bx->kb", points[:, None] - a[None], d) / np.maximum((d * d).sum(1), 1e-12), 0, 1)
+    near = a[None] + t[..., None] * d[None]                              # (k, B, 2)
+    best = np.argmin(np.linalg.norm(points[:, None] - near, axis=2), axis=1)
+    return near[np.arange(len(points)), best]
+
+
+def _underlays(V, T, parts, pairs, under, cover) -> tuple[np.ndarray, np.ndarray]:
+    """The triangles to copy into underlays ``(c,)`` and the part each copy goes to ``(c,)``.
+
+    Beneath a limb that is cut from a part it lies over, its triangles where it covers that part
+    (:func:`_covered`) are copied into that part, and so is every limb triangle beside a cut: when
+    the limb moves away, the part beneath is there, joined to it by shared vertices, so an opening
+    seam shows its colour, never the page.  A triangle lying over two parts is copied into both
+    (each copy moves with its own part).  Nothing else is copied: beneath a joined boundary an
+    underlay would only poke out as a flap when the mesh bends there.
+    """
+    centre = V[T].mean(axis=1)
+    cut = np.flatnonzero(under >= 0)
+    p, q = parts[pairs[cut, 0]], parts[pairs[cut, 2]]
+    u = under[cut]
+    pick = [(np.where(p == u, pairs[cut, 2], pairs[cut, 0]), u)]
+    used = {(int(x), int(y)) for x, y in zip(u, np.where(p == u, q, p))}
+    for (uu, oo), f in sorted(cover.items()):
+        if (uu, oo) in used:
+            sel = np.flatnonzero(parts == oo)
+            sel = sel[_lookup(f.astype(np.uint8), centre[sel]) > 0]
+            pick.append((sel, np.full(len(sel), uu)))
+    tri = np.concatenate([t for t, _ in pick]).astype(np.int64)
+    to = np.concatenate([w for _, w in pick]).astype(np.int64)
+    both = np.unique(np.column_stack([to, tri]), axis=0)
+    return both[:, 1], both[:, 0]
 
 
 def underlay_texture(texture: np.ndarray, mask: np.ndarray, mesh: Mesh) -> np.ndarray | None:
-    """The drawing ``(H, W, 4)`` with each parent's colour laid where its underlay lies, or None without
-    an underlay.
+    """The drawing ``(H, W, 4)`` with each part's colour laid, opaque, where its underlay lies, or None
+    without an underlay.
 
     The colour is the parent's most common one (colours binned 16 levels a channel, the mean of the
     fullest bin) among its own pixels around the underlay, deeper than half a triangle inside the
@@ -548,15 +668,10 @@ def underlay_texture(texture: np.ndarray, mask: np.ndarray, mesh: Mesh) -> np.nd
             continue
         bins, inv, counts = np.unique(pix >> 4, axis=0, return_inverse=True, return_counts=True)
         colour = pix[inv.ravel() == np.argmax(counts)].mean(axis=0)
-        sel = cv2.dilate(region, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))) > 0
-        # The body goes on under a limb as far as its convex hull (and UNDERLAY_MARGIN px, so a seam
-        # at the hull's edge that opens by a pixel shows the body), not past it: beyond, the page.
-        hull = np.zeros((H, W), np.uint8)
-        own_v = mesh.vertices[np.unique(mesh.triangles[(mesh.layer == 0) & (mesh.parts == p)])]
-        cv2.fillConvexPoly(hull, np.rint(cv2.convexHull(own_v.astype(np.float32))[:, 0] * 16).astype(np.int32),
-                           1, cv2.LINE_8, 4)
-        hull = cv2.dilate(hull, np.ones((2 * UNDERLAY_MARGIN + 1, 2 * UNDERLAY_MARGIN + 1), np.uint8))
+        # Opaque over the underlay's own triangles (the limb's footprint where it covers the part),
+        # within the drawing (the renderer masks it): wherever a cut beside it opens, this colour shows.
+        sel = region > 0
         out[sel, :3] = np.rint(colour).astype(np.uint8)
-        out[sel, 3] = np.where(hull[sel] > 0, 255, 0)
+        out[sel, 3] = 255
     return out
 
