@@ -66,7 +66,16 @@ class Renderer:
         self.texture = np.ascontiguousarray(np.clip(tex * 255.0 + 0.5, 0, 255).astype(np.uint8))
         self.uv = uv
         self.parts = np.asarray(mesh.parts, dtype=np.int64)
-        self.part_triangles = [np.flatnonzero(self.parts == p) for p in range(int(self.parts.max()) + 1)]
+        # Within a part, the last triangle filled wins a pixel.  Where the part folds over itself
+        # (a joint bent past its drawn angle), a triangle along the outline (half in the transparent
+        # margin around the drawing) must not cover the drawn inside: the part's underlay is filled
+        # first, then its triangles from the outline inwards (by their rest depth in the drawing).
+        depth = cv2.distanceTransform(np.pad(np.asarray(mask, np.uint8), 1), cv2.DIST_L2, 3)[1:-1, 1:-1]
+        c = np.rint(mesh.vertices[self.triangles].mean(axis=1)).astype(np.int64)
+        inside = depth[np.clip(c[:, 1], 0, H - 1), np.clip(c[:, 0], 0, W - 1)]
+        key = np.where(np.asarray(mesh.layer) == 1, -1.0, inside)
+        self.part_triangles = [t[np.argsort(key[t], kind="stable")]
+                               for t in (np.flatnonzero(self.parts == p) for p in range(int(self.parts.max()) + 1))]
         self._ids = None
 
     def _maps(self, vertices: np.ndarray) -> np.ndarray:
