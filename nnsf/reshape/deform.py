@@ -38,7 +38,11 @@ def keypoint_handles(mesh: Mesh, rig, weight: float) -> Handles:
         parts = np.unique(rig.bones[(rig.bones[:, 0] == k) | (rig.bones[:, 1] == k), 2])
         cand = np.flatnonzero(own & np.isin(mesh.parts, parts))
         bary, tri = barycentric(mesh.vertices, mesh.triangles[cand], p[None]) if len(cand) else (None, None)
-        if bary is None or bary.min() < -0.05:  # not in its parts' triangles: the one it lies in
+        # A key point just outside its parts' triangles (under a limb drawn over its part, in a
+        # seam) still pins its own part, by the nearest triangle's affine extension: pinning the
+        # limb over it would tie the limb to the body.  Only far from its parts (more than about a
+        # triangle), the triangle it lies in.
+        if bary is None or bary.min() < -1.0:
             cand = np.flatnonzero(own)
             bary, tri = barycentric(mesh.vertices, mesh.triangles[cand], p[None])
         rows.append((mesh.triangles[cand[tri[0]]], bary[0]))
