@@ -564,35 +564,28 @@ def _lying_over(V, T, parts, pairs, candidates, cover, rig):
     body's side, a thigh along a belt line) stretch apart rather than open, the head stays on the
     body, and a continuous map of a joined mesh cannot open a crack.
     """
-    centre = V[T].mean(axis=1)
     p, q = parts[pairs[:, 0]], parts[pairs[:, 2]]
     a = T[pairs[:, 0], pairs[:, 1]]
     b = T[pairs[:, 0], (pairs[:, 1] + 1) % 3]
     mid = 0.5 * (V[a] + V[b])
     cut_edges = np.zeros(len(pairs), bool)
     under = np.full(len(pairs), -1, dtype=np.int64)
-    for (u, o), f in sorted(cover.items()):
-        for side_u, side_o, tri_o in ((p, q, pairs[:, 2]), (q, p, pairs[:, 0])):
+    # Where limbs cover each part.  The limb's middle beside an edge may lie in the next segment of
+    # the same limb (at an elbow), so any limb's cover counts; grown by 2 px, since the bones'
+    # joints lie on the boundary between segments, a pixel either side.
+    covered = {}
+    for (u, _), f in cover.items():
+        covered[u] = covered.get(u, np.zeros(f.shape, np.uint8)) | f.astype(np.uint8)
+    covered = {u: cv2.dilate(g, np.ones((5, 5), np.uint8)) for u, g in covered.items()}
+    for (u, o) in sorted(cover):
+        for side_u, side_o in ((p, q), (q, p)):
             sel = np.flatnonzero(candidates & (side_u == u) & (side_o == o) & ~cut_edges)
             if not len(sel):
                 continue
             # Covered at the limb's middle beside the edge (the nearest point of its bones), not
             # only in the corner where it meets the part: the limb can move away by its width and
-            # still uncover only underlay.  That point may lie in the next segment of the same limb
-            # (at an elbow): any limb's cover of the part counts there.
-            deep = _nearest_on_bones(rig, o, mid[sel])
-            f8 = f.astype(np.uint8)
-            anyf = np.zeros_like(f8)
-            for (uu, _), g in cover.items():
-                if uu == u:
-                    anyf |= g.astype(np.uint8)
-            # (the bones' joints lie on the boundary between segments, a pixel either side)
-            anyf = cv2.dilate(anyf, np.ones((5, 5), np.uint8))
-            over = _lookup(anyf, deep) > 0
-            # A run of boundary (edges joined end to end) that mostly lies over is cut whole: a
-            # limb left joined to the body by a few edges at its tip or its bend would drag the body
-            # with it.
-            hit = sel[over]
+            # still uncover only underlay.
+            hit = sel[_lookup(covered[u], _nearest_on_bones(rig, o, mid[sel])) > 0]
             cut_edges[hit] = True
             under[hit] = u
     return cut_edges, under
