@@ -12,7 +12,8 @@
   (:class:`nnsf.reshape.subkeys.SubkeyTracker`).  ``method="keypoints"`` leaves them out: the
   comparison baseline of the paper's Fig. 8.
 * **Two-step ARAP** (:class:`nnsf.reshape.arap.TwoStepARAP`, Igarashi et al. 2005), factorised
-  once; a frame is a few sparse products and one back-solve.
+  once; a frame is a few sparse products and one back-solve.  An underlay's own vertices then ride
+  with the part beneath (:func:`underlay_riders`).
 
 :meth:`Deformer.run` maps a clip of key points ``(T, 17, 2)`` to vertices ``(T, n, 2)``.
 """
@@ -52,6 +53,39 @@ def keypoint_handles(mesh: Mesh, rig, weight: float) -> Handles:
                        (np.repeat(np.arange(len(rows)), 3), np.concatenate([t for t, _ in rows]))),
                       shape=(len(rows), mesh.n_vertices))
     return Handles(m, np.full(len(rows), float(weight)))
+
+
+def underlay_riders(mesh: Mesh):
+    """The underlay's own vertices ``(k,)`` (used by no triangle of the drawing) and a sparse
+    ``(k, n)`` map placing each from the vertices of the nearest triangle of its part.
+
+    An underlay is joined to its part along the cut beside it, which may be short; solved by ARAP
+    with the rest, a patch could swing about that seam and show beside its part (over a leg the body
+    hides).  Instead each of its own vertices rides with the part beneath: the affine extension
+    (barycentric coordinates, outside the triangle too) of the part's nearest triangle at rest.
+    """
+    import scipy.sparse as sp
+
+    own = mesh.layer == 0
+    drawn = np.zeros(mesh.n_vertices, bool)
+    drawn[mesh.triangles[own].ravel()] = True
+    rows, cols, vals, riders = [], [], [], []
+    for p in np.unique(mesh.parts[~own]):
+        free = np.setdiff1d(np.unique(mesh.triangles[(~own) & (mesh.parts == p)]), np.flatnonzero(drawn))
+        cand = np.flatnonzero(own & (mesh.parts == p))
+        if not len(free) or not len(cand):
+            continue
+        # The nearest triangle by centroid, then its barycentric coordinates (affine extension).
+        cen = mesh.vertices[mesh.triangles[cand]].mean(axis=1)
+        near = cand[np.argmin(((mesh.vertices[free][:, None] - cen[None]) ** 2).sum(-1), axis=1)]
+        for k, (v, t) in enumerate(zip(free, near)):
+            bary, _ = barycentric(mesh.vertices, mesh.triangles[t][None], mesh.vertices[v][None])
+            rows += [len(riders)] * 3
+            cols += list(mesh.triangles[t])
+            vals += list(bary[0])
+            riders.append(v)
+    ride = sp.csr_matrix((vals, (rows, cols)), shape=(len(riders), mesh.n_vertices))
+    return np.asarray(riders, dtype=np.int64), ride
 
 
 class Deformer:
@@ -94,6 +128,7 @@ class Deformer:
             self.tracker = SubkeyTracker(self.subkeys, kp, self.rest_omega, propagation=propagation)
         self.handles = handles
         self.arap = TwoStepARAP(mesh.vertices, mesh.triangles, handles)
+        self.riders, self.ride = underlay_riders(mesh)
 
     def targets(self, keypoints: np.ndarray, omega=None) -> np.ndarray:
         """Handle targets ``(T, m, 2)`` for key points ``(T, 17, 2)``; subkeys tracked from rest."""
@@ -111,7 +146,12 @@ class Deformer:
             raise ValueError(f"expected key points (frames, {N_JOINTS}, 2), got {kp.shape}")
         if len(kp) == 0:
             return np.zeros((0, self.mesh.n_vertices, 2))
-        return self.arap.deform(self.targets(kp, omega))
+        V = self.arap.deform(self.targets(kp, omega))
+        if len(self.riders):
+            T, n = V.shape[:2]
+            flat = V.transpose(1, 0, 2).reshape(n, 2 * T)
+            V[:, self.riders] = (self.ride @ flat).reshape(len(self.riders), T, 2).transpose(1, 0, 2)
+        return V
 
     @property
     def n_limbs(self) -> int:

@@ -637,10 +637,11 @@ def underlay_texture(texture: np.ndarray, mask: np.ndarray, mesh: Mesh) -> np.nd
     """The drawing ``(H, W, 4)`` with each part's colour laid, opaque, where its underlay lies, or None
     without an underlay.
 
-    The colour is the parent's most common one (colours binned 16 levels a channel, the mean of the
-    fullest bin) among its own pixels around the underlay, deeper than half a triangle inside the
-    parent, so neither its outline's ink nor a patch of another colour nearby (a drawn screen, a
-    pocket) runs into the fill, as an inpainting would let it.
+    The colour is the part's most common one (colours binned 16 levels a channel, the mean of the
+    fullest bin) over all its own pixels deeper than half a triangle inside it: its fill, not a
+    line drawn across it (among the pixels around an underlay at a hip, a belt line's ink was the
+    most common), and neither its outline's ink nor a patch of another colour runs in, as an
+    inpainting would let it.
     """
     if not (mesh.layer == 1).any():
         return None
@@ -648,7 +649,6 @@ def underlay_texture(texture: np.ndarray, mask: np.ndarray, mesh: Mesh) -> np.nd
     out = texture.copy()
     deep = max(2, int(round(0.5 * mesh.spacing)))
     inner = np.ones((2 * deep + 1, 2 * deep + 1), np.uint8)
-    around = np.ones((8 * deep + 1, 8 * deep + 1), np.uint8)
 
     def raster(sel):
         img = np.zeros((H, W), np.uint8)
@@ -659,8 +659,7 @@ def underlay_texture(texture: np.ndarray, mask: np.ndarray, mesh: Mesh) -> np.nd
     for p in np.unique(mesh.parts[mesh.layer == 1]):
         region = raster((mesh.layer == 1) & (mesh.parts == p))
         own = cv2.erode(raster((mesh.layer == 0) & (mesh.parts == p)), inner) & np.asarray(mask, np.uint8)
-        near = own & cv2.dilate(region, around)
-        pix = texture[(near if near.any() else own) > 0][:, :3]
+        pix = texture[own > 0][:, :3]
         if not len(pix):
             continue
         bins, inv, counts = np.unique(pix >> 4, axis=0, return_inverse=True, return_counts=True)
