@@ -6,16 +6,23 @@ and centred on a 512 x 512 page (the built-in stick figure at 512 px when
 motion is the first 10 s of a Bandai-Namco walk (a synthetic 300-frame walk
 when absent), projected in the ``auto`` view and translated into a style of a
 model fitted on the embedded synthetic set (a small fit, not timed).  Parts:
-load (character + BVH + projection), translate, retarget, deform (mesh, rig
-and ARAP of every frame), render, encode (MP4).  Prints the fastest of
-``--repeat`` runs per part and the total; target: 10 s for the 300 frames.
+load (character + BVH + projection), translate, rig (parts, mesh, deformer), retarget, deform
+(ARAP of every frame), render, encode (MP4).  Prints the fastest of ``--repeat`` runs per part
+and the total; target: 5 s for the 300 frames on 2 cores.
 
-    .venv/bin/python benchmarks/bench_animate.py [--repeat 2] [--vertices 800] [--seconds 10]
+``--baseline DIR`` (a checkout of the project before the pipeline was rewritten) runs that
+checkout's own copy of this benchmark in a subprocess, in the same run, and prints its totals and
+the ratio: the peer.  The load average is printed with every timing (the machine is shared).
+
+    .venv/bin/python benchmarks/bench_animate.py [--repeat 2] [--vertices 800] [--seconds 10] [--baseline DIR]
 """
 from __future__ import annotations
 
 import argparse
 import os
+import re
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -27,8 +34,8 @@ DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 
 
 def _character(folder: Path):
-    from nnsf.animate.animation import read_character
     from nnsf.reshape.character import Character, stick_figure
+    from nnsf.reshape.formats import read_character
 
     src = DATA / "animated-drawings" / "characters" / "char1"
     if not src.is_dir():
@@ -92,7 +99,9 @@ def main(argv=None) -> int:
     ap.add_argument("--vertices", type=int, default=800)
     ap.add_argument("--seconds", type=float, default=10.0)
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2],
-                    help="render processes; each count is timed in the same run (the peer: 1)")
+                    help="render processes; each count is timed in the same run")
+    ap.add_argument("--baseline", type=Path, default=None,
+                    help="a checkout of the previous pipeline: its benchmark is run too, in the same run")
     args = ap.parse_args(argv)
 
     from nnsf.datasets import contract, synthetic
@@ -113,9 +122,26 @@ def main(argv=None) -> int:
                   f"{args.vertices} vertices requested, {workers} render process(es); {os.cpu_count()} cores, "
                   f"load average {os.getloadavg()[0]:.1f}; fastest of {args.repeat}")
             print("  part       wall s  ms/frame   CPU s (this process; wall - CPU is time waiting for a core)")
-            for k in ("load", "translate", "retarget", "deform", "render", "encode", "total"):
-                print(f"  {k:9s} {best[k]:7.2f}  {1000 * best[k] / res.frames:7.1f}   {best_cpu[k]:7.2f}")
-            print(f"  target: 10 s wall for the {res.frames} frames; the MP4 holds {frames} frames")
+            for k in ("load", "translate", "rig", "retarget", "deform", "render", "encode", "total"):
+                if k in best:
+                    print(f"  {k:9s} {best[k]:7.2f}  {1000 * best[k] / res.frames:7.1f}   {best_cpu[k]:7.2f}")
+            print(f"  target: 5 s wall for the {res.frames} frames; the MP4 holds {frames} frames")
+            if args.baseline is not None:
+                env = dict(os.environ, PYTHONPATH=str(args.baseline))
+                out = subprocess.run([sys.executable, str(args.baseline / "benchmarks" / "bench_animate.py"),
+                                      "--repeat", str(args.repeat), "--workers", str(workers),
+                                      "--seconds", str(args.seconds), "--vertices", str(args.vertices)],
+                                     env=env, capture_output=True, text=True, cwd=args.baseline)
+                totals = re.findall(r"^\s+total\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)", out.stdout, re.M)
+                renders = re.findall(r"^\s+render\s+([\d.]+)\s+([\d.]+)", out.stdout, re.M)
+                if not totals:
+                    print("  peer: failed:", (out.stderr or out.stdout).strip().splitlines()[-1:])
+                    continue
+                t_old, r_old = float(totals[-1][0]), float(renders[-1][1])
+                print(f"  peer ({args.baseline}, its own benchmark, {workers} render process(es), load average "
+                      f"{os.getloadavg()[0]:.1f}): total {t_old:.2f} s, render {r_old:.1f} ms/frame; "
+                      f"ratio peer / ours: total {t_old / best['total']:.2f}, "
+                      f"render {r_old / (1000 * best['render'] / res.frames):.2f}")
     return 0
 
 

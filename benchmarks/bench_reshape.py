@@ -1,155 +1,154 @@
-"""Time reshaping per frame: deformation (subkey update + both ARAP steps) and rendering.
+"""Time the reshaping per frame: deformation and rendering, against the previous renderer.
 
-In one run, on AnimatedDrawings' char1 when ``../shared/data`` holds it (else
-the built-in stick figure scaled to 512 px):
+In one run, on AnimatedDrawings' char1 scaled into a 512 x 512 page when ``../shared/data`` holds
+it (else the built-in stick figure at 512 px), driven by 120 frames of a Bandai-Namco walk (else a
+synthetic walk):
 
-* deformation at about 800 and about 3,000 vertices, for the layered mesh
-  (our default), the whole-limb one and the connected one, streaming frame by frame
-  (:meth:`nnsf.reshape.Rig.step`: Eq. 12-14, right-hand sides, two
-  back-solves against factors computed once), beside the **naive** baseline
-  of the same frames: dense assembly of both least-squares systems and dense
-  normal-equation solves every frame (float64);
-* rendering one 512×512 frame (:class:`nnsf.reshape.render.MeshRenderer`:
-  scanline runs, one ``cv2.remap``), beside a **naive** renderer: one
-  ``cv2.warpAffine`` of the bounding box per triangle, composited in a loop.
+* **ours**: :class:`nnsf.reshape.animator.Animator` (one connected mesh, subkeys, two-step ARAP)
+  and :class:`nnsf.reshape.render.Renderer`, per frame;
+* **the peer** (``--baseline DIR``, a checkout of the project before the pipeline was rewritten,
+  e.g. ``git worktree add /tmp/base <commit>``): its layered "paper puppet" rig and its renderer
+  with the seal and outline redraw, the same character and motion, run in a subprocess on that
+  checkout's code;
+* **scaling**: ours at the drawing's 0.5, 1 and 2 times size (a quarter, one and four times the
+  pixels): time per frame and per megapixel of page.
 
-Times are medians over frames of the fastest of ``--repeat`` runs; ratios are
-naive / ours.  Targets (issue 5): ≤ 2 ms deformation at ~3,000 vertices,
-≥ 30 frames/s rendering at 512×512 on 2 cores.
+Times are medians over frames (wall) and CPU time per frame; ratios are peer / ours.  The load
+average is printed with them (the machine is shared).  Target: render at most 8 ms per frame at
+512 x 512.
 
-    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_reshape.py [--frames 120] [--repeat 3]
+    .venv/bin/python benchmarks/bench_reshape.py [--baseline /tmp/base] [--frames 120]
 """
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
 
-from nnsf.reshape import Rig, load_animated_drawings, stick_figure
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+PAGE = 512
+
+
+def page_character(scale: float = 1.0):
+    """char1 (or the stick figure) scaled so its longer side is ``scale`` × 512 px, on a square page."""
+    from nnsf.reshape.character import Character, stick_figure
+    from nnsf.reshape.formats import read_character
+
+    side = int(round(PAGE * scale))
+    src = DATA / "animated-drawings" / "characters" / "char1"
+    if not src.is_dir():
+        ch = stick_figure(height=side)
+        return ch, f"stick figure ({side} px)"
+    ch = read_character(src)
+    s = side / max(ch.shape)
+    size = (int(round(ch.shape[1] * s)), int(round(ch.shape[0] * s)))
+    tex = cv2.resize(ch.texture, size, interpolation=cv2.INTER_AREA)
+    mask = cv2.resize(ch.mask.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
+    py, px = (side - size[1]) // 2, (side - size[0]) // 2
+    page = np.zeros((side, side, 4), np.uint8)
+    page[py:py + size[1], px:px + size[0]] = tex
+    pm = np.zeros((side, side), bool)
+    pm[py:py + size[1], px:px + size[0]] = mask
+    page[~pm, 3] = 0
+    return Character("char1", page, pm, ch.keypoints * s + [px, py], source=str(src)), \
+        f"char1 scaled to {size[0]}x{size[1]} px on a {side}x{side} page"
+
+
+def motion(frames: int):
+    bvh = DATA / "bandai-namco-1" / "data" / "dataset-1_walk_normal_001.bvh"
+    if bvh.is_file():
+        from nnsf.datasets.views import load_clip_in_view
+
+        clip, _ = load_clip_in_view(bvh, "auto", 30.0)
+        return clip.points[:frames], clip.depth[:frames], bvh.name
+    from nnsf.datasets import synthetic
+
+    return synthetic.clip_points("max", "walk", frames), None, "synthetic walk"
+
+
+def ours(frames: int, scale: float = 1.0) -> dict:
+    from nnsf.reshape.animator import Animator
+
+    ch, what = page_character(scale)
+    pts, depth, mname = motion(frames)
+    a = Animator(ch)
+    t = time.perf_counter()
+    anim = a.animate(pts, depth)
+    deform = (time.perf_counter() - t) / len(pts)
+    r = a.renderer(ch.shape)
+    wall, c0 = [], time.process_time()
+    for v, o in zip(anim.frames, anim.orders):
+        t = time.perf_counter()
+        r.render(v, o, (255, 255, 255))
+        wall.append(time.perf_counter() - t)
+    return {"render_ms": 1000 * float(np.median(wall)), "render_cpu_ms": 1000 * (time.process_time() - c0) / len(wall),
+            "deform_ms": 1000 * deform, "vertices": a.mesh.n_vertices, "pixels": ch.shape[0] * ch.shape[1],
+            "character": what, "motion": mname}
+
+
+#: The peer's per-frame loop, run on the baseline checkout's code (its own API).
+PEER = r"""
+import json, sys, time
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+from bench_reshape import page_character, motion
 from nnsf.reshape.render import MeshRenderer
-from nnsf.skeleton import JOINT_INDEX as J
-
-# The script's own folder is on sys.path when it runs: one dense reference frame, one rotation
-# and one data folder for both benchmarks.
-from bench_arap import DATA, _rot, naive_frame
-
-
-def clip(kp: np.ndarray, frames: int) -> np.ndarray:
-    """Key points ``(frames, 17, 2)``: both arms wave ±40°, a leg swings ±20°, the forearm bends."""
-    out = np.repeat(kp[None], frames, 0)
-    for t in range(frames):
-        s = np.sin(2 * np.pi * t / 48)
-        for arm, sh, sg in (([J["l_elbow"], J["l_wrist"]], J["l_shoulder"], -1), ([J["r_elbow"], J["r_wrist"]],
-                                                                                  J["r_shoulder"], 1)):
-            out[t, arm] = _rot(kp[arm], kp[sh], sg * 40 * s)
-        out[t, [J["l_wrist"]]] = _rot(out[t, [J["l_wrist"]]], out[t, J["l_elbow"]], 30 * s)
-        leg = [J["r_knee"], J["r_ankle"]]
-        out[t, leg] = _rot(kp[leg], kp[J["r_hip"]], 20 * s)
-    return out
+from nnsf.reshape.stage import animate, build_rig
+frames = int(sys.argv[2])
+ch, what = page_character()
+pts, depth, mname = motion(frames)
+rig = build_rig(ch)
+t = time.perf_counter()
+anim = animate(rig, pts, depth)
+deform = (time.perf_counter() - t) / len(pts)
+r = MeshRenderer.for_mesh(rig.mesh, ch, size=ch.shape)
+wall, c0 = [], time.process_time()
+for v, o in zip(anim.frames, anim.orders):
+    t = time.perf_counter()
+    r.render(v, o, background=(255, 255, 255))
+    wall.append(time.perf_counter() - t)
+print(json.dumps({"render_ms": 1000 * float(np.median(wall)), "render_cpu_ms": 1000 * (time.process_time() - c0) / len(wall),
+                  "deform_ms": 1000 * deform, "vertices": int(rig.mesh.n_vertices)}))
+"""
 
 
-def naive_render(renderer: MeshRenderer, V: np.ndarray) -> np.ndarray:
-    """Per-triangle ``cv2.warpAffine`` of its bounding box, masked and composited in part order."""
-    H, W = renderer.size
-    tex = renderer._tex8
-    out = np.zeros((H, W, 4), np.uint8)
-    for tri in np.concatenate(renderer._order):
-        src = renderer.uv[renderer.triangles[tri]].astype(np.float32)
-        src[:, 0] += renderer._shift[tri]
-        dst = V[renderer.triangles[tri]].astype(np.float32)
-        x0, y0 = np.floor(dst.min(0)).astype(int)
-        x1, y1 = np.ceil(dst.max(0)).astype(int) + 1
-        x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, W), min(y1, H)
-        if x1 <= x0 or y1 <= y0:
-            continue
-        M = cv2.getAffineTransform(src, dst - np.float32([x0, y0]))
-        patch = cv2.warpAffine(tex, M, (x1 - x0, y1 - y0), flags=cv2.INTER_LINEAR)
-        m = np.zeros((y1 - y0, x1 - x0), np.uint8)
-        cv2.fillConvexPoly(m, np.rint(dst - [x0, y0]).astype(np.int32), 1)
-        region = out[y0:y1, x0:x1]
-        region[m > 0] = patch[m > 0]
-    return out
+def peer(baseline: Path, frames: int) -> dict:
+    env = dict(os.environ, PYTHONPATH=str(baseline), OMP_NUM_THREADS="1")
+    out = subprocess.run([sys.executable, "-c", PEER, str(Path(__file__).parent), str(frames)], env=env,
+                         capture_output=True, text=True, check=True, cwd=baseline)
+    return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def best_median(fn, frames, repeat):
-    best = None
-    for _ in range(repeat):
-        times = np.empty(len(frames))
-        for k, f in enumerate(frames):
-            t0 = time.perf_counter()
-            fn(f)
-            times[k] = time.perf_counter() - t0
-        best = times if best is None else np.minimum(best, times)
-    return float(np.median(best))
-
-
-def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--baseline", type=Path, default=None, help="a checkout of the previous pipeline")
     ap.add_argument("--frames", type=int, default=120)
-    ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--naive-frames", type=int, default=1,
-                    help="frames solved densely for the comparison (at least 1)")
-    ap.add_argument("--sizes", type=int, nargs="+", default=[800, 3000])
-    args = ap.parse_args(argv)
-    if args.naive_frames < 1:
-        ap.error("--naive-frames: expected 1 or more (the comparison needs one dense frame)")
-    if DATA.is_dir():
-        ch, what = load_animated_drawings(DATA), "char1 (AnimatedDrawings, 508x602)"
-    else:
-        ch, what = stick_figure(height=512), "stick figure (char1 not found)"
-    kp = clip(ch.keypoints, args.frames)
-    print(f"character: {what}; {args.frames} frames; load average {os.getloadavg()[0]:.1f} on "
-          f"{os.cpu_count()} cores; float64")
-    print(f"{'mesh':>9} {'vertices':>8} {'handles':>7} {'build ms':>9} {'frame ms':>9} {'naive ms':>9} "
-          f"{'naive/ours':>10} {'max |diff| px':>13}")
-    rigs = {}
-    for split in ("layered", "limbs", "connected"):
-        for n in args.sizes:
-            t0 = time.perf_counter()
-            # A layered mesh duplicates its seam, cut and collar vertices
-            # (~30 %; ~15 % for whole-limb pieces): ask for fewer so the
-            # meshes end near the same size.
-            rig = Rig.build(ch, n_vertices=int(n / {"layered": 1.3, "limbs": 1.15}.get(split, 1.0)),
-                            split=split if split != "connected" else False, propagation="limb-frame")
-            build = time.perf_counter() - t0
-
-            def step(f, rig=rig):
-                rig.step(f)
-
-            rig.reset()
-            ours = best_median(lambda f: step(f), list(kp), args.repeat)
-            targets = rig.targets(kp[: args.naive_frames])
-            fast = rig.deformer.deform(targets)
-            naive_t, slow = [], None
-            for f in range(args.naive_frames):
-                t0 = time.perf_counter()
-                slow = naive_frame(rig, targets[f])
-                naive_t.append(time.perf_counter() - t0)
-            naive = float(np.median(naive_t))
-            diff = float(np.abs(slow - fast[-1]).max())
-            print(f"{split:>9} {rig.mesh.n_vertices:>8} {len(rig.handles):>7} {build * 1e3:>9.1f} "
-                  f"{ours * 1e3:>9.3f} {naive * 1e3:>9.1f} {naive / ours:>10.0f} {diff:>13.2e}")
-            rigs[(split, n)] = rig
-    # Rendering at 512x512: the character scaled so its longer side is 512 px.
-    print(f"\n{'render 512x512':>15} {'triangles':>9} {'ours ms':>8} {'fps':>6} {'naive ms':>9} {'naive/ours':>10}")
-    s = 512.0 / max(ch.shape)
-    small = type(ch)(name=ch.name, texture=cv2.resize(ch.texture, None, fx=s, fy=s, interpolation=cv2.INTER_AREA),
-                     mask=cv2.resize(ch.mask.astype(np.uint8), None, fx=s, fy=s,
-                                     interpolation=cv2.INTER_NEAREST) > 0,
-                     keypoints=ch.keypoints * s, source="scaled")
-    for n in args.sizes:
-        rig = Rig.build(small, n_vertices=n, split="layered")
-        V = rig.animate(kp * s)
-        r = MeshRenderer.for_mesh(rig.mesh, small, size=(512, 512))
-        ours = best_median(lambda v: r.render(v, background=(255, 255, 255)), list(V[: min(len(V), 60)]),
-                           args.repeat)
-        naive = best_median(lambda v: naive_render(r, v), list(V[:3]), 1)
-        print(f"{'layered':>15} {len(rig.mesh.triangles):>9} {ours * 1e3:>8.2f} {1 / ours:>6.0f} "
-              f"{naive * 1e3:>9.1f} {naive / ours:>10.0f}")
+    a = ap.parse_args(argv)
+    new = ours(a.frames)
+    print(f"bench_reshape: {a.frames} frames of {new['motion']} onto {new['character']}; {os.cpu_count()} cores, "
+          f"load average {os.getloadavg()[0]:.1f}")
+    print(f"  ours: render {new['render_ms']:.2f} ms/frame (median wall), {new['render_cpu_ms']:.2f} ms CPU; "
+          f"deform {new['deform_ms']:.2f} ms/frame; {new['vertices']} vertices")
+    if a.baseline is not None:
+        old = peer(a.baseline, a.frames)
+        print(f"  peer: render {old['render_ms']:.2f} ms/frame (median wall), {old['render_cpu_ms']:.2f} ms CPU; "
+              f"deform {old['deform_ms']:.2f} ms/frame; {old['vertices']} vertices; load average "
+              f"{os.getloadavg()[0]:.1f}")
+        print(f"  ratio peer / ours: render {old['render_ms'] / new['render_ms']:.2f} (wall), "
+              f"{old['render_cpu_ms'] / new['render_cpu_ms']:.2f} (CPU)")
+    for s in (0.5, 1.0, 2.0):
+        r = ours(min(a.frames, 60), s)
+        print(f"  scale {s:g}: {r['pixels'] / 1e6:.2f} MP page, render {r['render_ms']:.2f} ms/frame wall, "
+              f"{r['render_cpu_ms']:.2f} ms CPU, {r['render_cpu_ms'] / (r['pixels'] / 1e6):.1f} ms CPU per megapixel")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

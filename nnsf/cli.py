@@ -132,12 +132,16 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--model", type=Path, default=Path("models/styles.npz"),
                    help="a style model written by `nnsf styles` (default: models/styles.npz)")
     p.add_argument("--view", default="auto", help="front, side, three-quarter or auto (a BVH motion)")
-    p.add_argument("--arms", default="motion",
-                   help="motion (the arms point as the motion's, default) or drawing (they swing about "
-                        "the pose they are drawn in: arms drawn spread stay spread)")
-    p.add_argument("--head", default="motion",
-                   help="motion (the head turns as the motion's, default) or torso (it keeps its drawn angle "
-                        "to the body: for a drawing with no neck)")
+    p.add_argument("--arms", default=None,
+                   help="motion (the arms point as the motion's) or drawing (they swing about the pose they are "
+                        "drawn in: arms drawn spread stay spread); default: the character YAML's, else motion")
+    p.add_argument("--head", default=None,
+                   help="motion (the head turns as the motion's) or torso (it keeps its drawn angle to the body: "
+                        "for a drawing with no neck); default: the character YAML's, else motion")
+    p.add_argument("--mask", default=None,
+                   help="auto: a PNG without alpha, drawn on plain paper, gets its mask from the border colour")
+    p.add_argument("--max-size", type=float, default=None, metavar="MP",
+                   help="a drawing over this many megapixels is downscaled to it (default 4; 0: never)")
     p.add_argument("--out", type=Path, default=Path("animation.mp4"),
                    help="FILE.mp4, FILE.gif or a folder for PNG frames (a contact sheet is written beside)")
     p.add_argument("--fps", type=float, default=None, help="frames per second (default: the motion's)")
@@ -157,13 +161,12 @@ def _parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("reshape-eval", help="reshaping evaluation on drawn characters (docs/method.md §15.7)")
     p.add_argument("--params", default="params.yaml", help=params_help)
-    p.add_argument("--data", type=Path, required=True,
-                   help="folder holding animated-drawings/, bandai-namco-1/ and kenney-toon/")
-    p.add_argument("--kenney", type=Path, default=Path("tests/data/kenney"),
-                   help="hand-made Kenney key-point annotations")
+    p.add_argument("--data", type=Path, required=True, nargs="+",
+                   help="folders holding the drawings and motions reshape_eval names (each looked up in "
+                        "the first folder that has it)")
     p.add_argument("--out", type=Path, default=Path("reports"))
     p.add_argument("--workers", type=int, default=1,
-                   help="processes for the (character, motion) items (default 1; results are the same)")
+                   help="processes for the (drawing, motion) items (default 1; results are the same)")
 
     p = sub.add_parser("roto-real", help="the trackers on annotated real frames, scored against their silhouettes")
     p.add_argument("--params", default="params.yaml", help=params_help)
@@ -189,6 +192,14 @@ def _print_metrics(command: str, metrics: dict) -> None:
               else f"{command}: {key} = {value}")
 
 
+def _max_size(args) -> dict:
+    if args.max_size is None:
+        return {}
+    if not 0 <= args.max_size <= 100:
+        raise InputError("--max-size", "max-size", "megapixels in 0..100 (0: never downscale)", args.max_size)
+    return {"max_size": args.max_size}
+
+
 def _animate(args) -> int:
     from nnsf.animate.animation import animate_files
     from nnsf.datasets.views import check_view
@@ -209,7 +220,8 @@ def _animate(args) -> int:
     res = animate_files(args.character, args.motion, style=args.style, model=args.model, view=args.view,
                         out=args.out, fps=args.fps, joints=args.joints, source_style=args.source_style,
                         n_vertices=args.vertices, clip=args.clip, arms=args.arms, workers=args.workers,
-                        head=args.head, joint_map=joint_map, keypoints=args.keypoints)
+                        head=args.head, joint_map=joint_map, keypoints=args.keypoints, mask=args.mask,
+                        **_max_size(args))
     # The notes were said before rendering (animate_files, progress on).
     parts = ", ".join(f"{k} {v:.2f} s" for k, v in res.seconds.items() if k != "total")
     print(f"animate: {res.frames} frames at {res.fps:g} fps in {res.seconds['total']:.2f} s ({parts})")
@@ -433,9 +445,10 @@ def _run(args) -> int:
         elif args.command == "reshape-eval":
             from nnsf.reshape.evaluation import reshape_eval
 
-            if not args.data.is_dir():
-                raise InputError(args.data, "--data", "a data folder (animated-drawings, "
-                                 "bandai-namco-1, kenney-toon)")
+            for folder in args.data:
+                if not folder.is_dir():
+                    raise InputError(folder, "--data", "a data folder holding the drawings and motions "
+                                     "reshape_eval names")
             if args.workers < 1:
                 raise InputError("nnsf reshape-eval", "--workers", "1 or more", args.workers)
             mapper = None
@@ -445,8 +458,7 @@ def _run(args) -> int:
                 def mapper(fn, xs):
                     with ProcessPoolExecutor(args.workers) as ex:
                         return list(ex.map(fn, xs))
-            result = reshape_eval(params, data_root=args.data, out_dir=args.out,
-                                  kenney_annotations=args.kenney, mapper=mapper)
+            result = reshape_eval(params, data_root=args.data, out_dir=args.out, mapper=mapper)
         elif args.command == "roto-real":
             from nnsf.roto import lpc, real
             from nnsf.roto.options import track_options

@@ -165,6 +165,16 @@ def _project_path():
     return check, PROJECT_PATH
 
 
+def _relative():
+    """A path relative to a data folder, without ``..`` (``nnsf reshape-eval --data DIR``)."""
+    def check(v):
+        if not (isinstance(v, str) and 0 < len(v) <= 500):
+            return False
+        parts = v.replace("\\", "/").split("/")
+        return not (v.startswith(("/", "\\", "~")) or ".." in parts or Path(v).is_absolute())
+    return check, "a relative path inside the data folder (no '..')"
+
+
 def _view():
     return (lambda v: v is None or v in VIEW_CHOICES), \
         "one of " + ", ".join(VIEW_CHOICES) + " or null (null: use dataset.bvh.azimuth)"
@@ -309,7 +319,6 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "reshape.n_vertices": _int(100, 6000),
     "reshape.subkeys_per_limb": _int(0, 12),
     "reshape.method": _choice(("ours", "keypoints")),
-    "reshape.mesh": _choice(("layered", "limbs", "split", "connected")),
     "reshape.propagation": _choice(("limb-frame", "eq12")),
     "reshape.arms": _choice(ARM_CHOICES),
     "reshape.head": _choice(HEAD_CHOICES),
@@ -320,20 +329,12 @@ SCHEMA: dict[str, tuple[Callable[[Any], bool], str]] = {
     "reshape.depth_overrides": ((lambda v: isinstance(v, list) and len(v) <= 1000
                                  and all(isinstance(x, (str, dict)) for x in v)),
                                 "a list of overrides such as 'left_arm over torso from 12 to 30'"),
-    "reshape_eval.characters": _list(_name(), 100),
-    "reshape_eval.motions": _list(_name(), 100),
+    "reshape_eval.characters": _list(_relative(), 100),
+    "reshape_eval.heldout": _list(_relative(), 100),
+    "reshape_eval.motions": _list(_relative(), 100),
     "reshape_eval.n_vertices": _int(100, 6000),
     "reshape_eval.max_frames": _int(3, 5000),
     "reshape_eval.subkeys_per_limb": _int(1, 12),
-    "reshape_eval.azimuth": ((lambda v: isinstance(v, dict) and all(
-        isinstance(k, str) and isinstance(x, numbers.Real) and not isinstance(x, bool) for k, x in v.items())),
-        "a mapping of motion names to projection azimuths in degrees"),
-    "reshape_eval.arms": ((lambda v: isinstance(v, dict) and all(
-        isinstance(k, str) and x in ARM_CHOICES for k, x in v.items())),
-        "a mapping of character names to " + " or ".join(ARM_CHOICES)),
-    "reshape_eval.head": ((lambda v: isinstance(v, dict) and all(
-        isinstance(k, str) and x in HEAD_CHOICES for k, x in v.items())),
-        "a mapping of character names to " + " or ".join(HEAD_CHOICES)),
     "animate.character": _project_path(),
     "animate.motion": _project_path(),
     "animate.style": _str(),

@@ -303,7 +303,7 @@ def test_bad_input_one_line_exit_2_nothing_written(model_file, tmp_path, capsys)
     _bad(capsys, base + ["--character", f], "size", "mask", "texture's size", out=out)
     # a joint outside the image, a missing joint
     f = write_ad_folder(tmp_path / "outside", move="left_hand")
-    _bad(capsys, base + ["--character", f], "char_cfg.yaml", "skeleton.left_hand.loc", "inside the", out=out)
+    _bad(capsys, base + ["--character", f], "char_cfg.yaml", "skeleton.left_hand.loc", "px outside it", out=out)
     f = write_ad_folder(tmp_path / "missing", drop="left_knee")
     _bad(capsys, base + ["--character", f], "char_cfg.yaml", "skeleton", "missing joints: left_knee", out=out)
     # a YAML with a python tag
@@ -342,21 +342,18 @@ def test_bad_input_one_line_exit_2_nothing_written(model_file, tmp_path, capsys)
 @pytest.mark.slow
 def test_frames_rendered_by_two_processes_are_the_frames_of_one(monkeypatch):
     from nnsf.reshape import render_pool
+    from nnsf.reshape.animator import BACKGROUND, Animator, canvas
     from nnsf.reshape.character import stick_figure
-    from nnsf.reshape.drive import retarget
-    from nnsf.reshape.render import MeshRenderer
-    from nnsf.reshape.stage import BACKGROUND, build_rig, canvas, part_orders
 
     from nnsf.animate.animation import read_motion_spec
 
     ch = stick_figure(height=160)
     pts = read_motion_spec("synthetic:max/walk/24").points
-    kp = retarget(pts, ch.keypoints)
-    rig = build_rig(ch, n_vertices=200)
-    V = rig.animate(kp)
-    orders, _ = part_orders(rig, V, pts, None)
-    offset, size = canvas(ch, V)
-    r = MeshRenderer.for_mesh(rig.mesh, ch, size=size)
+    a = Animator(ch, n_vertices=200)
+    V = a.deformer.run(a.retarget(pts))
+    orders, _ = a.orders(V, pts)
+    offset, size = canvas(V)
+    r = a.renderer(size)
     one = render_pool.render_frames(r, V, orders, offset, BACKGROUND, size, workers=1)
     monkeypatch.setattr(render_pool, "MIN_FRAMES_PER_WORKER", 4)  # a pool for 24 frames
     seen = []
@@ -522,7 +519,7 @@ def test_char5_maps_the_arm_nearest_the_chest_and_says_so():
     loc = {j["name"]: j["loc"] for j in cfg["skeleton"]}
     assert ch.keypoints[JOINT_INDEX["r_wrist"]].tolist() == loc["right_hand3"]
     assert ch.keypoints[JOINT_INDEX["l_shoulder"]].tolist() == loc["left_shoulder3"]
-    assert any("right arm 3 drives the right arm; arms 1, 2 move with the body" in n for n in ch.notes)
+    assert any("right arm 3 drives the right arm; arms 1, 2 turn as it turns" in n for n in ch.notes)
     assert points_in_mask(ch.mask, ch.keypoints).all()
 
 

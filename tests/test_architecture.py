@@ -51,25 +51,6 @@ SHARED_PRIVATE: dict[tuple[str, str], tuple[tuple[str, ...], str]] = {
         ("_basis_step",), "NNSF's basis step (Alg. 1, lines 1-3), reused by the translator's fit"),
     ("nnsf.factor.translate", "nnsf.factor.timewarp"): (
         ("_style_tempo",), "a style's tempo, read by the translator"),
-    ("nnsf.reshape.formats", "nnsf.reshape.character"): (
-        ("_load_images", "_ad_to_keypoints"), "reading a drawn character, shared by its two file formats"),
-    ("nnsf.reshape.kenney_check", "nnsf.reshape.kenney"): (
-        ("_frame",), "one sprite frame, read by the sprite reader and its check"),
-    ("nnsf.reshape.layers", "nnsf.reshape.mesh"): (
-        ("_clean_pieces", "_components", "_lookup"), "triangulation helpers of the part meshes"),
-    ("nnsf.reshape.metrics", "nnsf.reshape.mesh"): (
-        ("_components",), "connected parts of a mask, as the mesh builder finds them"),
-    ("nnsf.reshape.piece_mesh", "nnsf.reshape.mesh"): (
-        ("_triangulate_at",), "triangulation of a region, as the part meshes do it"),
-    ("nnsf.reshape.regions", "nnsf.reshape.mesh"): (
-        ("_lookup",), "pixel lookup of the part labels"),
-    ("nnsf.reshape.piece_regions", "nnsf.reshape.cuts"): (
-        ("_dist", "_lookup", "_seg_dist"), "geometry of the paper-puppet cuts"),
-    ("nnsf.reshape.pieces", "nnsf.reshape.cuts"): (
-        ("_dist", "_lookup", "_normal_of", "_outline", "_root_chord", "_seg_dist"),
-        "geometry of the paper-puppet cuts"),
-    ("nnsf.reshape.tab_regions", "nnsf.reshape.cuts"): (
-        ("_seg_dist",), "geometry of the paper-puppet cuts"),
 }
 
 

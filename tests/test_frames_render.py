@@ -11,7 +11,7 @@ from nnsf.frames.render import (
     keyframe_indices, render_character, render_clip,
 )
 from nnsf.io import read_npz
-from nnsf.reshape.character import read_character
+from nnsf.reshape.formats import read_character
 from nnsf.reshape.stage import write_rendered_character
 from nnsf.skeleton import JOINT_INDEX
 

@@ -236,10 +236,10 @@ def test_sizes_within_their_bounds_but_too_big_together_are_refused():
 def test_reshape_errors_name_the_params_file_given(tmp_path):
     from nnsf.reshape.stage import stage_params as _params
 
-    other = write_params(tmp_path / "other.yaml", with_value("reshape.mesh", "layered"))
+    other = write_params(tmp_path / "other.yaml", with_value("reshape.method", "ours"))
     params = load(other)
-    params["reshape"]["mesh"] = "mesh-of-my-own"          # after the check, as a caller may
-    with pytest.raises(InputError, match=rf"^{tmp_path}/other\.yaml: reshape\.mesh"):
+    params["reshape"]["method"] = "method-of-my-own"      # after the check, as a caller may
+    with pytest.raises(InputError, match=rf"^{tmp_path}/other\.yaml: reshape\.method"):
         _params(params)
     line = one_error_line(nnsf("reshape", "--params", other, "--character", "nosuch",
                                "--motion", tmp_path / "none.csv", "--out", tmp_path / "out", cwd=tmp_path))

@@ -123,7 +123,8 @@ def test_yaml_is_read_by_the_one_bounded_safe_loader_everywhere():
 
 @pytest.fixture
 def character_file(tmp_path):
-    from nnsf.reshape.character import stick_figure, write_character
+    from nnsf.reshape.character import stick_figure
+    from nnsf.reshape.formats import write_character
 
     folder = tmp_path / "chars"
     folder.mkdir()
@@ -136,7 +137,7 @@ def character_file(tmp_path):
 @pytest.mark.parametrize("field", ["texture", "mask"])
 @pytest.mark.parametrize("bad", ["../outside.png", "sub/../../outside.png", "ABSOLUTE"])
 def test_character_file_paths_cannot_escape_the_folder(character_file, field, bad):
-    from nnsf.reshape.character import read_character
+    from nnsf.reshape.formats import read_character
 
     obj = json.loads(character_file.read_text())
     obj[field] = str(character_file.parent.parent / "outside.png") if bad == "ABSOLUTE" else bad
@@ -147,7 +148,7 @@ def test_character_file_paths_cannot_escape_the_folder(character_file, field, ba
 
 
 def test_character_file_paths_inside_the_folder_still_load(character_file):
-    from nnsf.reshape.character import read_character
+    from nnsf.reshape.formats import read_character
 
     obj = json.loads(character_file.read_text())
     (character_file.parent / "sub").mkdir()
@@ -160,7 +161,7 @@ def test_character_file_paths_inside_the_folder_still_load(character_file):
 
 def test_animated_drawings_config_is_read_with_safe_load(tmp_path):
     """A YAML tag that would construct a Python object is refused, not executed."""
-    from nnsf.reshape.character import load_animated_drawings
+    from nnsf.reshape.formats import read_character as load_animated_drawings
 
     folder = tmp_path / "char"
     folder.mkdir()

@@ -147,10 +147,7 @@ reshape:
   n_vertices: 300
   subkeys_per_limb: 2
   method: ours
-  mesh: layered
   propagation: limb-frame
-  arms: motion
-  head: torso
   fps: 12
   max_frames: 6
   formats: [png, gif, mp4]
@@ -160,8 +157,6 @@ animate:
   motion: synthetic:max/walk/6
   style: bruno
   view: auto
-  arms: drawing
-  head: torso
   fps: 24
   n_vertices: 300
   max_frames: 6

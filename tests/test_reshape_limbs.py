@@ -9,7 +9,7 @@ from nnsf.reshape.limbs import (
     LIMB_PAIRS, STRAIGHT, bezier, control_from_omega, control_points, endpoints, fit_omega,
     interpolate_omega, limb_curves, omega_from_control, rot90,
 )
-from nnsf.reshape.layers import build_mesh
+from nnsf.reshape.mesh import triangulate
 from nnsf.reshape.subkeys import SubkeyTracker, closest_on_bezier, init_subkeys, propagate
 
 rng = np.random.default_rng(7)
@@ -151,7 +151,8 @@ def test_propagation_under_translation_and_rotation():
 
 def test_tracker_keeps_subkeys_on_the_limb_through_a_clip():
     fig = stick_figure(height=300)
-    mesh = build_mesh(fig.mask, fig.keypoints, 400)
+    V, _, h = triangulate(fig.mask, 400)
+    mesh = type("Mesh", (), {"vertices": V, "spacing": h})
     om = fit_omega(fig.mask, fig.keypoints)
     sk = init_subkeys(mesh.vertices, fig.keypoints, om, per_limb=4)
     assert len(sk) > 8 and len(np.unique(sk.vertex)) == len(sk)

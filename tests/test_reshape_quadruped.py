@@ -14,7 +14,7 @@ from nnsf.reshape.formats import read_character
 from nnsf.reshape.parts import PART_INDEX, PARTS
 from nnsf.reshape.quadruped import (QUADRUPED_JOINTS, facing, quadruped_keypoints, quadruped_orders,
                                     retarget_quadruped)
-from nnsf.skeleton import BONES, JOINT_INDEX as J, rest_pose
+from nnsf.skeleton import BONES, JOINT_INDEX as J
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 CHAR6 = SHARED / "animated-drawings" / "characters" / "char6"
@@ -79,7 +79,7 @@ def test_a_quadruped_leg_joint_off_the_drawing_is_named_as_the_file_names_it(tmp
     (folder / "char_cfg.yaml").write_text(yaml.safe_dump(cfg))
     with pytest.raises(InputError) as exc:
         read_character(folder)
-    assert "skeleton.left_foot_f.loc: expected a point inside the mask" in str(exc.value)
+    assert "skeleton.left_foot_f.loc: expected a point on the drawing or within" in str(exc.value)
 
 
 def _walker(T: int = 40, amp: float = 30.0, forward: float = 1.0) -> np.ndarray:
@@ -173,51 +173,30 @@ def test_near_legs_in_front_far_legs_behind_the_body():
 
 @pytest.mark.skipif(not CHAR6.is_dir() or not WALK.is_file(),
                     reason="../shared/data (AnimatedDrawings char6, Bandai-Namco walk) not present")
-def test_char6_walks_on_the_layered_mesh_without_holes_or_bits_apart():
-    """The AnimatedDrawings pig, 60 frames of a walk seen from the side: its legs move, its body
-    stays whole (no hole beyond the drawing's, no bit apart), every piece rigid."""
+def test_char6_walks_in_one_piece():
+    """The AnimatedDrawings pig, 60 frames of a walk seen from the side: its legs step, its body
+    stays whole (no piece of 10 px or more apart).  Enclosed page is at most a sliver: the page
+    drawn between two legs closes in when they cross (up to ~40 px), no more."""
     from nnsf.datasets.bvh_source import load_clip
-    from nnsf.reshape import artefacts as A
-    from nnsf.reshape.render import MeshRenderer
-    from nnsf.reshape.stage import animate, build_rig, canvas
+    from nnsf.reshape.animator import Animator, canvas
+    from nnsf.reshape.artefacts import FrameMeasures
 
     ch = read_character(CHAR6)
     assert ch.body == "quadruped"
     clip = load_clip(WALK, fps=30, azimuth=90.0)
-    rig = build_rig(ch, "ours", "layered", 800, 4)
-    anim = animate(rig, clip.points[:60], clip.depth[:60])
+    a = Animator(ch, 800)
+    anim = a.animate(clip.points[:60], clip.depth[:60])
     kp = anim.keypoints
     assert np.ptp(kp[:, J["r_ankle"], 0]) > 15 and np.ptp(kp[:, J["l_wrist"], 0]) > 15  # the feet step
-    off, size = canvas(ch, anim.frames.reshape(-1, 2))
-    r = MeshRenderer.for_mesh(rig.mesh, ch, size=size)
-    rest = r.render(rig.mesh.vertices + off, anim.orders[0])[..., 3] >= 128
-    _, big_rest = A.holes(rest)
+    off, size = canvas(anim.frames, shape=ch.shape)
+    r = a.renderer(size)
+    measure = FrameMeasures(ch.texture, ch.mask, ch.keypoints)
+    from nnsf.reshape.artefacts import coverage, detached
+
     for t in range(0, 60, 6):
-        solid = r.render(anim.frames[t] + off, anim.orders[t])[..., 3] >= 128
-        n, _ = cv2.connectedComponents(solid.astype(np.uint8))
-        assert n == 2, t   # one piece of drawing (and the page)
-        assert A.holes(solid)[1] <= big_rest, t
-
-
-def test_the_evaluation_keeps_the_quadruped_apart_from_the_bipeds_means():
-    import pandas as pd
-
-    from nnsf.reshape.evaluation import summarise, width_table
-
-    rows = []
-    for ch, body, v in (("char1", "biped", 1.0), ("char2", "biped", 3.0), ("char6", "quadruped", 100.0),
-                        ("robot", "biped", 7.0)):
-        for method in ("keypoints", "ours"):
-            rows.append({"character": ch, "body": body, "motion": "walk", "mesh": "limbs", "method": method,
-                         "driving_failure_ratio": 0.0, "tear_px": v, "width_error": v,
-                         "width_change": 0.0, "width_roughness": 0.0, "width_jitter": 0.0,
-                         "arap_energy_mean": 0.0})
-    s = summarise(pd.DataFrame(rows))
-    assert s["means"]["limbs/ours"]["tear_px"] == 2.0               # the AnimatedDrawings bipeds'
-    assert s["means_by_source"]["quadruped"]["limbs/ours"]["tear_px"] == 100.0
-    assert s["means_by_source"]["kenney"]["limbs/ours"]["tear_px"] == 7.0
-    wt = width_table(pd.DataFrame(rows))
-    assert wt.loc[("AnimatedDrawings", "limbs", "ours"), "width_error"] == 2.0
+        img = r.render(anim.frames[t] + off, anim.orders[t])
+        got = measure(img, kp[t] + off)
+        assert detached(coverage(img), min_area=10) == 0 and got["crack_px"] <= 40, (t, got)
 
 
 def test_nnsf_animate_runs_a_quadruped_and_says_what_does_not_apply(tmp_path):

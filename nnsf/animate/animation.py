@@ -6,8 +6,7 @@ projected in a chosen view, a feature-matrix CSV, or a built-in synthetic
 clip), translate it into a style of a saved style model
 (:func:`nnsf.factor.style_model.translate`), retarget it to the character's
 proportions (:func:`nnsf.reshape.drive.retarget`), deform the character's
-mesh (:mod:`nnsf.reshape.rig`), render every frame
-(:class:`nnsf.reshape.render.MeshRenderer`) and encode MP4, GIF, PNG frames
+mesh and render every frame (:class:`nnsf.reshape.animator.Animator`) and encode MP4, GIF, PNG frames
 and a contact sheet.  It reports the time of each part.
 
 Character formats: :func:`nnsf.reshape.formats.read_character`.
@@ -32,14 +31,14 @@ from nnsf.factor.style_model import StyleModel, translate as style_translate
 from nnsf.animate.progress import phased
 from nnsf.datasets import contract
 from nnsf.io import atomic_path, check_writable
-from nnsf.reshape.character import Character
+from nnsf.reshape.animator import BACKGROUND, Animator, canvas
+from nnsf.reshape.character import MAX_SIZE, Character
 from nnsf.skeleton.layout import BONE_NAMES, bone_lengths
 from nnsf.params import ARM_CHOICES, HEAD_CHOICES
-from nnsf.reshape.drive import read_motion, retarget
-from nnsf.reshape.render import MeshRenderer
+from nnsf.reshape.drive import read_motion
 from nnsf.reshape.render_pool import render_frames
 from nnsf.reshape.video import contact_sheet, write_gif, write_mp4, write_png_frames
-from nnsf.reshape.stage import BACKGROUND, build_rig, canvas, extra_arms_notes, part_orders
+from nnsf.reshape.stage import extra_arms_notes
 
 #: Frame rate of a built-in synthetic clip (nnsf.datasets.synthetic.FPS).
 SYNTHETIC_FPS = 24.0
@@ -163,8 +162,9 @@ def write_keypoints(path, points, motion: str, style: str) -> Path:
 @phased("animate")
 def animate_files(character, motion, style="none", model=None, view="auto", out="animation.mp4",
                   fps=None, joints=None, source_style=None, n_vertices=800, max_frames=5000,
-                  outputs=None, progress=True, size=512, clip=None, arms="motion", workers=None,
-                  head="motion", joint_map=None, keypoints=None, phases=None) -> AnimateResult:
+                  outputs=None, progress=True, size=512, clip=None, arms=None, workers=None,
+                  head=None, mask=None, max_size=MAX_SIZE, joint_map=None, keypoints=None,
+                  phases=None) -> AnimateResult:
     """Run the whole job (module docstring) and write the outputs; returns what was written and the times.
 
     Parameters
@@ -179,9 +179,12 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
         sheet ``<stem>_sheet.png`` is written beside.  Ignored when
         ``outputs`` (``{kind: path}``, kinds of :data:`OUTPUT_KINDS`) is given.
     arms : ``motion`` (the arms point as the motion's) or ``drawing`` (they
-        swing about the pose they are drawn in), :func:`nnsf.reshape.drive.retarget`.
+        swing about the pose they are drawn in), :func:`nnsf.reshape.drive.retarget`; None: the
+        character's own choice (its character YAML), else ``motion``.
     head : ``motion`` (the head turns as the performer's) or ``torso`` (it keeps its drawn angle to the
-        body: a drawing with no neck), :func:`nnsf.reshape.drive.retarget`.
+        body: a drawing with no neck); None as for ``arms``.
+    mask : ``"auto"``: a PNG without alpha gets its mask from the border colour.
+    max_size : megapixels a larger drawing is downscaled to (``--max-size``).
     fps : output frame rate (default: the motion's).
     workers : processes that render the frames (default: the CPUs this process may use, at most 8;
         :func:`nnsf.reshape.render_pool.render_frames`); the frames are the same for any number.
@@ -195,9 +198,9 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, (int, np.integer))
                                 or workers < 1):
         raise InputError("--workers", "workers", "an integer >= 1", workers)
-    if arms not in ARM_CHOICES:
+    if arms is not None and arms not in ARM_CHOICES:
         raise InputError("--arms", "arms", f"one of {', '.join(ARM_CHOICES)}", arms)
-    if head not in HEAD_CHOICES:
+    if head is not None and head not in HEAD_CHOICES:
         raise InputError("--head", "head", f"one of {', '.join(HEAD_CHOICES)}", head)
     targets = dict(outputs) if outputs is not None else output_targets(out)
     # Every output folder is checked before any work (a file in the way, a read-only
@@ -219,7 +222,9 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
         style = sm.check_style(style, "--style")
         if source_style is not None:
             source_style = sm.check_style(source_style, "--source-style")
-    ch = character if isinstance(character, Character) else read_character(character, joints, size)
+    ch = (character if isinstance(character, Character)
+          else read_character(character, joints, size, mask=mask, max_size=max_size))
+    arms, head = arms or ch.arms or "motion", head or ch.head or "motion"
     mo = motion if isinstance(motion, Motion) else read_motion_spec(motion, view=view, fps=fps, clip=clip,
                                                                     family=joint_map)
     points, depth = mo.points[:max_frames], None if mo.depth is None else mo.depth[:max_frames]
@@ -248,23 +253,23 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
     ph.start("translate", f"performing the motion in style {style}")
     moved = points if sm is None else style_translate(points, style, sm, source_style=source_style,
                                                       view=mo.view, fps=mo.fps)
+    # ---- mesh: parts, mesh, deformer (once per character)
+    ph.start("mesh", f"meshing {ch.name} ({ch.shape[1]}x{ch.shape[0]} px)")
+    animator = Animator(ch, n_vertices=n_vertices)
     # ---- retarget
     ph.start("retarget", "fitting the motion to the drawing's proportions")
-    kp = retarget(moved, ch.keypoints, source=mo.source or mo.name, arms=arms, body=ch.body, head=head)
-    # ---- mesh
-    ph.start("mesh", f"meshing {ch.name} ({ch.shape[1]}x{ch.shape[0]} px)")
-    rig = build_rig(ch, n_vertices=n_vertices)
+    kp = animator.retarget(moved, arms, head, source=mo.source or mo.name)
     # ---- deform
     ph.start("deform", f"deforming the mesh over {len(kp)} frames")
-    V = rig.animate(kp)
-    orders, _ = part_orders(rig, V, moved, depth)
+    V = animator.deformer.run(kp)
+    orders, _ = animator.orders(V, moved, depth)
     ph.stop()
-    _say(progress, f"animate: deformed {len(V)} frames ({rig.mesh.n_vertices} vertices) in "
+    _say(progress, f"animate: deformed {len(V)} frames ({animator.mesh.n_vertices} vertices) in "
                    f"{ph.seconds['mesh'] + ph.seconds['deform']:.2f} s")
     # ---- render
     ph.start("render", f"rendering {len(V)} frames")
-    offset, sz = canvas(ch, V)
-    renderer = MeshRenderer.for_mesh(rig.mesh, ch, size=sz)
+    offset, sz = canvas(V, shape=ch.shape)
+    renderer = animator.renderer(sz)
     step = max(1, len(V) // 10)
     said = [0]
 

@@ -22,8 +22,8 @@ def animate(params: dict, model=STYLES_MODEL, out_dir=ANIMATE_DIR) -> StageResul
     src = source_of(params)
     spec = {k: require(params, f"animate.{k}") for k in
             ("character", "motion", "style", "view", "fps", "n_vertices", "max_frames", "output")}
-    spec["arms"] = checked(params, "animate.arms", "motion")     # absent in older params files
-    spec["head"] = checked(params, "animate.head", "motion")
+    spec["arms"] = checked(params, "animate.arms", None)     # absent: the character YAML's choice, else motion
+    spec["head"] = checked(params, "animate.head", None)
     # Character and motion paths were checked by require() with nnsf.params.project_path, the
     # rule `nnsf check` applies: relative, inside the project once symbolic links are resolved.
     check_view(spec["view"], src, "animate.view")

@@ -30,7 +30,7 @@ import numpy as np
 
 from nnsf.errors import InputError
 from nnsf.reshape.parts import PARTS, PART_BONES, PART_INDEX
-from nnsf.skeleton import JOINT_INDEX, N_JOINTS
+from nnsf.skeleton import N_JOINTS
 
 N_PARTS = len(PARTS)
 

@@ -84,9 +84,9 @@ def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", fr
       stretched along / across the spine by the motion's spine length /
       hip-plus-shoulder width relative to their medians, each ratio clipped to
       ``torso_stretch``.  The default (1, 1) keeps the torso rigid: ARAP
-      cannot meet handles that are not a similarity of the drawing, and on
-      char1 a kick's 0.85-1.15 stretch concentrated σ1/σ2 ≈ 5 at the
-      shoulder handles in 17 % of frames.  A drawn torso is one rigid shape; copying the
+      cannot meet handles that are not a similarity of the drawing (a kick's
+      0.85-1.15 stretch concentrated σ1/σ2 ≈ 5 at the shoulder handles in a
+      sixth of the frames).  A drawn torso is one rigid shape; copying the
       motion's hip and shoulder bone directions would shear it.
     * Every other bone (limbs, neck, head): the motion's direction, the
       drawing's length times the motion's foreshortening ratio
@@ -108,8 +108,8 @@ def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", fr
 
     * ``head="torso"`` (with ``rigid_torso``): head_top moves with the drawn
       torso, so the head keeps its drawn angle to the body.  For a drawing
-      with no neck, whose head is the top of one shape (a candy corn, a
-      sprite's head sitting flat on its body): turned on its own, the head
+      with no neck, whose head is the top of one shape (a cone whose tip is
+      the head, a head sitting flat on its body): turned on its own, the head
       part slides across the body and its drawn outline shows inside it.
       ``"motion"`` (the default) turns the head as the performer's.
 
@@ -128,6 +128,13 @@ def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", fr
     rest = np.asarray(rest_keypoints, dtype=np.float64)
     if body == "quadruped":
         return retarget_quadruped(P, rest)
+    J = JOINT_INDEX
+    mid = 0.5 * (P[:, J["pelvis"]] + P[:, J["thorax"]])
+    if min(np.median(np.linalg.norm(P[:, J["spine"]] - P[:, k], axis=1)) for k in (J["pelvis"], J["thorax"])) <= 0:
+        # A skeleton with no joint between pelvis and chest puts the spine on one of them: its middle
+        # then (the torso moves as one piece, so the spine point only anchors the body's scale).
+        P = P.copy()
+        P[:, J["spine"]] = mid
     try:
         mot = character_scale(P)
         drawn = character_scale(rest[None])
@@ -148,7 +155,6 @@ def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", fr
     placed = np.zeros(N_JOINTS, dtype=bool)
     placed[0] = True
     if rigid_torso:
-        J = JOINT_INDEX
         up_m = P[:, J["thorax"]] - P[:, J["pelvis"]]
         up_d = rest[J["thorax"]] - rest[J["pelvis"]]
         ang = np.arctan2(up_m[:, 1], up_m[:, 0]) - np.arctan2(up_d[1], up_d[0])

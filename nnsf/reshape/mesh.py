@@ -1,167 +1,72 @@
-"""Triangulate a character's silhouette and split the triangles into body parts.
+"""One triangle mesh of a drawing's silhouette, cut only where a limb lies over another part.
 
-The mesh is built in five steps, each chosen to keep triangles well shaped:
+:func:`triangulate` meshes the silhouette:
 
-1. the outline (``cv2.findContours``, outer contour plus holes of more than a
-   few pixels), simplified with ``cv2.approxPolyDP`` to drop the pixel
-   staircase, and resampled with a spacing that is the global spacing ``h``
-   (derived from the target vertex count) but shrinks where the silhouette is
-   thin (about one local width, from ``cv2.distanceTransform``), so a thin
-   stick-figure arm still gets triangles across it instead of slivers;
-2. interior points on a hexagonal grid of spacing ``h`` (the lattice of
-   equilateral triangles), minus the points too close to the outline;
-3. a few Laplacian smoothing sweeps of the interior points over their
-   Delaunay neighbours (boundary fixed), which evens out the band between
-   the outline and the grid;
-4. ``scipy.spatial.Delaunay`` of all points, keeping the triangles whose
-   centroid and edge midpoints lie in the silhouette (a cheap stand-in for a
-   constrained triangulation: it removes triangles that bridge concavities
-   such as the gap between the legs);
-5. sliver removal: a triangle with a minimum angle under ``min_angle`` loses
-   its vertex nearest the opposite edge (interior points first) and the
-   points are triangulated again; the few slivers that survive are dropped.
+1. the outline (``cv2.findContours``: the outer contour and holes of more than a few pixels) of
+   the mask grown by :data:`GROW` pixels, so that every drawn pixel, thin strokes included, lies
+   inside a triangle (texels outside the mask are transparent, so the margin draws nothing), simplified
+   with ``cv2.approxPolyDP`` and resampled with the global spacing ``h`` (from the target vertex
+   count), shrinking where the silhouette is thin (about its local width, from
+   ``cv2.distanceTransform``) so a thin limb gets triangles across it; every corner of the
+   simplified outline is kept, so no drawn spike is cut off;
+2. interior points on a hexagonal lattice of spacing ``h``, minus those too close to the outline,
+   smoothed a few sweeps towards their Delaunay neighbours;
+3. ``scipy.spatial.Delaunay`` of all points, keeping triangles whose centroid and edge midpoints
+   lie in the silhouette (a stand-in for a constrained triangulation: no triangle bridges a
+   concavity such as the gap between the legs); slivers lose their flattest corner and the points
+   are triangulated again; a drawn pixel left outside every triangle becomes a point, until none is.
 
-Parts: every triangle gets the id of its nearest bone's part (Euclidean
-distance from the centroid to the bone segments of the 17-point skeleton).
-By default the mesh stays **connected** across part seams (vertices are
-shared): smooth, but a limb turned far toward the body folds the mesh at the
-inside of the joint (an arm raised ~75° or more).  ``split=True`` cuts it into
-:data:`~nnsf.reshape.parts.PIECES` (body, each arm, each leg) by duplicating the seam vertices;
-each piece is then pinned by its own key points (:data:`~nnsf.reshape.parts.PIECE_KEYPOINTS`,
-the shoulder or hip on both sides of a seam) and a limb can move over the
-body, which a renderer must then draw in depth order; its seams follow the
-triangles, so they are jagged, and a bent elbow or knee still folds.
-
-``split="layered"`` (:func:`nnsf.reshape.layers.layer_pieces`, the default of the ``reshape``
-stage) fixes both: limb triangles are labelled by capsules of the limb's own
-width (a drawn arm over the chest does not take the chest with it), each of
-the ten segments (body, eight limb segments, head) is its own piece, cut
-along a straight segment across each joint (:func:`nnsf.reshape.layers.joint_cuts`; the cut and a
-half-elliptic collar arc are inserted into the triangulation so the seams are
-smooth), each child carries a joint cap (a copy of the parent's triangles
-inside the arc) that covers the wedge a bending joint opens, and the body
-gets an inpainted underlay where a limb lay over it.
-
-This module triangulates and labels parts (:func:`triangulate_mask`,
-:func:`label_parts`, :func:`split_pieces`); the part tables are
-:mod:`nnsf.reshape.parts`, the drawn regions :mod:`nnsf.reshape.regions`,
-the layered mesh and :func:`~nnsf.reshape.layers.build_mesh` (every mesh
-kind) :mod:`nnsf.reshape.layers`, the paper-puppet pieces
-:mod:`nnsf.reshape.pieces`.
+:func:`cut` duplicates the vertices along chosen edges: the mesh stays one connected piece
+wherever it is not cut, so the two sides of an uncut edge move together in every frame and no
+crack can open there.  :func:`build_mesh` cuts only where a limb lies over another part in the
+drawing, and puts an underlay of that part beneath every cut, so an opening cut shows the part
+beneath, never the page.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import Delaunay, cKDTree
 
 from nnsf.errors import InputError
-from nnsf.skeleton import LIMBS
-from nnsf.reshape.parts import PART_BONES, PART_PIECE, PIECES, PIECE_KEYPOINTS
+
+#: The silhouette is meshed grown by this many pixels (texels outside the mask are transparent): the
+#: simplified outline and the triangles kept along it then cover every drawn pixel, thin strokes and
+#: pixels on the image's border too.
+GROW = 2
+#: A limb covers a part where that part's region, closed with a disc of this many limb radii,
+#: reaches over it (:func:`_covered`): the disc bridges the limb's width (two radii) with room for
+#: a limb that widens.
+OVER_REACH = 1.5
 
 
 @dataclass
 class Mesh:
-    """A triangle mesh of a silhouette, in pixels.
+    """A character's mesh at rest, in pixels.
 
     Attributes
     ----------
-    vertices : ndarray, shape (n, 2), float64
-        Rest positions ``(x, y)`` in pixels.  They double as texture
-        coordinates when the deformed mesh is drawn.
-    triangles : ndarray, shape (t, 3), int64
-        Vertex indices, counter-clockwise in (x, y) axes, i.e. positive
-        signed area ``(b - a) × (c - a) > 0``.
-    parts : ndarray, shape (t,), int64
-        Part id per triangle, an index into :data:`PARTS`.
-    spacing : float
-        The global vertex spacing ``h`` in pixels.
-    pieces : ndarray, shape (t,), int64
-        Connected piece per triangle, an index into :data:`PIECES`.  All 0
-        for a connected mesh; :func:`split_pieces` cuts the limbs loose.
+    vertices : ``(n, 2)`` float64, rest positions ``(x, y)``; also the texture coordinates.
+    triangles : ``(t, 3)`` int64, counter-clockwise (positive signed area in x-right, y-down axes).
+    parts : ``(t,)`` int64, the part of each triangle (:class:`nnsf.reshape.rig.Rig` part ids).
+    layer : ``(t,)`` int64, 0 for the drawing's own triangles, 1 for the body underlay: copies of
+        a limb's triangles drawn over the body, textured with the body painted in under the limb.
+    spacing : the global vertex spacing ``h``, pixels.
     """
 
     vertices: np.ndarray
     triangles: np.ndarray
     parts: np.ndarray
+    layer: np.ndarray
     spacing: float
-    pieces: np.ndarray | None = None
-    #: Names of the pieces (:data:`PIECES` for :func:`split_pieces`,
-    #: :data:`SEGMENTS` for :func:`layer_pieces`).
-    piece_names: tuple[str, ...] = PIECES
-    #: Key points pinning each piece, one tuple per name in ``piece_names``.
-    piece_keypoints: tuple[tuple[int, ...], ...] | None = None
-    #: Texture layer per triangle ``(t,)``: 0 the drawing, 1 the inpainted
-    #: underlay (body triangles under a limb drawn over the body), 2 the
-    #: body's outline only (copies of a limb's triangles on the body's ink rim,
-    #: textured with the body's drawn regions and the ink, see ``render.rim_texture``).
-    layer: np.ndarray | None = None
-    #: For a collar copy (:func:`layer_pieces`) the part id of the parent it
-    #: overlaps, else −1, ``(t,)``; a renderer draws a collar just before its
-    #: parent part, so it fills the joint's gap but never covers the parent.
-    collar: np.ndarray | None = None
-    #: For a piece's own triangle, the part it goes under whenever the piece is drawn in front of
-    #: that part, else −1, ``(t,)``: a thigh's band along its hip cut under the body
-    #: (:func:`nnsf.reshape.pieces.hip_tucks`).
-    tuck: np.ndarray | None = None
-    #: Vertices ``[:n_core]`` are deformed (ARAP); the rest belong to joint
-    #: tabs (:mod:`nnsf.reshape.pieces`), moved rigidly with their child's
-    #: bone after the solve.  None: every vertex is deformed.
-    n_core: int | None = None
-    #: The tabs (:class:`nnsf.reshape.pieces.Tab`) of a pieced mesh.
-    tabs: list = field(default_factory=list)
-    #: Piece of every pixel of the drawing at rest ``(H, W)`` (pieced meshes), −1 outside.
-    labels: np.ndarray | None = None
-    #: The cuts between the pieces (:class:`nnsf.reshape.pieces.Cut`).
-    cuts: list = field(default_factory=list)
-    #: Rest key points ``(17, 2)`` with the pivots moved onto the cuts
-    #: (:func:`nnsf.reshape.pieces.move_pivots`); a rig drives the mesh with these.
-    pivots: np.ndarray | None = None
-    #: Pixels ``(H, W)`` of limbs drawn over the body (the body's layer-1 texture paints them out).
-    overlay: np.ndarray | None = None
-
-    def __post_init__(self):
-        if self.collar is None:
-            self.collar = np.full(len(self.triangles), -1, dtype=np.int64)
-        if self.tuck is None:
-            self.tuck = np.full(len(self.triangles), -1, dtype=np.int64)
-        if self.pieces is None:
-            self.pieces = np.zeros(len(self.triangles), dtype=np.int64)
-        if self.layer is None:
-            self.layer = np.zeros(len(self.triangles), dtype=np.int64)
-        if self.piece_keypoints is None:
-            self.piece_keypoints = tuple(PIECE_KEYPOINTS.get(n, ()) for n in self.piece_names)
 
     @property
     def n_vertices(self) -> int:
         return len(self.vertices)
-
-    @property
-    def core(self) -> int:
-        """How many vertices the deformation solves for (all but the tabs')."""
-        return self.n_vertices if self.n_core is None else int(self.n_core)
-
-    @property
-    def core_triangles(self) -> np.ndarray:
-        """Whether each triangle ``(t,)`` is deformed (not a tab's)."""
-        return np.all(self.triangles < self.core, axis=1)
-
-    @property
-    def is_split(self) -> bool:
-        """Whether the limbs are separate pieces (duplicated seam vertices)."""
-        return bool(np.any(self.pieces != 0))
-
-    def vertex_pieces(self) -> np.ndarray:
-        """Piece of every vertex ``(n,)`` (each vertex of a split mesh is in one piece)."""
-        out = np.zeros(self.n_vertices, dtype=np.int64)
-        out[self.triangles.ravel()] = np.repeat(self.pieces, 3)
-        return out
-
-    def boundary_edges(self) -> np.ndarray:
-        """Edges used by one triangle only, ``(b, 2)`` vertex indices."""
-        return boundary_edges(self.triangles)
 
 
 def triangle_areas(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
@@ -176,75 +81,33 @@ def triangle_angles(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     p = vertices[triangles]
     out = np.empty(triangles.shape)
     for k in range(3):
-        a = p[:, (k + 1) % 3] - p[:, k]
-        b = p[:, (k + 2) % 3] - p[:, k]
-        cross = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
-        out[:, k] = np.degrees(np.arctan2(np.abs(cross), (a * b).sum(axis=1)))
+        a, b = p[:, (k + 1) % 3] - p[:, k], p[:, (k + 2) % 3] - p[:, k]
+        cos = (a * b).sum(1) / np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-12)
+        out[:, k] = np.degrees(np.arccos(np.clip(cos, -1, 1)))
     return out
 
 
 def boundary_edges(triangles: np.ndarray) -> np.ndarray:
     """Edges that belong to exactly one triangle, ``(b, 2)``, oriented as in their triangle."""
     e = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
-    key = np.sort(e, axis=1)
-    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    _, inv, counts = np.unique(np.sort(e, axis=1), axis=0, return_inverse=True, return_counts=True)
     return e[counts[inv.ravel()] == 1]
 
 
-# --------------------------------------------------------------------------- outline
-
-def _contours(mask: np.ndarray, min_hole_area: float) -> list[np.ndarray]:
-    """Outer contour of the largest component and its holes, ``(k, 2)`` float each."""
-    m = mask.astype(np.uint8)
-    contours, hierarchy = cv2.findContours(m, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
-    if not contours:
-        raise InputError("mask", "mask", "a silhouette with at least one foreground pixel", "an empty mask")
-    hierarchy = hierarchy[0]
-    outers = [i for i in range(len(contours)) if hierarchy[i][3] < 0]
-    outer = max(outers, key=lambda i: cv2.contourArea(contours[i]))
-    keep = [outer] + [i for i in range(len(contours))
-                      if hierarchy[i][3] == outer and cv2.contourArea(contours[i]) >= min_hole_area]
-    return [contours[i][:, 0, :].astype(np.float64) for i in keep]
+def shared_edges(triangles: np.ndarray) -> np.ndarray:
+    """Interior edges ``(e, 4)``: (triangle 1, its edge k, triangle 2, its edge k); edge k of a
+    triangle runs from its corner k to corner k + 1."""
+    t = len(triangles)
+    e = np.concatenate([triangles[:, [k, (k + 1) % 3]] for k in range(3)])
+    owner, local = np.tile(np.arange(t), 3), np.repeat(np.arange(3), t)
+    _, inv = np.unique(np.sort(e, axis=1), axis=0, return_inverse=True)
+    order = np.argsort(inv.ravel(), kind="stable")
+    same = inv.ravel()[order][1:] == inv.ravel()[order][:-1]
+    i, j = order[:-1][same], order[1:][same]
+    return np.column_stack([owner[i], local[i], owner[j], local[j]])
 
 
-def _resample_closed(poly: np.ndarray, spacing_at) -> np.ndarray:
-    """Resample a closed polygon ``(k, 2)`` with a spacing that varies along it.
-
-    ``spacing_at(points) -> spacings`` gives the wanted spacing in pixels.
-    Samples sit at equal steps of ∫ ds / spacing(s), evaluated on a dense
-    (half-pixel) walk along the polygon.
-    """
-    closed = np.vstack([poly, poly[:1]])
-    seg = np.linalg.norm(np.diff(closed, axis=0), axis=1)
-    s = np.concatenate([[0.0], np.cumsum(seg)])
-    total = s[-1]
-    dense_s = np.linspace(0.0, total, max(int(np.ceil(total / 0.5)), 8), endpoint=False)
-    dense = np.column_stack([np.interp(dense_s, s, closed[:, 0]), np.interp(dense_s, s, closed[:, 1])])
-    density = 1.0 / spacing_at(dense)
-    step = total / len(dense_s)
-    count = np.concatenate([[0.0], np.cumsum(density) * step])
-    n = max(int(round(count[-1])), 3)
-    targets = np.arange(n) * (count[-1] / n)
-    ts = np.interp(targets, count, np.append(dense_s, total))
-    return np.column_stack([np.interp(ts, s, closed[:, 0]), np.interp(ts, s, closed[:, 1])])
-
-
-def _hex_grid(mask: np.ndarray, h: float, rng: np.random.Generator, jitter: float) -> np.ndarray:
-    """Points of a hexagonal lattice with spacing ``h`` inside ``mask``, ``(k, 2)``."""
-    H, W = mask.shape
-    dy = h * np.sqrt(3) / 2
-    ys = np.arange(dy / 2, H, dy)
-    xs = np.arange(0.0, W + h, h)
-    X, Y = np.meshgrid(xs, ys)
-    X = X + (np.arange(len(ys))[:, None] % 2) * (h / 2)
-    pts = np.column_stack([X.ravel(), Y.ravel()])
-    if jitter > 0:
-        pts = pts + rng.uniform(-jitter, jitter, pts.shape) * h
-    ij = np.rint(pts).astype(int)
-    ok = (ij[:, 0] >= 0) & (ij[:, 0] < W) & (ij[:, 1] >= 0) & (ij[:, 1] < H)
-    pts, ij = pts[ok], ij[ok]
-    return pts[mask[ij[:, 1], ij[:, 0]]]
-
+# --------------------------------------------------------------------------- triangulation
 
 def _lookup(img: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """Nearest-pixel values of ``img`` at points ``(k, 2)``; outside the image counts as 0."""
@@ -256,59 +119,64 @@ def _lookup(img: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return out
 
 
-# --------------------------------------------------------------------------- triangulation
+def _fill_small_holes(mask: np.ndarray, min_hole_area: float) -> np.ndarray:
+    """``mask`` (uint8) with its holes under ``min_hole_area`` px² filled: they are meshed over (their
+    texels are transparent, so they still show), not given an outline of their own."""
+    contours, hierarchy = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
+    out = mask.copy()
+    for c, (_, _, _, parent) in zip(contours, hierarchy[0]):
+        if parent >= 0 and cv2.contourArea(c) < min_hole_area:
+            cv2.drawContours(out, [c], -1, 1, -1)
+    return out
 
-def _triangulate(points: np.ndarray, inside: np.ndarray, inside_loose: np.ndarray) -> np.ndarray:
-    """Delaunay triangles ``(t, 3)`` (CCW) whose centroid and edge midpoints are in the mask."""
+
+def _contours(mask: np.ndarray) -> list[np.ndarray]:
+    """Outer contour of the largest component and its holes, ``(k, 2)`` float each."""
+    contours, hierarchy = cv2.findContours(mask.astype(np.uint8), cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
+    hierarchy = hierarchy[0]
+    outer = max((i for i in range(len(contours)) if hierarchy[i][3] < 0),
+                key=lambda i: cv2.contourArea(contours[i]))
+    keep = [outer] + [i for i in range(len(contours)) if hierarchy[i][3] == outer]
+    return [contours[i][:, 0, :].astype(np.float64) for i in keep]
+
+
+def _resample_closed(poly: np.ndarray, spacing_at) -> np.ndarray:
+    """A closed polygon ``(k, 2)``: its corners, and points between them no farther apart than
+    ``spacing_at(points)`` (pixels).  Keeping every corner keeps every spike of the outline."""
+    out = []
+    for a, b in zip(poly, np.roll(poly, -1, axis=0)):
+        L = float(np.linalg.norm(b - a))
+        k = max(1, int(np.ceil(L / float(spacing_at(0.5 * (a + b)[None])[0]))))
+        out.append(a + (np.arange(k) / k)[:, None] * (b - a))
+    return np.vstack(out)
+
+
+def _hex_grid(mask: np.ndarray, h: float) -> np.ndarray:
+    """Points of a hexagonal lattice with spacing ``h`` inside ``mask``, ``(k, 2)``."""
+    H, W = mask.shape
+    dy = h * np.sqrt(3) / 2
+    ys = np.arange(dy / 2, H, dy)
+    X, Y = np.meshgrid(np.arange(0.0, W + h, h), ys)
+    X = X + (np.arange(len(ys))[:, None] % 2) * (h / 2)
+    pts = np.column_stack([X.ravel(), Y.ravel()])
+    return pts[_lookup(mask.astype(np.uint8), pts).astype(bool)]
+
+
+def _delaunay_inside(points: np.ndarray, inside: np.ndarray, loose: np.ndarray) -> np.ndarray:
+    """Delaunay triangles ``(t, 3)`` (CCW) whose centroid lies in ``inside`` and edge midpoints in ``loose``."""
     tri = Delaunay(points).simplices.astype(np.int64)
     p = points[tri]
     keep = _lookup(inside, p.mean(axis=1)).astype(bool)
     for a, b in ((0, 1), (1, 2), (2, 0)):
-        keep &= _lookup(inside_loose, 0.5 * (p[:, a] + p[:, b])).astype(bool)
+        keep &= _lookup(loose, 0.5 * (p[:, a] + p[:, b])).astype(bool)
     tri = tri[keep]
     flip = triangle_areas(points, tri) < 0
     tri[flip] = tri[flip][:, [0, 2, 1]]
     return tri
 
 
-def triangle_adjacency(triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Pairs of triangles ``(a, b)`` (each ``(k,)``) that share an edge."""
-    t = len(triangles)
-    e = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
-    key = np.sort(e, axis=1)
-    owner = np.tile(np.arange(t), 3)
-    _, inv = np.unique(key, axis=0, return_inverse=True)
-    inv = inv.ravel()
-    order = np.argsort(inv, kind="stable")
-    same = inv[order][1:] == inv[order][:-1]
-    return owner[order][1:][same], owner[order][:-1][same]
-
-
-def _components(n: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    g = coo_matrix((np.ones(len(a)), (a, b)), shape=(n, n))
-    return connected_components(g, directed=False)[1]
-
-
-def _largest_piece(triangles: np.ndarray) -> np.ndarray:
-    """Keep the largest edge-connected group of triangles."""
-    labels = _components(len(triangles), *triangle_adjacency(triangles))
-    if labels.max() == 0:
-        return triangles
-    return triangles[labels == np.argmax(np.bincount(labels))]
-
-
-def _compact(points: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    used = np.unique(triangles)
-    remap = np.full(len(points), -1, dtype=np.int64)
-    remap[used] = np.arange(len(used))
-    return points[used], remap[triangles]
-
-
 def _smooth_interior(points: np.ndarray, fixed: np.ndarray, inside: np.ndarray, sweeps: int) -> np.ndarray:
-    """Move free points toward the mean of their Delaunay neighbours (boundary fixed)."""
+    """Move free points half way to the mean of their Delaunay neighbours; a point stays in the mask."""
     pts = points.copy()
     for _ in range(sweeps):
         tri = Delaunay(pts).simplices
@@ -317,253 +185,489 @@ def _smooth_interior(points: np.ndarray, fixed: np.ndarray, inside: np.ndarray, 
         acc = np.zeros_like(pts)
         np.add.at(acc, e[:, 0], pts[e[:, 1]])
         deg = np.bincount(e[:, 0], minlength=len(pts)).astype(float)
-        target = acc / np.maximum(deg, 1)[:, None]
-        new = np.where(fixed[:, None], pts, 0.5 * pts + 0.5 * target)
-        # A point whose move would leave the silhouette stays where it was.
+        new = np.where(fixed[:, None], pts, 0.5 * pts + 0.5 * acc / np.maximum(deg, 1)[:, None])
         ok = _lookup(inside, new).astype(bool) | fixed
         pts[ok] = new[ok]
     return pts
 
 
 def spacing_for(mask: np.ndarray, n_vertices: int) -> float:
-    """Global spacing ``h`` (pixels) that gives about ``n_vertices`` vertices.
-
-    A hexagonal lattice holds one point per ``√3/2 h²`` of area and the
-    outline one per ``h`` of perimeter: solve
-    ``area / (√3/2 h²) + perimeter / h = n`` for ``h``.
-    """
+    """Global spacing ``h`` (pixels) for about ``n_vertices`` vertices: a hexagonal lattice holds one
+    point per √3/2 h² of area and the outline one per h of perimeter."""
     area = float(mask.sum())
     contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     perimeter = sum(cv2.arcLength(c, True) for c in contours)
-    # With u = 1/h: (area / (√3/2)) u² + perimeter u − n = 0; take the positive root.
     a, b, c = area / (np.sqrt(3) / 2), perimeter, -float(n_vertices)
-    u = (-b + np.sqrt(b * b - 4 * a * c)) / (2 * a)
-    return 1.0 / u
+    return 2 * a / (-b + np.sqrt(b * b - 4 * a * c))
 
 
-def triangulate_mask(mask: np.ndarray, n_vertices: int = 800, min_angle: float = 15.0,
-                     simplify: float = 0.75, jitter: float = 0.0, smooth_sweeps: int = 3,
-                     seed: int = 0, cuts=()) -> tuple[np.ndarray, np.ndarray, float]:
-    """Triangulate a silhouette.
+def triangulate(mask: np.ndarray, n_vertices: int = 800, min_angle: float = 15.0,
+                simplify: float = 0.75) -> tuple[np.ndarray, np.ndarray, float]:
+    """Triangulate a silhouette (module docstring): ``(vertices (n, 2), triangles (t, 3), h)``.
 
-    Parameters
-    ----------
-    mask : ndarray, shape (H, W), bool
-    n_vertices : int
-        Target vertex count (hundreds to a few thousand).  Thin parts are
-        meshed finer than the global spacing, so the result can exceed it.
-    min_angle : float
-        Degrees; no triangle of the result has a smaller angle.
-    simplify : float
-        ``cv2.approxPolyDP`` tolerance in pixels.
-    jitter : float
-        Random offset of the interior lattice points, as a fraction of ``h``.
-
-    Returns
-    -------
-    vertices : ndarray, shape (n, 2), float64, pixels
-    triangles : ndarray, shape (t, 3), int64, counter-clockwise
-    spacing : float, pixels
+    ``mask`` ``(H, W)`` bool; ``n_vertices`` the target count (thin parts and detailed outlines are
+    meshed finer, so the result may exceed it); interior points that make a triangle with an angle
+    under ``min_angle`` degrees are dropped; ``simplify`` is the outline's ``cv2.approxPolyDP``
+    tolerance in pixels.
     """
     mask = np.asarray(mask, dtype=bool)
     if not mask.any():
         raise InputError("mask", "mask", "a silhouette with at least one foreground pixel", "an empty mask")
     if n_vertices < 20:
-        raise InputError("triangulate_mask", "n_vertices", "at least 20", n_vertices)
-    args = (min_angle, simplify, jitter, smooth_sweeps, seed, tuple(cuts))
-    vertices, tri, h = _triangulate_at(mask, spacing_for(mask, n_vertices), *args)
-    # The lattice loses points near the outline and thin parts gain some, so
-    # the count misses the target by 10-15 %; one rescaled pass fixes that.
+        raise InputError("triangulate", "n_vertices", "at least 20", n_vertices)
+    pad = GROW + 2
+    grown = cv2.dilate(np.pad(mask.astype(np.uint8), pad),
+                       cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * GROW + 1, 2 * GROW + 1)))
+    drawn = np.pad(mask, pad)
+    vertices, tri, h = _triangulate_at(grown, drawn, spacing_for(grown, n_vertices), min_angle, simplify)
     miss = len(vertices) / n_vertices
-    if abs(miss - 1) > 0.05:
-        vertices, tri, h = _triangulate_at(mask, h * np.sqrt(miss), *args)
-    return vertices, tri, h
+    if abs(miss - 1) > 0.05:  # the lattice loses points near the outline: one rescaled pass
+        vertices, tri, h = _triangulate_at(grown, drawn, h * np.sqrt(miss), min_angle, simplify)
+    return vertices - pad, tri, h
 
 
-def _cut_points(cuts, spacing_at, h: float) -> np.ndarray:
-    """Points along cut segments ``[(p, q), ...]`` at about half the local spacing, ends excluded."""
-    out = []
-    for p, q in cuts:
-        p, q = np.asarray(p, float), np.asarray(q, float)
-        L = float(np.linalg.norm(q - p))
-        sp = 0.5 * min(float(spacing_at(0.5 * (p + q)[None])[0]), h)
-        k = int(np.ceil(L / max(sp, 1e-9)))
-        if k < 2:
-            continue
-        t = np.arange(1, k) / k
-        out.append(p + t[:, None] * (q - p))
-    return np.vstack(out) if out else np.zeros((0, 2))
-
-
-def _seg_distance(points: np.ndarray, cuts) -> np.ndarray:
-    """Distance ``(k,)`` from each point to the nearest cut segment (inf without cuts)."""
-    d = np.full(len(points), np.inf)
-    for p, q in cuts:
-        p, q = np.asarray(p, float), np.asarray(q, float)
-        e = q - p
-        t = np.clip(((points - p) @ e) / max(float(e @ e), 1e-12), 0, 1)
-        d = np.minimum(d, np.linalg.norm(points - (p + t[:, None] * e), axis=1))
-    return d
-
-
-def _triangulate_at(mask, h, min_angle, simplify, jitter, smooth_sweeps, seed, cuts=()):
-    rng = np.random.default_rng(seed)
-    m8 = mask.astype(np.uint8)
-    # Half-width of the silhouette near each pixel: the distance transform's
-    # maximum over a neighbourhood about h wide (the medial radius nearby).
+def _triangulate_at(m8: np.ndarray, drawn: np.ndarray, h: float, min_angle: float, simplify: float):
+    m8 = _fill_small_holes(m8, 4 * h * h)
+    # Half-width of the silhouette near each pixel: the distance transform's maximum over about h.
     dist = cv2.distanceTransform(np.pad(m8, 1), cv2.DIST_L2, 5)[1:-1, 1:-1]
     k = max(3, int(2 * round(h) + 1))
-    radius = cv2.dilate(dist, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k)))
-    h_min = 2.0
-    # Across a strip of width 2r, equilateral triangles have sides ≈ 2r·2/√3.
-    def spacing_at(pts):
-        return np.clip(2.3 * _lookup(radius, pts), h_min, h)
+    radius = cv2.dilate(dist, np.ones((k, k), np.uint8))   # a square: separable, fast on big drawings
+
+    def spacing_at(pts):  # across a strip 2r wide, equilateral triangles have sides ≈ 2r·2/√3
+        return np.clip(2.3 * _lookup(radius, pts), 2.0, h)
 
     boundary = []
-    for c in _contours(mask, min_hole_area=4 * h * h):
+    for c in _contours(m8):
         poly = cv2.approxPolyDP(c.astype(np.float32).reshape(-1, 1, 2), simplify, True)[:, 0, :]
-        if len(poly) < 3:
-            poly = c
-        boundary.append(_resample_closed(poly.astype(np.float64), spacing_at))
+        boundary.append(_resample_closed((poly if len(poly) >= 3 else c).astype(np.float64), spacing_at))
     boundary = np.vstack(boundary)
-    interior = _hex_grid(mask, h, rng, jitter)
+    interior = _hex_grid(m8, h)
     if len(interior):
-        d, _ = cKDTree(boundary).query(interior)
-        interior = interior[d > 0.6 * spacing_at(interior)]
-    # Cut lines (seams between pieces of a layered mesh): fixed points at half
-    # the spacing and no lattice point closer than that, so Delaunay keeps
-    # the short edges between consecutive cut points and the seam is straight.
-    cut_pts = _cut_points(cuts, spacing_at, h)
-    if len(cut_pts):
-        cut_pts = cut_pts[cKDTree(boundary).query(cut_pts)[0] > 0.4 * spacing_at(cut_pts)]
-        cut_pts = cut_pts[_lookup(mask.astype(np.uint8), cut_pts).astype(bool)]
-    if len(cut_pts) and len(interior):
-        interior = interior[_seg_distance(interior, cuts) > 0.6 * spacing_at(interior)]
-    points = np.vstack([boundary, cut_pts, interior])
-    fixed = np.zeros(len(points), dtype=bool)
-    fixed[: len(boundary) + len(cut_pts)] = True
-    points = _smooth_interior(points, fixed, mask, smooth_sweeps)
-    # Triangles may overhang the pixel silhouette by the polygon tolerance,
-    # so edge midpoints are tested against a slightly grown mask.
-    loose = cv2.dilate(m8, np.ones((3, 3), np.uint8)).astype(bool)
-
+        interior = interior[cKDTree(boundary).query(interior)[0] > 0.6 * spacing_at(interior)]
+    points = np.vstack([boundary, interior])
+    fixed = np.arange(len(points)) < len(boundary)
+    points = _smooth_interior(points, fixed, m8, 3)
+    # The simplified outline may overhang the pixels by its tolerance: midpoints are tested loosely.
+    loose = cv2.dilate(m8, np.ones((3, 3), np.uint8))
     for _ in range(8):
-        tri = _triangulate(points, mask, loose)
+        tri = _delaunay_inside(points, m8, loose)
         ang = triangle_angles(points, tri)
         bad = np.flatnonzero(ang.min(axis=1) < min_angle)
-        if bad.size == 0:
-            break
-        # In a sliver the corner with the largest angle sits nearly on the
-        # opposite edge; removing that point removes the sliver.
+        # A sliver's widest corner sits nearly on the opposite edge: removing it removes the sliver.
+        # An outline point may go too: the outline lies GROW px outside the drawing, and a drawn
+        # pixel left uncovered gets a point of its own below.
         corner = tri[bad, np.argmax(ang[bad], axis=1)]
         drop = np.zeros(len(points), dtype=bool)
         drop[corner] = True
-        points, fixed = points[~drop], fixed[~drop]
-    tri = _triangulate(points, mask, loose)
-    tri = tri[triangle_angles(points, tri).min(axis=1) >= min_angle]
-    tri = _largest_piece(tri)
-    vertices, tri = _compact(points, tri)
-    return vertices, tri, h
-
-
-def limb_radii(mask: np.ndarray, keypoints: np.ndarray, scale: float = 1.3, span=(0.5, 0.8)) -> np.ndarray:
-    """A capsule radius per limb ``(8,)``, pixels: ``scale`` × the limb's half-width.
-
-    The half-width is the median of the mask's distance transform at
-    ``span`` fractions along the bone: the outer part of a limb, which is
-    usually free of the body, unlike the root where a drawn arm may lie over
-    the chest.
-    """
-    dist = cv2.distanceTransform(np.pad(np.asarray(mask, np.uint8), 1), cv2.DIST_L2, 5)[1:-1, 1:-1]
-    kp = np.asarray(keypoints, dtype=np.float64)
-    lam = np.linspace(*span, 5)[:, None]
-    out = []
-    for a, b in LIMBS.values():
-        pts = kp[a] + lam * (kp[b] - kp[a])
-        out.append(scale * float(np.median(_lookup(dist, pts))))
-    return np.array(out)
-
-
-def label_parts(vertices: np.ndarray, triangles: np.ndarray, keypoints: np.ndarray,
-                limb_radius: np.ndarray | None = None) -> np.ndarray:
-    """Part id ``(t,)`` per triangle: the part of the bone nearest its centroid.
-
-    keypoints : ``(17, 2)`` rest key points, pixels.
-    limb_radius : optional ``(8,)`` capsule radii (:func:`limb_radii`): a
-        limb bone only claims triangles within its radius, so a drawn arm
-        lying over the chest does not take the chest's texture with it.
-    """
-    c = vertices[triangles].mean(axis=1)  # (t, 2)
-    a = keypoints[[p for p, _, _ in PART_BONES]]  # (B, 2)
-    b = keypoints[[q for _, q, _ in PART_BONES]]
-    d = b - a
-    t = np.einsum("tbk,bk->tb", c[:, None, :] - a[None], d) / np.maximum((d * d).sum(axis=1), 1e-12)
-    closest = a[None] + np.clip(t, 0, 1)[..., None] * d[None]
-    dist = np.linalg.norm(c[:, None, :] - closest, axis=2)
-    part_of_bone = np.array([part for _, _, part in PART_BONES])
-    if limb_radius is not None:
-        limb = part_of_bone >= 2
-        radius = np.asarray(limb_radius, dtype=np.float64)[np.maximum(part_of_bone - 2, 0)]
-        dist = np.where(limb[None] & (dist > radius[None]), np.inf, dist)
-    return part_of_bone[np.argmin(dist, axis=1)]
-
-
-def _clean_pieces(triangles: np.ndarray, pieces: np.ndarray, vertices: np.ndarray,
-                  keypoints: np.ndarray, names=PIECES, piece_keypoints=None) -> np.ndarray:
-    """Make every piece one edge-connected group of triangles.
-
-    Nearest-bone labels can leave islands (a few arm-labelled triangles on the
-    torso's edge); an island of a split mesh would have no handle.  Each
-    piece keeps the group nearest its own key points; other groups join the
-    piece most of their neighbours belong to.
-    """
-    if piece_keypoints is None:
-        piece_keypoints = [PIECE_KEYPOINTS[n] for n in names]
-    pieces = pieces.copy()
-    a, b = triangle_adjacency(triangles)
-    centroids = vertices[triangles].mean(axis=1)
-    for _ in range(len(triangles)):
-        same = pieces[a] == pieces[b]
-        labels = _components(len(triangles), a[same], b[same])
-        stray = np.zeros(len(triangles), dtype=bool)
-        for pc in range(len(names)):
-            groups = np.unique(labels[pieces == pc])
-            if len(groups) <= 1:
-                continue
-            kp = keypoints[list(piece_keypoints[pc])]
-            dist = [np.linalg.norm(centroids[labels == g][:, None] - kp[None], axis=2).min() for g in groups]
-            keep = groups[int(np.argmin(dist))]
-            stray |= (pieces == pc) & (labels != keep)
-        if not stray.any():
+        if not drop.any():
             break
-        # Give each stray triangle the commonest piece among its non-stray neighbours; repeat
-        # until every island has been absorbed.
-        votes = np.zeros((len(triangles), len(names)))
-        for x, y in ((a, b), (b, a)):
-            ok = stray[x] & ~stray[y]
-            np.add.at(votes, (x[ok], pieces[y[ok]]), 1.0)
-        has = stray & (votes.sum(1) > 0)
-        pieces[has] = np.argmax(votes[has], axis=1)
-    return pieces
+        points, fixed = points[~drop], fixed[~drop]
+    tri = _delaunay_inside(points, m8, loose)
+    for _ in range(3):
+        # Where the outline's edges are not Delaunay edges a triangle across them may be dropped and
+        # leave drawn pixels uncovered: the corners of those regions become points, and Delaunay conforms.
+        cover = np.zeros(m8.shape, np.uint8)
+        for t in np.rint(points[tri] * 16).astype(np.int32):
+            cv2.fillConvexPoly(cover, t, 1, cv2.LINE_8, 4)
+        missed = (drawn & (cover == 0)).astype(np.uint8)
+        if not missed.any():
+            break
+        cs, _ = cv2.findContours(missed, cv2.RETR_LIST, cv2.CHAIN_APPROX_SIMPLE)
+        points = np.vstack([points] + [c[:, 0, :].astype(np.float64) for c in cs])
+        tri = _delaunay_inside(points, m8, loose)
+    tri = tri[triangle_areas(points, tri) > 1e-6]
+    # The largest edge-connected group of triangles is the character.
+    pairs = shared_edges(tri)
+    labels = connected_components(coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 2])),
+                                             shape=(len(tri), len(tri))), directed=False)[1]
+    tri = tri[labels == np.argmax(np.bincount(labels))]
+    used = np.unique(tri)
+    remap = np.full(len(points), -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    return points[used], remap[tri], h
 
 
-def split_pieces(mesh: Mesh, keypoints: np.ndarray) -> Mesh:
-    """Cut the limbs loose: duplicate every vertex shared by two pieces.
+# --------------------------------------------------------------------------- cutting
 
-    Returns a new :class:`Mesh` whose triangles keep their parts; ``pieces``
-    says which of :data:`PIECES` each belongs to, and a vertex belongs to one
-    piece only.  The duplicates sit at the same rest position (the same
-    texture coordinate), so the rest mesh looks the same; deformed, an arm
-    can swing over the torso instead of folding the armpit.  Each piece is
-    one connected group of triangles (see :func:`_clean_pieces`).
+def cut(triangles: np.ndarray, n_vertices: int, cut_edges: np.ndarray, pairs: np.ndarray | None = None):
+    """Duplicate vertices so the mesh comes apart along the chosen interior edges.
+
+    ``pairs`` ``(e, 4)``: :func:`shared_edges` of ``triangles`` ``(t, 3)``; ``cut_edges`` ``(e,)``
+    bool, which of them to cut.  Every vertex gets one copy per group of its triangles that are
+    joined through uncut edges around it (corners joined through an uncut edge are one vertex).
+    Returns the new triangles ``(t, 3)`` and the original vertex of each new one ``(n',)``.
     """
-    kp = np.asarray(keypoints, dtype=np.float64)
-    pieces = _clean_pieces(mesh.triangles, PART_PIECE[mesh.parts], mesh.vertices, kp)
-    # One new vertex per (old vertex, piece) pair in use.
-    pairs = np.stack([mesh.triangles.ravel(), np.repeat(pieces, 3)], axis=1)
-    uniq, inv = np.unique(pairs, axis=0, return_inverse=True)
-    triangles = inv.ravel().reshape(-1, 3).astype(np.int64)
-    return Mesh(vertices=mesh.vertices[uniq[:, 0]].copy(), triangles=triangles, parts=mesh.parts.copy(),
-                spacing=mesh.spacing, pieces=pieces)
+    t = len(triangles)
+    if pairs is None:
+        pairs = shared_edges(triangles)
+    keep = pairs[~np.asarray(cut_edges, dtype=bool)]
+    t1, k1, t2 = keep[:, 0], keep[:, 1], keep[:, 2]
+    a, b = triangles[t1, k1], triangles[t1, (k1 + 1) % 3]
+    rows, cols = [], []
+    for v, k in ((a, k1), (b, (k1 + 1) % 3)):
+        local2 = np.argmax(triangles[t2] == v[:, None], axis=1)
+        rows.append(3 * t1 + k)
+        cols.append(3 * t2 + local2)
+    rows, cols = np.concatenate(rows), np.concatenate(cols)
+    n_corners = 3 * t
+    _, group = connected_components(coo_matrix((np.ones(len(rows)), (rows, cols)),
+                                               shape=(n_corners, n_corners)), directed=False)
+    # Number the copies in the order of the original vertices, so an uncut mesh keeps its numbering.
+    corner_vertex = triangles.ravel()
+    first = np.full(group.max() + 1, -1, dtype=np.int64)
+    origin_of_group = np.zeros(group.max() + 1, dtype=np.int64)
+    origin_of_group[group] = corner_vertex
+    order = np.lexsort((np.arange(len(origin_of_group)), origin_of_group))
+    first[order] = np.arange(len(order))
+    return first[group].reshape(t, 3), origin_of_group[order]
 
+
+# --------------------------------------------------------------------------- the character's mesh
+
+def _components(triangles: np.ndarray) -> np.ndarray:
+    """Component id ``(t,)`` of each triangle, triangles joined by shared edges (a piece that touches
+    another at one vertex only would turn about it freely)."""
+    t = len(triangles)
+    pairs = shared_edges(triangles)
+    return connected_components(coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 2])), shape=(t, t)),
+                                directed=False)[1]
+
+
+def _clean_labels(triangles: np.ndarray, parts: np.ndarray, pairs: np.ndarray, parent=None) -> np.ndarray:
+    """Each part one edge-connected region: a smaller island joins the part it borders most, among
+    its own part's parent and children when it borders one (``parent`` ``(P,)``): a piece of one leg
+    cut off where the legs were drawn close does not join the other leg and leave with it."""
+    parts = parts.copy()
+    t = len(triangles)
+    for _ in range(10):
+        same = parts[pairs[:, 0]] == parts[pairs[:, 2]]
+        g = coo_matrix((np.ones(same.sum()), (pairs[same, 0], pairs[same, 2])), shape=(t, t))
+        _, comp = connected_components(g, directed=False)
+        size = np.bincount(comp)
+        biggest = {}
+        for c in np.argsort(-size):
+            biggest.setdefault(int(parts[np.flatnonzero(comp == c)[0]]), int(c))
+        islands = [c for c in range(len(size)) if biggest[int(parts[np.flatnonzero(comp == c)[0]])] != c]
+        if not islands:
+            break
+        for c in islands:
+            tri = comp == c
+            edge = tri[pairs[:, 0]] != tri[pairs[:, 2]]
+            other = np.where(tri[pairs[edge, 0]], parts[pairs[edge, 2]], parts[pairs[edge, 0]])
+            if parent is not None and len(other):
+                own = int(parts[tri][0])
+                kin = (other == parent[own]) | (parent[other] == own)
+                if kin.any():
+                    other = other[kin]
+            if len(other):
+                parts[tri] = np.bincount(other).argmax()
+    return parts
+
+
+def split_seams(vertices: np.ndarray, triangles: np.ndarray, scores: np.ndarray, clamp: float = 0.2,
+                chains=None):
+    """Split triangles so the boundary between two parts follows the zero of their score difference.
+
+    ``scores`` ``(n, P)``: each vertex's score per part (:meth:`nnsf.reshape.rig.Rig.scores`); a
+    vertex belongs to its lowest.  An edge whose ends belong to parts p and q gets a vertex where
+    s_p − s_q changes sign (linear along the edge, kept ``clamp`` of the edge from its ends so no
+    sliver is made); a triangle with two parts becomes a triangle and a quad, one with three a fan
+    about its centroid.  The boundary is then a smooth curve, not a staircase of triangle edges
+    (which shows as a jagged edge once the parts move apart).  Returns ``(vertices, triangles,
+    part per triangle, the triangle each came from)``; the mesh stays conforming (every new vertex
+    is shared by both triangles of its edge).
+    """
+    n = len(vertices)
+    lab = np.argmin(scores, axis=1)
+    E = np.concatenate([triangles[:, [k, (k + 1) % 3]] for k in range(3)])
+    uniq, inv = np.unique(np.sort(E, axis=1), axis=0, return_inverse=True)
+    a, b = uniq[:, 0], uniq[:, 1]
+    cross = np.flatnonzero(lab[a] != lab[b])
+    p, q = lab[a[cross]], lab[b[cross]]
+    fa = scores[a[cross], p] - scores[a[cross], q]
+    fb = scores[b[cross], p] - scores[b[cross], q]
+    with np.errstate(all="ignore"):
+        t = np.clip(np.nan_to_num(fa / (fa - fb), nan=0.5), clamp, 1 - clamp)
+    new = vertices[a[cross]] + t[:, None] * (vertices[b[cross]] - vertices[a[cross]])
+    mid = np.full(len(uniq), -1, dtype=np.int64)
+    mid[cross] = n + np.arange(len(cross))
+    M = mid[inv.ravel()].reshape(3, -1).T                       # (t, 3): edge k = corner k → k + 1
+    L = lab[triangles]
+    kinds = (L[:, 0] != L[:, 1]).astype(int) + (L[:, 1] != L[:, 2]) + (L[:, 2] != L[:, 0])
+    tris, parts, src = [triangles[kinds == 0]], [L[kinds == 0, 0]], [np.flatnonzero(kinds == 0)]
+    two = np.flatnonzero(kinds == 2)
+    if len(two):
+        # The lone corner k differs from both others; rotate it to the front.
+        Lt = L[two]
+        k = np.where(Lt[:, 0] != Lt[:, 1], np.where(Lt[:, 0] != Lt[:, 2], 0, 1), 2)
+        c0, c1, c2 = (triangles[two, (k + i) % 3] for i in range(3))
+        m01, m20 = M[two, k], M[two, (k + 2) % 3]
+        tris += [np.column_stack([c0, m01, m20]), np.column_stack([m01, c1, c2]), np.column_stack([m01, c2, m20])]
+        parts += [lab[c0], lab[c1], lab[c1]]
+        src += [two, two, two]
+    three = np.flatnonzero(kinds == 3)
+    if len(three):
+        g = n + len(cross) + np.arange(len(three))
+        # The fan's centre: its centroid; where two different limbs meet (``chains``: each part's
+        # limb, −1 for the body), where the three corners' parts score alike, the scores linear over
+        # the triangle as along its edges: a centroid deep in one limb would hand a stroke of it to
+        # the other, to be carried away across the gap drawn between them.
+        tri3 = triangles[three]
+        own = L[three]                                                  # (k, 3) corner parts
+        Sc = scores[tri3[:, :, None], own[:, None, :]]                  # (k, corner, part)
+        A = np.stack([Sc[:, :, 0] - Sc[:, :, 1], Sc[:, :, 1] - Sc[:, :, 2], np.ones_like(Sc[:, :, 0])], 1)
+        rhs = np.broadcast_to(np.array([0.0, 0.0, 1.0]), (len(three), 3))
+        with np.errstate(all="ignore"):
+            lam = np.linalg.solve(A + 1e-9 * np.eye(3), rhs[..., None])[..., 0]
+        lam = np.where(np.isfinite(lam), lam, 1 / 3)
+        lam = np.clip(lam, clamp, 1.0)
+        lam /= lam.sum(axis=1, keepdims=True)
+        centre = vertices[tri3].mean(axis=1)
+        if chains is not None:
+            ch = np.asarray(chains)[own]
+            apart = ((ch[:, :, None] != ch[:, None, :]) & (ch[:, :, None] >= 0) & (ch[:, None, :] >= 0)).any((1, 2))
+            centre[apart] = np.einsum("kc,kcx->kx", lam[apart], vertices[tri3[apart]])
+        new = np.vstack([new, centre])
+        for k in range(3):
+            ck, cn = triangles[three, k], triangles[three, (k + 1) % 3]
+            tris += [np.column_stack([ck, M[three, k], g]), np.column_stack([M[three, k], cn, g])]
+            parts += [lab[ck], lab[cn]]
+            src += [three, three]
+    return np.vstack([vertices, new]), np.vstack(tris), np.concatenate(parts), np.concatenate(src)
+
+
+def build_mesh(character, rig, n_vertices: int = 800) -> Mesh:
+    """The character's mesh: triangulated, labelled by ``rig``, cut where a limb lies over another
+    part, with underlays beneath every cut.
+
+    * Parts: each vertex's lowest :meth:`~nnsf.reshape.rig.Rig.scores`, the triangles split along the
+      boundaries (:func:`split_seams`), cleaned so each part is one region.
+    * Cuts (:func:`_lying_over`): only where a limb lies over another part in the drawing, and not
+      across a joint (:meth:`~nnsf.reshape.rig.Rig.cuts`); parts side by side stay joined.  A piece
+      the cuts would set apart from the rest stays joined where it touches: the mesh is one
+      connected piece.
+    * Underlays (:func:`_underlays`): beneath every cut, copies of the limb's triangles where it
+      covers the part beneath, put in that part and sharing its vertices where they meet it: when
+      the limb moves, the part beneath is there (textured by :func:`underlay_texture`).
+    """
+    V, T, h = triangulate(character.mask, n_vertices)
+    V, T, parts, _ = split_seams(V, T, rig.scores(V), chains=rig.chains())
+    parts = _clean_labels(T, parts, shared_edges(T), rig.parent)
+    pairs = shared_edges(T)
+    a = T[pairs[:, 0], pairs[:, 1]]
+    b = T[pairs[:, 0], (pairs[:, 1] + 1) % 3]
+    shape = np.asarray(character.mask).shape
+    cover, radius = _covered(V, T, parts, shape)
+    candidates = rig.cuts(0.5 * (V[a] + V[b]), parts[pairs[:, 0]], parts[pairs[:, 2]], radius)
+    cut_edges, under = _lying_over(V, T, parts, pairs, candidates, cover, rig)
+    for _ in range(50):
+        T2, origin = cut(T, len(V), cut_edges, pairs)
+        comp = _components(T2)
+        loose = comp != np.bincount(comp).argmax()
+        if not loose.any():
+            break
+        cut_edges = cut_edges & ~(loose[pairs[:, 0]] | loose[pairs[:, 2]])
+    under[~cut_edges] = -1
+    copied, owner = _underlays(V, T, parts, pairs, under, cover)
+    lookup = np.full((rig.n_parts, len(V)), -1, dtype=np.int64)
+    own = np.repeat(parts, 3)
+    lookup[own, origin[T2.ravel()]] = T2.ravel()
+    extra = []
+    for p in np.unique(owner):
+        for v in np.unique(T[copied[owner == p]]):
+            if lookup[p, v] < 0:
+                lookup[p, v] = len(origin) + len(extra)
+                extra.append(v)
+    origin = np.concatenate([origin, np.asarray(extra, dtype=np.int64)])
+    tris = np.vstack([T2, lookup[owner[:, None], T[copied]]])
+    layer = np.concatenate([np.zeros(len(T2), np.int64), np.ones(len(copied), np.int64)])
+    all_parts = np.concatenate([parts, owner])
+    # An underlay patch that shares no edge with its part would float: it is left out.
+    comp = _components(tris)
+    keep = np.isin(comp, comp[layer == 0])
+    tris, layer, all_parts = tris[keep], layer[keep], all_parts[keep]
+    used = np.unique(tris)
+    remap = np.full(len(origin), -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    return Mesh(vertices=V[origin[used]], triangles=remap[tris], parts=all_parts, layer=layer, spacing=float(h))
+
+
+def _raster(V: np.ndarray, T: np.ndarray, values: np.ndarray, shape) -> np.ndarray:
+    """``(H, W)`` int16: each triangle ``(t, 3)`` filled with its value ``(t,)``, −1 elsewhere."""
+    img = np.full(shape, -1, np.int16)
+    for tri, v in zip(np.rint(V[T] * 16).astype(np.int32), values.tolist()):
+        cv2.fillConvexPoly(img, tri, int(v), cv2.LINE_8, 4)
+    return img
+
+
+def _covered(V, T, parts, shape) -> tuple[dict, np.ndarray]:
+    """Where each limb covers another part in the drawing, ``{(under, limb): (H, W) bool}``, and each
+    limb's half-width ``(P,)`` in pixels (the largest distance inside its region, 0 for the body and
+    the head).
+
+    A limb of radius r lies over a part where that part is drawn on both sides of it: the part's
+    region closed with a disc of radius :data:`OVER_REACH` × r (by distance transforms), which
+    bridges the limb's width, covers the limb there.  A limb beside a part (two legs pressed
+    together, an arm hanging at the body's side) is bridged only in the corner where they meet.
+    """
+    lab = _raster(V, T, parts, shape)
+    present = sorted(set(np.unique(parts).tolist()))
+    radius = np.zeros(int(parts.max()) + 1)
+    out = {}
+    for o in present:
+        if o < 2:          # the body and the head lie over nothing
+            continue
+        box = _box(lab == o, 0)
+        y0, y1, x0, x1 = box
+        # The limb's own half-width, from its region (the drawing's distance transform does not
+        # see a limb drawn inside the body's silhouette).
+        radius[o] = float(cv2.distanceTransform(np.pad((lab[y0:y1, x0:x1] == o).astype(np.uint8), 1),
+                                                cv2.DIST_L2, 3).max())
+        R = max(2, int(round(OVER_REACH * radius[o])))
+        y0, y1, x0, x1 = _box(lab == o, R)
+        limb = lab[y0:y1, x0:x1] == o
+        # The closing by distance transforms (a pixel within R of the region, then one farther
+        # than R from everything not within R): the same disc closing at a cost that does not grow
+        # with R.  The box reaches 2R past the limb, so the box's edge changes nothing on it.
+        near = cv2.distanceTransform((~limb).astype(np.uint8), cv2.DIST_L2, 5) <= 2 * R
+        for u in present:
+            region = lab[y0:y1, x0:x1] == u
+            if u == o or not (region & near).any():
+                continue
+            grown = cv2.distanceTransform((~region).astype(np.uint8), cv2.DIST_L2, 5) <= R
+            closed = cv2.distanceTransform(grown.astype(np.uint8), cv2.DIST_L2, 5) > R
+            f = closed & limb
+            if f.any():
+                full = np.zeros(shape, bool)
+                full[y0:y1, x0:x1] = f
+                out[(u, o)] = full
+    return out, radius
+
+
+def _box(sel: np.ndarray, pad: int):
+    """``(y0, y1, x0, x1)`` of ``sel``'s bounding box grown by ``2 pad``, or None if empty."""
+    ys, xs = np.nonzero(sel)
+    if not len(ys):
+        return None
+    H, W = sel.shape
+    return (max(ys.min() - 2 * pad, 0), min(ys.max() + 2 * pad + 1, H),
+            max(xs.min() - 2 * pad, 0), min(xs.max() + 2 * pad + 1, W))
+
+
+def _lying_over(V, T, parts, pairs, candidates, cover, rig):
+    """Which of the ``candidates`` ``(e,)`` interior edges (``pairs`` ``(e, 4)``) to cut, and the part
+    lying under each cut ``(e,)`` (−1 where no underlay is needed).
+
+    A cut may open; what shows in the opening must never be the page.  So an edge between a limb
+    and another part is cut only when it lies over: the limb's triangle beside it, and the middle
+    of the limb beside it (the nearest point of its bones, ``rig`` a
+    :class:`~nnsf.reshape.rig.Rig`), lie where limbs cover that part (:func:`_covered`).  The part
+    beneath gets an underlay there (:func:`_underlays`), and however far the limb moves away, the
+    opening shows its colour.  Every other boundary stays joined by
+    shared vertices: parts side by side (two legs pressed together, an arm hanging against the
+    body's side, a thigh along a belt line) stretch apart rather than open, the head stays on the
+    body, and a continuous map of a joined mesh cannot open a crack.
+    """
+    p, q = parts[pairs[:, 0]], parts[pairs[:, 2]]
+    a = T[pairs[:, 0], pairs[:, 1]]
+    b = T[pairs[:, 0], (pairs[:, 1] + 1) % 3]
+    mid = 0.5 * (V[a] + V[b])
+    cut_edges = np.zeros(len(pairs), bool)
+    under = np.full(len(pairs), -1, dtype=np.int64)
+    # Where limbs cover each part.  The limb's middle beside an edge may lie in the next segment of
+    # the same limb (at an elbow), so any limb's cover counts; grown by 2 px, since the bones'
+    # joints lie on the boundary between segments, a pixel either side.
+    covered = {}
+    for (u, _), f in cover.items():
+        covered[u] = covered.get(u, np.zeros(f.shape, np.uint8)) | f.astype(np.uint8)
+    covered = {u: cv2.dilate(g, np.ones((5, 5), np.uint8)) for u, g in covered.items()}
+    for (u, o) in sorted(cover):
+        for side_u, side_o in ((p, q), (q, p)):
+            sel = np.flatnonzero(candidates & (side_u == u) & (side_o == o) & ~cut_edges)
+            if not len(sel):
+                continue
+            # Covered at the limb's middle beside the edge (the nearest point of its bones), not
+            # only in the corner where it meets the part: the limb can move away by its width and
+            # still uncover only underlay.
+            hit = sel[_lookup(covered[u], _nearest_on_bones(rig, o, mid[sel])) > 0]
+            cut_edges[hit] = True
+            under[hit] = u
+    return cut_edges, under
+
+
+def _nearest_on_bones(rig, part: int, points: np.ndarray) -> np.ndarray:
+    """The nearest point ``(k, 2)`` of ``part``'s bones (rest key-point segments) to each of ``points``."""
+    bones = rig.bones[rig.bones[:, 2] == part]
+    a, b = rig.keypoints[bones[:, 0]], rig.keypoints[bones[:, 1]]
+    d = b - a
+    t = np.clip(np.einsum("kbx,bx->kb", points[:, None] - a[None], d) / np.maximum((d * d).sum(1), 1e-12), 0, 1)
+    near = a[None] + t[..., None] * d[None]                              # (k, B, 2)
+    best = np.argmin(np.linalg.norm(points[:, None] - near, axis=2), axis=1)
+    return near[np.arange(len(points)), best]
+
+
+def _underlays(V, T, parts, pairs, under, cover) -> tuple[np.ndarray, np.ndarray]:
+    """The triangles to copy into underlays ``(c,)`` and the part each copy goes to ``(c,)``.
+
+    Beneath a limb that is cut from a part it lies over, its triangles where it covers that part
+    (:func:`_covered`) are copied into that part, and so is every limb triangle beside a cut: when
+    the limb moves away, the part beneath is there, joined to it by shared vertices, so an opening
+    seam shows its colour, never the page.  A triangle lying over two parts is copied into both
+    (each copy moves with its own part).  Nothing else is copied: beneath a joined boundary an
+    underlay would only poke out as a flap when the mesh bends there.
+    """
+    centre = V[T].mean(axis=1)
+    cut = np.flatnonzero(under >= 0)
+    p, q = parts[pairs[cut, 0]], parts[pairs[cut, 2]]
+    u = under[cut]
+    pick = [(np.where(p == u, pairs[cut, 2], pairs[cut, 0]), u)]
+    used = {(int(x), int(y)) for x, y in zip(u, np.where(p == u, q, p))}
+    for (uu, oo), f in sorted(cover.items()):
+        if (uu, oo) in used:
+            sel = np.flatnonzero(parts == oo)
+            sel = sel[_lookup(f.astype(np.uint8), centre[sel]) > 0]
+            pick.append((sel, np.full(len(sel), uu)))
+    tri = np.concatenate([t for t, _ in pick]).astype(np.int64)
+    to = np.concatenate([w for _, w in pick]).astype(np.int64)
+    both = np.unique(np.column_stack([to, tri]), axis=0)
+    return both[:, 1], both[:, 0]
+
+
+def underlay_texture(texture: np.ndarray, mask: np.ndarray, mesh: Mesh) -> np.ndarray | None:
+    """The drawing ``(H, W, 4)`` with each part's colour laid, opaque, where its underlay lies, or None
+    without an underlay.
+
+    The colour is the part's most common one (colours binned 16 levels a channel, the mean of the
+    fullest bin) over all its own pixels deeper than half a triangle inside it: its fill, not a
+    line drawn across it (among the pixels around an underlay at a hip, a belt line's ink was the
+    most common), and neither its outline's ink nor a patch of another colour runs in, as an
+    inpainting would let it.
+    """
+    if not (mesh.layer == 1).any():
+        return None
+    H, W = mask.shape
+    out = texture.copy()
+    deep = max(2, int(round(0.5 * mesh.spacing)))
+    inner = np.ones((2 * deep + 1, 2 * deep + 1), np.uint8)
+
+    def raster(sel):
+        img = np.zeros((H, W), np.uint8)
+        for tri in mesh.vertices[mesh.triangles[sel]]:
+            cv2.fillConvexPoly(img, np.rint(tri * 16).astype(np.int32), 1, cv2.LINE_8, 4)
+        return img
+
+    for p in np.unique(mesh.parts[mesh.layer == 1]):
+        region = raster((mesh.layer == 1) & (mesh.parts == p))
+        own = cv2.erode(raster((mesh.layer == 0) & (mesh.parts == p)), inner) & np.asarray(mask, np.uint8)
+        pix = texture[own > 0][:, :3]
+        if not len(pix):
+            continue
+        bins, inv, counts = np.unique(pix >> 4, axis=0, return_inverse=True, return_counts=True)
+        colour = pix[inv.ravel() == np.argmax(counts)].mean(axis=0)
+        # Opaque over the underlay's own triangles (the limb's footprint where it covers the part),
+        # within the drawing (the renderer masks it): wherever a cut beside it opens, this colour shows.
+        sel = region > 0
+        out[sel, :3] = np.rint(colour).astype(np.uint8)
+        out[sel, 3] = 255
+    return out
 

@@ -1,6 +1,6 @@
 """Four-legged drawings: their skeleton read as our 17 points, and driven by a biped's motion.
 
-AnimatedDrawings draws a quadruped (its char6, a pig seen from the side) with
+AnimatedDrawings' skeleton of a quadruped (an animal drawn from the side) has
 ``root``, ``hip``, ``torso``, ``neck`` and three joints per leg:
 ``{right,left}_{hip,knee,foot}_{b,f}`` (``b`` the hind legs, ``f`` the
 front).  Our 17-point body has two legs and two arms, so a quadruped is read
@@ -14,7 +14,7 @@ as (:func:`quadruped_keypoints`):
   inside the mask, as for a biped.
 
 A biped's motion cannot give a horizontal body its bone directions (it would
-stand the pig up on its hind legs), so a quadruped is driven about its drawn
+stand the animal up on its hind legs), so a quadruped is driven about its drawn
 pose (:func:`retarget_quadruped`): every leg bone keeps its drawn direction,
 turned by the swing of a motion leg bone about its mean direction; the hind
 legs follow the motion's legs of their own side and the front legs the legs of

@@ -41,9 +41,8 @@ from multiprocessing import get_context, parent_process
 
 import numpy as np
 
-#: Frames each worker must have before a pool is worth its start-up (bench_animate.py, char1 at
-#: 512 px on 2 idle cores, render: 210 frames 6.29 s in one process, 5.74 s in two; 300 frames
-#: 8.97 vs 6.96 s).
+#: Frames each worker must have before a pool is worth its start-up (benchmarks/bench_animate.py:
+#: a 512 px drawing on 2 cores renders 300 frames a little faster in two processes than in one).
 MIN_FRAMES_PER_WORKER = 100
 
 _RENDERER = None

@@ -1,259 +1,353 @@
-"""A character ready to be driven: mesh, limb curves, subkeys and a factorised ARAP.
+"""A character's parts: which triangle belongs to which part, and where parts stay joined.
 
-:class:`Rig` ties the pieces of this package together.  Frames are given as
-key points ``(T, 17, 2)`` in the character's pixels (e.g. synthesized
-features mapped back with :meth:`nnsf.skeleton.Unifier.inverse_transform`)
-and, optionally, keyframe-interpolated ω ``(T, 8, 2)``; the result is the
-deformed vertices ``(T, n, 2)``.  A renderer needs, besides those,
-``rig.mesh.triangles``, ``rig.mesh.parts`` and the texture coordinates
-``rig.mesh.vertices`` (the rest positions, in texture pixels).
+:class:`Rig` holds the rest key points (the 17 of :data:`nnsf.skeleton.JOINTS`, then three per
+arm the skeleton has beyond the two it drives), the bones that make up each part
+(:data:`nnsf.reshape.parts.PART_BONES` plus the extra arms'), each part's parent and the joint it
+hangs from, and each bone's radius.
 
-Handle sets: ``"subkeys"`` (the paper's method: the 17 key points as
-barycentric handles plus the subkey vertices) or ``"keypoints"`` (the
-comparison baseline of the paper's Fig. 8: the key points alone).
+* **Labels** (:meth:`Rig.segment`): a watershed of the drawing seeded along the bones, so parts end
+  at the drawing's own lines; :meth:`Rig.scores` is the signed distance to each part's region.
+  Before it, and where it leaves a pixel, (:meth:`Rig.band_scores`) a bone stands for a band of its radius along its segment,
+  with flat ends; a point belongs to the part whose band it lies relatively deepest in (depth over
+  radius), or, inside none, to the nearest band.  A thin arm lying against a wide body then keeps
+  its own pixels up to the body's side, where a nearest-bone rule gives the arm a strip of the
+  body or the body a strip of the arm; flat ends make the cut between a limb and its parent a
+  line across the limb at the joint, and keep a wide body out of the head above it.  A bone's
+  radius is the median distance to the silhouette's edge along its middle (the drawing's distance
+  transform); an upper limb segment's is at most 1.5 times its lower segment's, so an upper arm
+  drawn inside the body does not claim the body.
+* **Joints** (:meth:`Rig.cuts`): a part and the part it hangs from are never cut apart along
+  their root cross-section (within :data:`ROOT_DEPTH` child radii of the line through the joint
+  across the child's bone); there the two share vertices, so the joint bends as one piece of paper
+  and cannot crack.  Elsewhere a boundary is only a candidate: :mod:`nnsf.reshape.mesh` cuts it
+  where one part lies over the other in the drawing, with an underlay beneath.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
-from nnsf.reshape.arap import Handles, TwoStepARAP
-from nnsf.reshape.character import Character
-from nnsf.reshape.limbs import N_LIMBS, STRAIGHT, fit_omega
-from nnsf.reshape.layers import build_mesh
-from nnsf.reshape.mesh import Mesh
-from nnsf.reshape.subkeys import SubkeyTracker, Subkeys, init_subkeys
-from nnsf.skeleton import N_JOINTS
-from nnsf.reshape.drive import TORSO
-from nnsf.reshape.pieces import TabMotion
-from nnsf.skeleton import JOINT_INDEX as J
+from nnsf.reshape.parts import JOINS, PART_BONES, PARTS
+from nnsf.skeleton import JOINT_INDEX as J, N_JOINTS
 
-HANDLE_SETS = ("subkeys", "keypoints")
+#: How far from a child's root cross-section (the line through its joint across its bone) its
+#: boundary with its parent stays joined, in units of the child's radius: the cut across a limb at
+#: its joint is shared whole, however wide; beyond it the boundary may be cut where the child lies
+#: over its parent (a fist folded on its arm).
+ROOT_DEPTH = 1.0
+#: An upper limb segment is at most this many times as thick as the segment below it.
+UPPER_TO_LOWER = 1.5
 
-#: The chains :meth:`Rig.drive` moves with a moved pivot: (pivot, points below it, the next first).
-DRIVE_CHAINS = ((J["l_shoulder"], (J["l_elbow"], J["l_wrist"])), (J["r_shoulder"], (J["r_elbow"], J["r_wrist"])),
-                (J["l_hip"], (J["l_knee"], J["l_ankle"])), (J["r_hip"], (J["r_knee"], J["r_ankle"])),
-                (J["neck"], (J["head_top"],)))
+#: The driven arm of each side: (shoulder, elbow, wrist) key points.
+ARMS = {"l": (J["l_shoulder"], J["l_elbow"], J["l_wrist"]), "r": (J["r_shoulder"], J["r_elbow"], J["r_wrist"])}
+
+
+def distance_transform(mask: np.ndarray) -> np.ndarray:
+    """Distance ``(H, W)`` float32 from each mask pixel to the nearest pixel outside (0 outside)."""
+    return cv2.distanceTransform(np.pad(np.asarray(mask, np.uint8), 1), cv2.DIST_L2, 5)[1:-1, 1:-1]
+
+
+def sample(img: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Nearest-pixel values of ``img`` ``(H, W)`` at points ``(..., 2)`` (outside: the nearest border pixel)."""
+    pts = np.asarray(pts, dtype=np.float64)
+    H, W = img.shape
+    ij = np.clip(np.rint(pts.reshape(-1, 2)), 0, [W - 1, H - 1]).astype(np.int64)
+    return img[ij[:, 1], ij[:, 0]].reshape(pts.shape[:-1])
+
+
+def segment_distance(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance ``(k, B)`` from points ``(k, 2)`` to segments ``a → b`` ``(B, 2)``."""
+    d = b - a
+    t = np.einsum("kbx,bx->kb", points[:, None] - a[None], d) / np.maximum((d * d).sum(1), 1e-12)
+    near = a[None] + np.clip(t, 0, 1)[..., None] * d[None]
+    return np.linalg.norm(points[:, None] - near, axis=2)
 
 
 @dataclass
 class Rig:
-    """A meshed character with its handles and prefactorised deformer.
+    """The parts of one character at rest (module docstring).
 
-    Build with :meth:`build`.  Attributes: ``character``, ``mesh``,
-    ``rest_omega`` ``(8, 2)``, ``subkeys`` (empty for the ``"keypoints"``
-    handle set), ``handles``, ``deformer``, ``tracker`` and
-    ``handle_keypoints``: the key point behind each key-point handle (the
-    17 in order; on a split mesh shoulders and hips appear twice).  The
-    handle targets of a frame are its key points at ``handle_keypoints``
-    followed by the tracked subkeys.
+    Attributes
+    ----------
+    keypoints : ``(K, 2)`` rest key points, pixels: the 17, then (shoulder, elbow, hand) per extra arm.
+    bones : ``(B, 3)`` int64, ``(a, b, part)``: key-point segments and the part each belongs to.
+    radius : ``(B,)`` bone radii, pixels.
+    parts : part names; ids index it.
+    parent, joint : ``(P,)`` each part's parent part and the key point it hangs from (−1 for the torso).
+    extra_sides : ``"l"`` or ``"r"`` per extra arm: the driven arm it turns with.
     """
 
-    character: Character
-    mesh: Mesh
-    rest_omega: np.ndarray
-    subkeys: Subkeys
-    handles: Handles
-    deformer: TwoStepARAP
-    tracker: SubkeyTracker | None
-    handle_set: str
-    handle_keypoints: np.ndarray
-    #: The rest key points the mesh is driven by ``(17, 2)``: the character's, or on a pieced
-    #: mesh with its pivots moved onto the cuts (:func:`nnsf.reshape.pieces.move_pivots`).
-    #: Callers always pass key points in the character's own sense; :meth:`drive` maps them.
-    rest_keypoints: np.ndarray | None = None
-
-    def __post_init__(self):
-        if self.rest_keypoints is None:
-            self.rest_keypoints = np.asarray(self.character.keypoints, dtype=np.float64).copy()
-        self._prepare()
-
-    def _prepare(self) -> None:
-        """What :meth:`drive` and the tabs need per frame, from the rest pose (once per rig)."""
-        rest0 = np.asarray(self.character.keypoints, dtype=np.float64)
-        rest1 = np.asarray(self.rest_keypoints, dtype=np.float64)
-        self._moved = not np.allclose(rest1, rest0)
-        torso = list(TORSO)
-        self._rest_torso = rest0[torso] - rest0[torso].mean(0)  # a₀ (5, 2)
-        # The chains whose pivot moved: pivot j, the next point and everything further down.
-        chains = [(j, down) for j, down in DRIVE_CHAINS if not np.allclose(rest0[j], rest1[j])]
-        self._pivots = np.array([j for j, _ in chains], dtype=np.int64)
-        self._next = np.array([down[0] for _, down in chains], dtype=np.int64)
-        self._pivot_offsets = np.array([rest1[j] - rest0[torso].mean(0) for j, _ in chains]).reshape(-1, 2)
-        self._next_lengths = np.array([float(np.linalg.norm(rest1[down[0]] - rest1[j])) for j, down in chains])
-        self._below = np.array([q for _, down in chains for q in down], dtype=np.int64)
-        self._below_chain = np.array([i for i, (_, down) in enumerate(chains) for _ in down], dtype=np.int64)
-        self._tab_motion = TabMotion(self.mesh.tabs, rest1, self.mesh.vertices) if self.mesh.tabs else None
-
-    @property
-    def moved(self) -> bool:
-        """Whether the pivots differ from the character's key points."""
-        return self._moved
-
-    def drive(self, keypoints) -> np.ndarray:
-        """Key points ``(..., 17, 2)`` in the character's sense -> the ones that drive this rig.
-
-        Without moved pivots this is the identity.  With them, as the
-        retargeting does (docs/method.md §12): every frame's torso pose (the
-        rotation and translation fitted to the torso's key points,
-        :data:`nnsf.reshape.drive.TORSO`) carries each moved pivot; the
-        limb (or head) below it keeps its direction in the frame and the
-        length it has from the pivot at rest, and every point further down
-        moves with it.  A rigid motion of the whole figure stays exactly
-        rigid.  All moved chains are handled at once (what depends on the
-        rest pose alone is prepared when the rig is made).
-        """
-        kp = self._check(keypoints)
-        if not self._moved:
-            return kp
-
-        one = kp.ndim == 2
-        K = kp[None] if one else kp
-        torso = list(TORSO)
-        a0 = self._rest_torso
-        c_t = K[:, torso].mean(1)  # (T, 2)
-        b = K[:, torso] - c_t[:, None]
-        ang = np.arctan2((a0[None, :, 0] * b[..., 1] - a0[None, :, 1] * b[..., 0]).sum(1),
-                         (a0[None] * b).sum((1, 2)))
-        c, s = np.cos(ang)[:, None], np.sin(ang)[:, None]  # (T, 1)
-        out = K.copy()
-        j, nxt, v = self._pivots, self._next, self._pivot_offsets
-        piv = c_t[:, None] + np.stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1]], -1)  # (T, c, 2)
-        d = K[:, nxt] - K[:, j]
-        d = d / np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-12)
-        new_next = piv + d * self._next_lengths[:, None]
-        out[:, j] = piv
-        shift = new_next - K[:, nxt]
-        out[:, self._below] = K[:, self._below] + shift[:, self._below_chain]
-        return out[0] if one else out
+    keypoints: np.ndarray
+    bones: np.ndarray
+    radius: np.ndarray
+    parts: tuple[str, ...]
+    parent: np.ndarray
+    joint: np.ndarray
+    extra_sides: tuple[str, ...] = ()
+    #: Parts whose seam with their parent is never cut: they move as one (a head that keeps its
+    #: drawn angle to the body, ``head: torso``), so a cut would only open pinholes between them.
+    fused: tuple[int, ...] = ()
+    #: ``(H, W)`` int16, the part of each drawn pixel (−1 off the drawing), :meth:`segment`.
+    labels: np.ndarray | None = None
 
     @classmethod
-    def build(cls, character: Character, n_vertices: int = 800, handle_set: str = "subkeys",
-              subkeys_per_limb: int = 4, keypoint_weight: float = 10.0, subkey_weight: float = 10.0,
-              omega: np.ndarray | str = "fit", mesh: Mesh | None = None, split=False,
-              fit_subkeys: bool = True, keep_offset: bool = True, propagation: str = "eq12") -> "Rig":
-        """Mesh ``character`` and factorise the deformation for one handle set.
+    def build(cls, character) -> "Rig":
+        """The rig of a :class:`~nnsf.reshape.character.Character` (its mask, key points, extra arms)."""
+        kp = [np.asarray(character.keypoints, dtype=np.float64)]
+        bones = [list(b) for b in PART_BONES]
+        parts = list(PARTS)
+        parent = [-1] + [0] * (len(PARTS) - 1)
+        joint = [-1] * len(PARTS)
+        for p, c, j in JOINS:
+            parent[c], joint[c] = p, j
+        sides = []
+        for k, arm in enumerate(character.extra_limbs):
+            base = N_JOINTS + 3 * k
+            kp.append(np.asarray(arm["joints"], dtype=np.float64).reshape(3, 2))
+            upper, fore = len(parts), len(parts) + 1
+            parts += [f"{arm['side']}_extra_upper_arm_{k + 1}", f"{arm['side']}_extra_forearm_{k + 1}"]
+            bones += [[base, base + 1, upper], [base + 1, base + 2, fore]]
+            parent += [0, upper]
+            joint += [base, base + 1]
+            sides.append(arm["side"])
+        kp = np.vstack(kp)
+        bones = np.array(bones, dtype=np.int64)
+        dist = distance_transform(character.mask)
+        lam = np.linspace(0.25, 0.75, 9)[:, None, None]
+        along = kp[bones[:, 0]][None] + lam * (kp[bones[:, 1]] - kp[bones[:, 0]])[None]   # (9, B, 2)
+        radius = np.maximum(np.median(sample(dist, along), axis=0), 1.0)
+        # An upper segment is no thicker than UPPER_TO_LOWER times the segment it carries.
+        for b, (_, _, part) in enumerate(bones):
+            lower = [i for i, (_, _, q) in enumerate(bones) if parent[q] == part and q != part and part != 0]
+            if lower:
+                radius[b] = min(radius[b], UPPER_TO_LOWER * min(radius[i] for i in lower))
+        fused = (PARTS.index("head"),) if getattr(character, "head", None) == "torso" else ()
+        rig = cls(kp, bones, radius.astype(np.float64), tuple(parts), np.array(parent), np.array(joint),
+                  tuple(sides), fused)
+        rig.labels = rig.segment(character.texture, character.mask)
+        return rig
 
-        Parameters
-        ----------
-        n_vertices : target mesh size (ignored when ``mesh`` is given).
-        handle_set : ``"subkeys"`` or ``"keypoints"``.
-        keypoint_weight, subkey_weight : handle weights w (the shape terms
-            weigh 1 per triangle corner; with 10 the handles are met within
-            about a pixel even in strained poses, and the normal matrices
-            stay well conditioned: condition numbers about 5·10³ (step 1)
-            and 9·10² (step 2) on char1 at 800 vertices, against 5·10⁵ and
-            7·10⁴ with w = 100).
-        omega : rest ω ``(8, 2)``, ``"fit"`` (:func:`~nnsf.reshape.limbs.fit_omega`)
-            or ``"straight"``.
-        mesh : reuse a mesh, e.g. to compare handle sets on the same triangles.
-        split : ``False`` (connected mesh), ``True`` (limbs cut loose,
-            :func:`~nnsf.reshape.mesh.split_pieces`) or ``"layered"`` (every
-            segment a piece, with collars and an underlay,
-            :func:`~nnsf.reshape.mesh.layer_pieces`); ignored when ``mesh``
-            is given (its own ``pieces`` decide).
-        fit_subkeys, keep_offset, propagation : see
-            :class:`~nnsf.reshape.subkeys.SubkeyTracker`.
+    def segment(self, texture: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """The part of every drawn pixel ``(H, W)`` int16 (−1 off the drawing): a watershed of the drawing.
+
+        Each part is seeded by its bones' middles (λ from 0.2 to 0.8, half their radius thick, thin
+        bones over thick ones) and flooded over the drawing by ``cv2.watershed``, which grows regions
+        through flat colour first and meets at the drawing's edges: a limb ends where its outline,
+        or a change of colour, is drawn.  Where nothing is drawn between two parts they meet half
+        way.  A pixel the watershed leaves on a boundary, or gives to a part whose band
+        (:meth:`band_scores`) lies farther than that part's radius away, takes the band's part.
         """
-        if handle_set not in HANDLE_SETS:
-            raise ValueError(f"handle_set must be one of {HANDLE_SETS}, got {handle_set!r}")
-        kp = character.keypoints
-        if mesh is None:
-            mesh = build_mesh(character.mask, kp, n_vertices=n_vertices, split=split,
-                              texture=character.texture, extra_limbs=character.extra_limbs)
-        rest_kp = kp.copy()
-        if mesh.pivots is not None and not np.allclose(mesh.pivots, kp):
-            # A pieced mesh's limbs turn where they meet the body (nnsf.reshape.pieces.move_pivots).
-            rest_kp = np.asarray(mesh.pivots, dtype=np.float64).copy()
-            kp = rest_kp
-        if isinstance(omega, str):
-            if omega == "fit":
-                omega = fit_omega(character.mask, kp)
-            elif omega == "straight":
-                omega = np.tile(STRAIGHT, (N_LIMBS, 1))
-            else:
-                raise ValueError(f"omega must be an (8, 2) array, 'fit' or 'straight', got {omega!r}")
-        omega = np.asarray(omega, dtype=np.float64).reshape(N_LIMBS, 2)
-        # Joint tabs (a pieced mesh's last vertices) are not solved for: they follow their bone.
-        nc = mesh.core
-        Vc, Tc = mesh.vertices[:nc], mesh.triangles[mesh.core_triangles]
-        Pc = mesh.pieces[mesh.core_triangles]
-        if mesh.is_split:
-            # Each piece is pinned by its own key points; a shoulder or hip
-            # becomes one handle on each side of its seam.
-            # (A piece without triangles, possible on a very coarse mesh, gets no handles.)
-            used = set(np.unique(Pc).tolist())
-            parts = [(pc, j) for pc, kps in enumerate(mesh.piece_keypoints) if pc in used for j in kps]
-            handle_kp = np.array([j for _, j in parts], dtype=np.int64)
-            handles = None
-            for pc, j in parts:
-                h = Handles.at_points(Vc, Tc[Pc == pc], kp[[j]], keypoint_weight)
-                handles = h if handles is None else handles + h
-            vp = np.zeros(nc, dtype=np.int64)
-            vp[Tc.ravel()] = np.repeat(Pc, 3)
-            # A limb's subkeys come from its own piece: the one holding most of its triangles.
-            lc = mesh.layer[mesh.core_triangles]
-            own = [np.bincount(Pc[(mesh.parts[mesh.core_triangles] == 2 + i) & (lc == 0)],
-                               minlength=len(mesh.piece_names)).argmax()
-                   if ((mesh.parts[mesh.core_triangles] == 2 + i) & (lc == 0)).any() else -1
-                   for i in range(N_LIMBS)]
-            candidates = [np.flatnonzero(vp == own[i]) if own[i] >= 0 else np.zeros(0, np.int64)
-                          for i in range(N_LIMBS)]
-        else:
-            handle_kp = np.arange(N_JOINTS)
-            handles = Handles.at_points(Vc, Tc, kp, keypoint_weight)
-            candidates = None
-        if handle_set == "subkeys":
-            subkeys = init_subkeys(Vc, kp, omega, per_limb=subkeys_per_limb, candidates=candidates)
-            handles = handles + Handles.at_vertices(nc, subkeys.vertex, subkey_weight)
-            tracker = SubkeyTracker(subkeys, kp, omega, fit=fit_subkeys, keep_offset=keep_offset,
-                                    propagation=propagation)
-        else:
-            subkeys = Subkeys(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 2)))
-            tracker = None
-        deformer = TwoStepARAP(Vc, Tc, handles)
-        return cls(character, mesh, omega, subkeys, handles, deformer, tracker, handle_set, handle_kp, rest_kp)
+        mask = np.asarray(mask, dtype=bool)
+        H, W = mask.shape
+        markers = np.zeros((H, W), np.int32)
+        a, b = self.keypoints[self.bones[:, 0]], self.keypoints[self.bones[:, 1]]
+        # A seed is no thicker than the lines drawn about its bone allow: a limb drawn inside the
+        # body's silhouette (an arm across the chest) has the silhouette's depth as its radius, and
+        # a seed that wide would flood the body.
+        edges = cv2.Canny(cv2.cvtColor(np.ascontiguousarray(texture[..., :3]), cv2.COLOR_RGB2GRAY), 50, 150) > 0
+        room = distance_transform(mask & ~edges)
+        lam = np.linspace(0.2, 0.8, 7)[:, None, None]
+        reach = np.median(sample(room, a[None] + lam * (b - a)[None]), axis=0)
+        seed = np.minimum(self.radius, np.maximum(reach, 1.0))
+        for k in np.argsort(-seed, kind="stable"):
+            p, q = a[k] + 0.2 * (b[k] - a[k]), a[k] + 0.8 * (b[k] - a[k])
+            cv2.line(markers, tuple(np.rint(p * 16).astype(int)), tuple(np.rint(q * 16).astype(int)),
+                     int(self.bones[k, 2]) + 1, max(1, int(0.5 * seed[k])), cv2.LINE_8, 4)
+        seeds = markers.copy()
+        markers[~mask] = self.n_parts + 1
+        cv2.watershed(np.ascontiguousarray(texture[..., 2::-1]), markers)
+        labels = (markers - 1).astype(np.int16)
+        labels[~mask] = -1
+        # A flood that ran far outside its part's band (through a region no other seed reached) and
+        # the watershed's boundary pixels take the band's part.
+        near = np.zeros((self.n_parts, H, W), np.uint8)
+        reach = np.maximum(2.0, self.part_radius())
+        for (i, j, p), r in zip(self.bones, self.radius):
+            u = self.keypoints[j] - self.keypoints[i]
+            u = u / max(float(np.linalg.norm(u)), 1e-9)
+            n, grow = np.array([-u[1], u[0]]), reach[p]
+            box = np.array([self.keypoints[i] - grow * u + (r + grow) * n, self.keypoints[j] + grow * u + (r + grow) * n,
+                            self.keypoints[j] + grow * u - (r + grow) * n, self.keypoints[i] - grow * u - (r + grow) * n])
+            cv2.fillConvexPoly(near[p], np.rint(box * 16).astype(np.int32), 1, cv2.LINE_8, 4)
+        ok = (labels >= 0) & (labels < self.n_parts)
+        own = np.zeros((H, W), bool)
+        own[ok] = near[labels[ok], np.nonzero(ok)[0], np.nonzero(ok)[1]] > 0
+        bad = mask & ~own
+        if bad.any():
+            ys, xs = np.nonzero(bad)
+            labels[ys, xs] = np.argmin(self.band_scores(np.column_stack([xs, ys])), axis=1)
+        # A strip of a part thinner than 5 px more than 2 px from its bones (a stroke of outline the
+        # flood ran along) would hang between seams, and a piece of a part cut off from its seeds
+        # would move with a limb it does not touch: both are flooded again from the parts around
+        # them, through the drawing only (a claw beside a leg stays with its hand).
+        disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
+        core = np.zeros((H, W), np.uint8)
+        for i, j, _ in self.bones:
+            cv2.line(core, tuple(np.rint(self.keypoints[i] * 16).astype(int)),
+                     tuple(np.rint(self.keypoints[j] * 16).astype(int)), 1, 5, cv2.LINE_8, 4)
+        loose = np.zeros((H, W), bool)
+        for p in range(self.n_parts):
+            region = (labels == p).astype(np.uint8)
+            loose |= (region > 0) & (cv2.morphologyEx(region, cv2.MORPH_OPEN, disc) == 0) & (core == 0)
+            n, comp = cv2.connectedComponents(region & ~loose.astype(np.uint8), connectivity=8)
+            seeded = np.unique(comp[(seeds == p + 1) & (comp > 0)])
+            if n > 2 and len(seeded):
+                loose |= (comp > 0) & ~np.isin(comp, seeded)
+        loose &= mask
+        if loose.any() and (mask & ~loose).any():
+            flood = np.where(mask & ~loose, labels.astype(np.int32) + 1, 0).astype(np.int32)
+            flood[~mask] = self.n_parts + 1
+            cv2.watershed(np.ascontiguousarray(texture[..., 2::-1]), flood)
+            # The watershed's own boundary pixels take a neighbour's part.
+            for _ in range(4):
+                edge = mask & ((flood <= 0) | (flood > self.n_parts))
+                if not edge.any():
+                    break
+                grown = cv2.dilate(np.where((flood > 0) & (flood <= self.n_parts), flood, 0).astype(np.float32),
+                                   np.ones((3, 3), np.uint8)).astype(np.int32)
+                flood[edge] = grown[edge]
+            fixed = mask & (flood > 0) & (flood <= self.n_parts)
+            labels[fixed] = (flood[fixed] - 1).astype(np.int16)
+        return labels
 
-    # ------------------------------------------------------------------ driving
+    @property
+    def n_parts(self) -> int:
+        return len(self.parts)
 
-    def _check(self, keypoints) -> np.ndarray:
+    def chains(self) -> np.ndarray:
+        """Each part's limb ``(P,)``: the part that hangs from the body above it, −1 for the body and
+        the head."""
+        out = np.full(self.n_parts, -1, dtype=np.int64)
+        for p in range(self.n_parts):
+            q = p
+            while q >= 0 and self.parent[q] > 0:
+                q = self.parent[q]
+            out[p] = q if self.parent[p] >= 0 and q != PARTS.index("head") else -1
+        return out
+
+    def part_radius(self) -> np.ndarray:
+        """``(P,)`` the largest radius of each part's bones, pixels."""
+        out = np.zeros(self.n_parts)
+        np.maximum.at(out, self.bones[:, 2], self.radius)
+        return out
+
+    # ------------------------------------------------------------------ labels and seams
+
+    def scores(self, points: np.ndarray) -> np.ndarray:
+        """``(k, P)`` score of each point ``(k, 2)`` for each part: its signed distance (pixels) to the
+        part's region of :attr:`labels`, negative inside (:meth:`band_scores` without labels)."""
+        if self.labels is None:
+            return self.band_scores(points)
+        pts = np.asarray(points, dtype=np.float64)
+        out = np.full((len(pts), self.n_parts), np.inf)
+        for p in range(self.n_parts):
+            region = (self.labels == p).astype(np.uint8)
+            if region.any():
+                inside = cv2.distanceTransform(region, cv2.DIST_L2, 3)
+                outside = cv2.distanceTransform(1 - region, cv2.DIST_L2, 3)
+                out[:, p] = sample(outside - inside, pts)
+        return out
+
+    def band_scores(self, points: np.ndarray) -> np.ndarray:
+        """``(k, P)`` score of each point ``(k, 2)`` for each part: the lowest over the part's bones.
+
+        A bone stands for the band of its radius along its segment, with flat ends (a rectangle).  A
+        point inside it scores −depth / radius, in [−1, 0] (depth: its distance to the band's edge),
+        so the thin core of a limb wins over a wide body around it; a point outside scores its
+        distance to the band in pixels, so any inside beats every outside.
+        """
+        pts = np.asarray(points, dtype=np.float64)
+        a, b = self.keypoints[self.bones[:, 0]], self.keypoints[self.bones[:, 1]]
+        d = b - a
+        L = np.maximum(np.linalg.norm(d, axis=1), 1e-9)
+        u = d / L[:, None]
+        rel = pts[:, None, :] - a[None]                                  # (k, B, 2)
+        along = (rel * u[None]).sum(-1)                                  # (k, B)
+        perp = np.abs(rel[..., 0] * u[None, :, 1] - rel[..., 1] * u[None, :, 0])
+        over = np.maximum(np.maximum(-along, along - L[None]), 0.0)
+        side = np.maximum(perp - self.radius[None], 0.0)
+        depth = np.minimum(np.minimum(along, L[None] - along), self.radius[None] - perp)
+        score = np.where((over > 0) | (side > 0), np.hypot(over, side), -depth / self.radius[None])
+        out = np.full((len(pts), self.n_parts), np.inf)
+        for p in range(self.n_parts):
+            sel = self.bones[:, 2] == p
+            if sel.any():
+                out[:, p] = score[:, sel].min(axis=1)
+        return out
+
+    def label(self, points: np.ndarray) -> np.ndarray:
+        """Part id ``(k,)`` of points ``(k, 2)``: the lowest :meth:`scores`."""
+        return np.argmin(self.scores(points), axis=1)
+
+    def root_distance(self, points: np.ndarray, child: int, radius=None) -> np.ndarray:
+        """``(k,)`` how far points ``(k, 2)`` lie from ``child``'s root cross-section, in units of its
+        radius: |(x − joint) · u| / r, with u the direction of the child's bone that leaves the joint
+        and r ``radius`` (pixels; default :meth:`part_radius`)."""
+        j = self.joint[child]
+        bone = next((b for b in self.bones if b[2] == child and b[0] == j), None)
+        if bone is None:
+            return np.full(len(points), np.inf)
+        u = self.keypoints[bone[1]] - self.keypoints[j]
+        u = u / max(float(np.linalg.norm(u)), 1e-9)
+        r = self.part_radius()[child] if radius is None else radius
+        return np.abs((np.asarray(points, np.float64) - self.keypoints[j]) @ u) / max(float(r), 1e-9)
+
+    def cuts(self, midpoints: np.ndarray, p: np.ndarray, q: np.ndarray, radius=None) -> np.ndarray:
+        """Which edges ``(e,)`` may be cut: edge midpoints ``(e, 2)`` between triangles of parts ``p``, ``q``.
+
+        A part and the part it hangs from stay joined along their whole boundary across the joint:
+        the edges within :data:`ROOT_DEPTH` child radii of the line through the joint across the
+        child's bone (its root cross-section), and everywhere if the child is fused.  Every other
+        edge between two parts is a candidate; the mesh cuts only the candidates where one part
+        lies over the other (:func:`nnsf.reshape.mesh.build_mesh`).  ``radius`` ``(P,)``: each part's
+        own half-width in pixels where known (> 0), else :meth:`part_radius` (the drawing's distance
+        transform, which sees the silhouette, not a limb drawn inside it).
+        """
+        out = p != q
+        for a, b in {(int(x), int(y)) for x, y in zip(p[out], q[out])}:
+            child = b if self.parent[b] == a else a if self.parent[a] == b else -1
+            if child < 0:
+                continue
+            sel = np.flatnonzero(out & (p == a) & (q == b))
+            if child in self.fused:
+                out[sel] = False
+                continue
+            r = radius[child] if radius is not None and radius[child] > 0 else None
+            out[sel[self.root_distance(midpoints[sel], child, r) <= ROOT_DEPTH]] = False
+        return out
+
+    # ------------------------------------------------------------------ extra arms
+
+    def full_keypoints(self, keypoints: np.ndarray) -> np.ndarray:
+        """Key points ``(T, 17, 2)`` → ``(T, K, 2)`` with every extra arm placed.
+
+        An extra arm's shoulder is carried by the torso (the rotation of the thorax → pelvis line
+        about the thorax); each of its two bones keeps its drawn length and turns from its drawn
+        direction by the angle its side's driven bone has turned from rest.
+        """
         kp = np.asarray(keypoints, dtype=np.float64)
-        if kp.shape[-2:] != (N_JOINTS, 2):
-            raise ValueError(f"expected key points (..., {N_JOINTS}, 2), got {kp.shape}")
-        return kp
+        if not self.extra_sides:
+            return kp
+        rest = self.keypoints
+        T = len(kp)
+        out = np.concatenate([kp, np.zeros((T, len(rest) - N_JOINTS, 2))], axis=1)
 
-    def targets(self, keypoints, omega=None) -> np.ndarray:
-        """Handle targets ``(T, m, 2)`` for a clip ``(T, 17, 2)`` that starts from rest.
+        def turn(v0, v):  # angle (T,) from rest vector v0 (2,) to vectors v (T, 2)
+            return np.arctan2(v[:, 1], v[:, 0]) - np.arctan2(v0[1], v0[0])
 
-        Subkeys are tracked from the rest pose through every frame in order.
-        """
-        kp = self.drive(keypoints)
-        key = kp[..., self.handle_keypoints, :]
-        if self.tracker is None:
-            return key
-        sub = self.tracker.track(kp, omega)
-        return np.concatenate([key, sub], axis=1)
+        def rotate(v, ang):  # (2,) or (T, 2) by (T,)
+            c, s = np.cos(ang)[:, None], np.sin(ang)[:, None]
+            return np.stack([c[:, 0] * v[..., 0] - s[:, 0] * v[..., 1], s[:, 0] * v[..., 0] + c[:, 0] * v[..., 1]], -1)
 
-    def animate(self, keypoints, omega=None, steps: int = 2) -> np.ndarray:
-        """Deformed vertices ``(T, n, 2)`` (pixels) for key points ``(T, 17, 2)``."""
-        V = self.deformer.deform(self.targets(keypoints, omega), steps=steps)
-        return self._with_tabs(V, self.drive(keypoints))
-
-    def _with_tabs(self, V: np.ndarray, kp: np.ndarray) -> np.ndarray:
-        """The solved vertices ``(T, n_core, 2)`` with the mesh's joint tabs attached (``(T, n, 2)``)."""
-        if self._tab_motion is None:
-            return V
-        return self._tab_motion(V, kp)
-
-    def reset(self) -> None:
-        """Restart streaming (:meth:`step`) from the rest pose."""
-        if self.tracker is not None:
-            self.tracker.reset()
-
-    def step(self, keypoints, omega=None) -> np.ndarray:
-        """Streaming: deform one frame ``(17, 2)`` after the previous one; returns ``(n, 2)``."""
-        kp = self.drive(keypoints)
-        key = kp[self.handle_keypoints]
-        g = key if self.tracker is None else np.concatenate([key, self.tracker.step(kp, omega)])
-        return self._with_tabs(self.deformer.deform(g)[None], kp[None])[0]
+        spine = turn(rest[J["pelvis"]] - rest[J["thorax"]], kp[:, J["pelvis"]] - kp[:, J["thorax"]])
+        for k, side in enumerate(self.extra_sides):
+            b = N_JOINTS + 3 * k
+            sh, el, wr = ARMS[side]
+            out[:, b] = kp[:, J["thorax"]] + rotate(rest[b] - rest[J["thorax"]], spine)
+            up = turn(rest[el] - rest[sh], kp[:, el] - kp[:, sh])
+            fore = turn(rest[wr] - rest[el], kp[:, wr] - kp[:, el])
+            out[:, b + 1] = out[:, b] + rotate(rest[b + 1] - rest[b], up)
+            out[:, b + 2] = out[:, b + 1] + rotate(rest[b + 2] - rest[b + 1], fore)
+        return out

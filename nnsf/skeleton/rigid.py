@@ -1,7 +1,6 @@
 """Rigid motions of 2-D point sets: the least-squares fit between two placements, and rotations.
 
-Shared by the tracker (a limb's rigid motion between frames, :mod:`nnsf.roto.limbs`) and the
-renderer (a mesh piece's motion, :class:`nnsf.reshape.tab_texture.TabClip`).
+Used by the tracker (a limb's rigid motion between frames, :mod:`nnsf.roto.limbs`).
 """
 from __future__ import annotations
 

@@ -1,0 +1,158 @@
+"""The deformation of a character's mesh, frame by frame (docs/method.md §10-§13, the paper's §5).
+
+:class:`Deformer` is built once per character and handle set:
+
+* **Key-point handles**: every key point of the rig (the 17, and an extra arm's three) is a
+  barycentric combination of the corners of the triangle holding it, chosen among the triangles
+  of the parts that key point ends a bone of (the shoulder pins the upper arm or the torso, never
+  the underlay beneath the arm).
+* **Subkeys** (``method="ours"``, the paper's): per limb, the vertices of the limb's own
+  triangles nearest ``subkeys_per_limb`` samples of its rest Bézier curve (Eq. 9-11,
+  :func:`nnsf.reshape.subkeys.init_subkeys`), tracked through the clip by Eq. 12-14
+  (:class:`nnsf.reshape.subkeys.SubkeyTracker`).  ``method="keypoints"`` leaves them out: the
+  comparison baseline of the paper's Fig. 8.
+* **Two-step ARAP** (:class:`nnsf.reshape.arap.TwoStepARAP`, Igarashi et al. 2005), factorised
+  once; a frame is a few sparse products and one back-solve.  An underlay's own vertices then ride
+  with the part beneath (:func:`underlay_riders`).
+
+:meth:`Deformer.run` maps a clip of key points ``(T, 17, 2)`` to vertices ``(T, n, 2)``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from nnsf.reshape.arap import Handles, TwoStepARAP, barycentric
+from nnsf.reshape.limbs import N_LIMBS, fit_omega
+from nnsf.reshape.mesh import Mesh
+from nnsf.reshape.subkeys import SubkeyTracker, Subkeys, init_subkeys
+from nnsf.skeleton import N_JOINTS
+
+#: Deformation methods: the paper's (key points and subkeys) and the key-points-only baseline.
+METHODS = ("ours", "keypoints")
+
+
+def keypoint_handles(mesh: Mesh, rig, weight: float) -> Handles:
+    """One handle per rig key point (module docstring)."""
+    own = mesh.layer == 0
+    rows = []
+    for k, p in enumerate(rig.keypoints):
+        parts = np.unique(rig.bones[(rig.bones[:, 0] == k) | (rig.bones[:, 1] == k), 2])
+        cand = np.flatnonzero(own & np.isin(mesh.parts, parts))
+        bary, tri = barycentric(mesh.vertices, mesh.triangles[cand], p[None]) if len(cand) else (None, None)
+        # A key point just outside its parts' triangles (under a limb drawn over its part, in a
+        # seam) still pins its own part, by the nearest triangle's affine extension: pinning the
+        # limb over it would tie the limb to the body.  Only far from its parts (more than about a
+        # triangle), the triangle it lies in.
+        if bary is None or bary.min() < -1.0:
+            cand = np.flatnonzero(own)
+            bary, tri = barycentric(mesh.vertices, mesh.triangles[cand], p[None])
+        rows.append((mesh.triangles[cand[tri[0]]], bary[0]))
+    import scipy.sparse as sp
+
+    m = sp.csr_matrix((np.concatenate([b for _, b in rows]),
+                       (np.repeat(np.arange(len(rows)), 3), np.concatenate([t for t, _ in rows]))),
+                      shape=(len(rows), mesh.n_vertices))
+    return Handles(m, np.full(len(rows), float(weight)))
+
+
+def underlay_riders(mesh: Mesh):
+    """The underlay's own vertices ``(k,)`` (used by no triangle of the drawing) and a sparse
+    ``(k, n)`` map placing each from the vertices of the nearest triangle of its part.
+
+    An underlay is joined to its part along the cut beside it, which may be short; solved by ARAP
+    with the rest, a patch could swing about that seam and show beside its part (over a leg the body
+    hides).  Instead each of its own vertices rides with the part beneath: the affine extension
+    (barycentric coordinates, outside the triangle too) of the part's nearest triangle at rest.
+    """
+    import scipy.sparse as sp
+
+    own = mesh.layer == 0
+    drawn = np.zeros(mesh.n_vertices, bool)
+    drawn[mesh.triangles[own].ravel()] = True
+    rows, cols, vals, riders = [], [], [], []
+    for p in np.unique(mesh.parts[~own]):
+        free = np.setdiff1d(np.unique(mesh.triangles[(~own) & (mesh.parts == p)]), np.flatnonzero(drawn))
+        cand = np.flatnonzero(own & (mesh.parts == p))
+        if not len(free) or not len(cand):
+            continue
+        # The nearest triangle by centroid, then its barycentric coordinates (affine extension).
+        cen = mesh.vertices[mesh.triangles[cand]].mean(axis=1)
+        near = cand[np.argmin(((mesh.vertices[free][:, None] - cen[None]) ** 2).sum(-1), axis=1)]
+        for k, (v, t) in enumerate(zip(free, near)):
+            bary, _ = barycentric(mesh.vertices, mesh.triangles[t][None], mesh.vertices[v][None])
+            rows += [len(riders)] * 3
+            cols += list(mesh.triangles[t])
+            vals += list(bary[0])
+            riders.append(v)
+    ride = sp.csr_matrix((vals, (rows, cols)), shape=(len(riders), mesh.n_vertices))
+    return np.asarray(riders, dtype=np.int64), ride
+
+
+class Deformer:
+    """Handles, subkeys and the prefactorised two-step ARAP of one mesh (module docstring).
+
+    Parameters
+    ----------
+    mesh : :class:`~nnsf.reshape.mesh.Mesh`; rig : :class:`~nnsf.reshape.rig.Rig`.
+    mask : ``(H, W)`` bool, the drawing's silhouette (the rest ω is fitted to it, Eq. 10).
+    method : ``"ours"`` (key points and subkeys) or ``"keypoints"``.
+    subkeys_per_limb : subkeys per limb (Eq. 11).
+    weight : handle weight w of every handle (the shape terms weigh 1 per triangle corner; with 10
+        the handles are met within about a pixel in strained poses and the normal matrices stay
+        well conditioned).
+    propagation : subkey propagation, ``"limb-frame"`` or ``"eq12"``
+        (:class:`~nnsf.reshape.subkeys.SubkeyTracker`).
+    """
+
+    def __init__(self, mesh: Mesh, rig, mask: np.ndarray, method: str = "ours", subkeys_per_limb: int = 4,
+                 weight: float = 10.0, propagation: str = "limb-frame"):
+        if method not in METHODS:
+            raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+        self.mesh, self.rig, self.method = mesh, rig, method
+        kp = rig.keypoints[:N_JOINTS]
+        self.rest_omega = fit_omega(mask, kp)
+        handles = keypoint_handles(mesh, rig, weight)
+        self.tracker = None
+        self.subkeys = Subkeys(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 2)))
+        if method == "ours" and subkeys_per_limb > 0:
+            # A limb's subkeys are vertices of its own triangles that no other part shares.
+            own = mesh.layer == 0
+            count = np.zeros((mesh.n_vertices, rig.n_parts), dtype=np.int64)
+            np.add.at(count, (mesh.triangles[own].ravel(), np.repeat(mesh.parts[own], 3)), 1)
+            only = (count > 0).sum(axis=1) == 1
+            owner = count.argmax(axis=1)
+            candidates = [np.flatnonzero(only & (owner == 2 + i)) for i in range(N_LIMBS)]
+            self.subkeys = init_subkeys(mesh.vertices, kp, self.rest_omega, per_limb=subkeys_per_limb,
+                                        candidates=candidates)
+            handles = handles + Handles.at_vertices(mesh.n_vertices, self.subkeys.vertex, weight)
+            self.tracker = SubkeyTracker(self.subkeys, kp, self.rest_omega, propagation=propagation)
+        self.handles = handles
+        self.arap = TwoStepARAP(mesh.vertices, mesh.triangles, handles)
+        self.riders, self.ride = underlay_riders(mesh)
+
+    def targets(self, keypoints: np.ndarray, omega=None) -> np.ndarray:
+        """Handle targets ``(T, m, 2)`` for key points ``(T, 17, 2)``; subkeys tracked from rest."""
+        kp = np.asarray(keypoints, dtype=np.float64)
+        g = self.rig.full_keypoints(kp)
+        if self.tracker is None:
+            return g
+        return np.concatenate([g, self.tracker.track(kp, omega)], axis=1)
+
+    def run(self, keypoints: np.ndarray, omega=None) -> np.ndarray:
+        """Deformed vertices ``(T, n, 2)`` for key points ``(T, 17, 2)`` (pixels); ``omega``
+        ``(T, 8, 2)`` or ``(8, 2)`` keyframed limb curves (default: the rest ω every frame)."""
+        kp = np.asarray(keypoints, dtype=np.float64)
+        if kp.ndim != 3 or kp.shape[1:] != (N_JOINTS, 2):
+            raise ValueError(f"expected key points (frames, {N_JOINTS}, 2), got {kp.shape}")
+        if len(kp) == 0:
+            return np.zeros((0, self.mesh.n_vertices, 2))
+        V = self.arap.deform(self.targets(kp, omega))
+        if len(self.riders):
+            T, n = V.shape[:2]
+            flat = V.transpose(1, 0, 2).reshape(n, 2 * T)
+            V[:, self.riders] = (self.ride @ flat).reshape(len(self.riders), T, 2).transpose(1, 0, 2)
+        return V
+
+    @property
+    def n_limbs(self) -> int:
+        return N_LIMBS
