@@ -23,8 +23,8 @@
                                         a BVH file's hierarchy, frames, skeleton family, key points
                                         and the view it moves most in
     nnsf reshape-eval --data DIR [--out DIR] [--workers N]
-                                        the reshaping evaluation on drawn characters (AnimatedDrawings,
-                                        Bandai-Namco, Kenney folders under DIR)
+                                        the reshaping evaluation: the drawings and motions of
+                                        params.yaml reshape_eval, found under each DIR
     nnsf roto-real --data DIR --annotations DIR [--format frames|lpc] [--name STEM] [--out DIR]
                                         the trackers on annotated real frames (folders of RGBA
                                         frames, or LPC sprite sheets) vs their silhouettes

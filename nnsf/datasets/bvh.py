@@ -18,9 +18,9 @@ Conventions
   degrees.  Any order and any subset of axes is accepted.
 * Position channels, on any joint, *replace* the OFFSET along the axes they
   cover (``position_channels="replace"``, the convention of Blender's
-  importer and of the data here: Bandai-Namco's ``Hips`` has OFFSET z = -452
-  but position channels near 0, and its other joints repeat their OFFSET in
-  their position channels).  ``"add"`` gives ``t = OFFSET + channels``, the
+  importer and of captures that put a root OFFSET far from the origin, e.g.
+  a ``Hips`` OFFSET z = -452 with position channels near 0, and repeat every
+  other joint's OFFSET in its position channels).  ``"add"`` gives ``t = OFFSET + channels``, the
   other convention in the wild.
 * Units are the file's own (Bandai-Namco and Rokoko: centimetres; CMU and
   the FAIR clips: arbitrary).  Nothing here rescales; the template unifier

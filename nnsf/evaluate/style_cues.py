@@ -26,7 +26,7 @@ Two measures per cue, with every content held out in turn:
   (:func:`nnsf.factor.style_transfer.content_weights` on the band
   descriptor).  1 − Σ(effect − prediction)² / Σ effect².
 
-``python -m nnsf.evaluate.style_cues --data FOLDER --source normal --out reports/style_cues_bandai_namco_1``
+``python -m nnsf.evaluate.style_cues --data FOLDER --source normal --out reports/style_cues_FOLDER``
 writes ``OUT.json``; ``--params`` gives the ``dataset.bvh`` view and rate.
 """
 from __future__ import annotations
