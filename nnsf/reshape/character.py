@@ -80,11 +80,6 @@ class Character:
         """Image size ``(H, W)`` in pixels."""
         return self.mask.shape
 
-    def figure_height(self) -> float:
-        """Rows the silhouette spans, pixels."""
-        rows = np.flatnonzero(self.mask.any(axis=1))
-        return float(rows[-1] - rows[0] + 1)
-
 
 def validate(ch: Character) -> None:
     """Raise :class:`InputError` naming ``ch.source`` and the field if ``ch`` is unusable."""

@@ -152,7 +152,3 @@ class Deformer:
             flat = V.transpose(1, 0, 2).reshape(n, 2 * T)
             V[:, self.riders] = (self.ride @ flat).reshape(len(self.riders), T, 2).transpose(1, 0, 2)
         return V
-
-    @property
-    def n_limbs(self) -> int:
-        return N_LIMBS

@@ -57,14 +57,6 @@ def sample(img: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return img[ij[:, 1], ij[:, 0]].reshape(pts.shape[:-1])
 
 
-def segment_distance(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Distance ``(k, B)`` from points ``(k, 2)`` to segments ``a → b`` ``(B, 2)``."""
-    d = b - a
-    t = np.einsum("kbx,bx->kb", points[:, None] - a[None], d) / np.maximum((d * d).sum(1), 1e-12)
-    near = a[None] + np.clip(t, 0, 1)[..., None] * d[None]
-    return np.linalg.norm(points[:, None] - near, axis=2)
-
-
 @dataclass
 class Rig:
     """The parts of one character at rest (module docstring).

@@ -173,11 +173,6 @@ MP4_PIX_FMT = "yuv420p"
 MP4_CRF = 18
 
 
-def mp4_codec() -> str:
-    """The MP4 codec written: ``"h264"`` (always; kept for callers that print it)."""
-    return "h264"
-
-
 def _rate(fps: float) -> Fraction:
     """A frame rate as the exact fraction FFmpeg wants (29.97 -> 30000/1001)."""
     return Fraction(float(fps)).limit_denominator(1001)
