@@ -237,9 +237,12 @@ def small_pipeline(tmp_path_factory, prefect_api, mlflow_template):
         if path.suffix in (".json", ".csv") and path.is_file():
             (reports / path.relative_to(root / "reports")).parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(path, reports / path.relative_to(root / "reports"))
+    # The animate stage's files as the cold run left them (test_pipeline re-runs the stage later).
+    animate = base / "animate-after-cold-repro"
+    shutil.copytree(root / "reports" / "animate", animate)
     return SimpleNamespace(root=root, env=env, cold=cold, seconds=seconds, imports=base / "imports",
                            mlflow_uri=env["MLFLOW_TRACKING_URI"], reference=lock_hashes(root),
-                           reports=reports)
+                           reports=reports, animate=animate)
 
 
 # --------------------------------------------------------------------------- scheduling on xdist workers
