@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -18,6 +17,7 @@ from pathlib import Path
 import pytest
 
 from flows import mlflow_runs, mlflow_ui
+from flows.prefect_server import stop
 
 
 def test_urls_open_the_model_training_pages():
@@ -80,9 +80,4 @@ def test_the_command_serves_the_store_and_prints_the_runs_url(tmp_path):
                 assert proc.poll() is None and time.monotonic() < deadline, "mlflow ui did not come up"
                 time.sleep(0.5)
     finally:
-        os.killpg(proc.pid, signal.SIGTERM)
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
+        stop(proc, grace=20)
