@@ -33,6 +33,7 @@ from nnsf.datasets import contract
 from nnsf.io import atomic_path, check_writable
 from nnsf.reshape.animator import BACKGROUND, Animator, canvas
 from nnsf.reshape.character import MAX_SIZE, Character
+from nnsf.reshape.drive import drawn_from_side
 from nnsf.skeleton.layout import BONE_NAMES, bone_lengths
 from nnsf.params import ARM_CHOICES, HEAD_CHOICES
 from nnsf.reshape.drive import read_motion
@@ -225,6 +226,10 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
     ch = (character if isinstance(character, Character)
           else read_character(character, joints, size, mask=mask, max_size=max_size))
     arms, head = arms or ch.arms or "motion", head or ch.head or "motion"
+    drawn_side = ch.body == "quadruped" or drawn_from_side(ch.mask, ch.keypoints)
+    auto = view == "auto"
+    if auto and drawn_side and not isinstance(motion, Motion):
+        view = "side"
     mo = motion if isinstance(motion, Motion) else read_motion_spec(motion, view=view, fps=fps, clip=clip,
                                                                     family=joint_map)
     points, depth = mo.points[:max_frames], None if mo.depth is None else mo.depth[:max_frames]
@@ -237,16 +242,16 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
         mo.notes.append(f"--arms {arms}: {ch.name} is a quadruped; its front legs always swing about "
                         "their drawn pose (docs/method.md §12)")
     mo.notes += extra_arms_notes(ch, arms, "--arms (animate.arms)")
-    if ch.body == "quadruped" and mo.view == "front":
-        mo.notes.append(f"{ch.name} is a quadruped drawn from the side: a front view swings its legs "
+    if drawn_side and mo.view == "front":
+        mo.notes.append(f"{ch.name} is drawn from the side: a front view swings its legs "
                         "towards the camera, out of the picture (--view side shows them)")
     out_fps = float(fps) if fps else mo.fps
     ph.stop()
     for note in list(ch.notes) + mo.notes:
         _say(progress, f"animate: note: {note}")
     if mo.view is not None:
-        _say(progress, f"animate: view {mo.view}" + (" (auto: the view the motion moves most in)"
-                                                     if view == "auto" else ""))
+        why = "the view it is drawn in" if drawn_side else "the view the motion moves most in"
+        _say(progress, f"animate: view {mo.view}" + (f" (auto: {why})" if auto else ""))
     _say(progress, f"animate: {len(points)} frames of {mo.name} at {out_fps:g} fps onto {ch.name} "
                    f"({ch.shape[1]}x{ch.shape[0]} px), style {style}")
     # ---- translate

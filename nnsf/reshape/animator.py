@@ -17,12 +17,14 @@ import numpy as np
 from nnsf.reshape import depth as depth_mod
 from nnsf.reshape.character import Character
 from nnsf.reshape.deform import Deformer
-from nnsf.reshape.drive import retarget
+from nnsf.reshape.drive import biped_facing, retarget
 from nnsf.reshape.mesh import build_mesh, underlay_texture
 from nnsf.reshape.quadruped import quadruped_orders
 from nnsf.reshape.render import Renderer
 from nnsf.reshape.rig import Rig
 
+#: A character YAML's ``facing`` as a direction along x.
+FACING = {"left": -1.0, "right": 1.0}
 #: The page every frame is drawn on (RGB).
 BACKGROUND = (255, 255, 255)
 
@@ -57,13 +59,15 @@ class Animator:
         self.deformer = Deformer(self.mesh, self.rig, character.mask, method, subkeys_per_limb,
                                  propagation=propagation)
         self.underlay = underlay_texture(character.texture, character.mask, self.mesh)
+        self.facing = (FACING[character.facing] if character.facing else
+                       biped_facing(character.mask, character.keypoints) if character.body == "biped" else 0.0)
 
     def retarget(self, motion, arms=None, head=None, source="motion", frames=None) -> np.ndarray:
         """Key points ``(T, 17, 2)`` in the drawing's pixels for a motion ``(T, 17, 2)``; ``arms`` and
         ``head`` default to the character's own choice, else ``motion``."""
         ch = self.character
         return retarget(motion, ch.keypoints, source=source, frames=frames, body=ch.body,
-                        arms=arms or ch.arms or "motion", head=head or ch.head or "motion")
+                        arms=arms or ch.arms or "motion", head=head or ch.head or "motion", facing=self.facing)
 
     def orders(self, frames: np.ndarray, motion: np.ndarray, joint_depth=None, hysteresis: float = 0.015,
                overrides=()) -> tuple[np.ndarray, np.ndarray | None]:

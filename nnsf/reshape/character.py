@@ -55,6 +55,8 @@ class Character:
     arms, head : the character's own choice of :func:`nnsf.reshape.drive.retarget`'s ``arms``
         (``motion`` | ``drawing``) and ``head`` (``motion`` | ``torso``), or None (the caller's).
     depth : parts always drawn over others, ``[(over parts, under parts)]`` (ids).
+    facing : ``left`` | ``right``: which way a figure drawn from the side faces, or None (found from
+        the drawing, :func:`nnsf.reshape.drive.biped_facing`).
     """
 
     name: str
@@ -68,6 +70,7 @@ class Character:
     arms: str | None = None
     head: str | None = None
     depth: list = field(default_factory=list)
+    facing: str | None = None
 
     def __post_init__(self):
         self.texture = np.asarray(self.texture)

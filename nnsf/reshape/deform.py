@@ -52,7 +52,10 @@ def keypoint_handles(mesh: Mesh, rig, weight: float) -> Handles:
     m = sp.csr_matrix((np.concatenate([b for _, b in rows]),
                        (np.repeat(np.arange(len(rows)), 3), np.concatenate([t for t, _ in rows]))),
                       shape=(len(rows), mesh.n_vertices))
-    return Handles(m, np.full(len(rows), float(weight)))
+    # A key point of hidden parts only (a limb drawn as its twin) pins nothing.
+    parts_of = [set(rig.bones[(rig.bones[:, 0] == k) | (rig.bones[:, 1] == k), 2].tolist()) for k in range(len(rows))]
+    alone = [bool(s) and s <= set(rig.hidden) for s in parts_of]
+    return Handles(m, np.where(alone, 0.0, float(weight)))
 
 
 def underlay_riders(mesh: Mesh):

@@ -32,7 +32,8 @@ import pandas as pd
 from nnsf.datasets import contract
 from nnsf.errors import InputError
 from nnsf.params import ARM_CHOICES, HEAD_CHOICES
-from nnsf.reshape.quadruped import retarget_quadruped, swing
+from nnsf.reshape.quadruped import facing as motion_facing, retarget_quadruped, swing
+from nnsf.reshape.rig import distance_transform, sample
 from nnsf.skeleton import BONES, JOINT_INDEX, JOINTS, N_JOINTS, character_scale, to_points
 from nnsf.skeleton.layout import FEATURE_COLUMNS
 
@@ -69,10 +70,50 @@ ARM_BONES = tuple((JOINT_INDEX[p], JOINT_INDEX[c]) for p, c in (
     ("l_shoulder", "l_elbow"), ("l_elbow", "l_wrist"), ("r_shoulder", "r_elbow"), ("r_elbow", "r_wrist")))
 
 
+def drawn_from_side(mask: np.ndarray, keypoints: np.ndarray, share: float = 0.25) -> bool:
+    """Whether a biped is drawn from the side: a body (the torso drawn at least ``share`` of its
+    length wide, from the silhouette's depth at the spine) whose two shoulders and two hips each lie
+    less than ``share`` of that width apart.  Seen from the front they are about a torso's width
+    apart; a stick figure, whose shoulders meet on one line, is no body to see from the side."""
+    kp = np.asarray(keypoints, dtype=np.float64)
+    J = JOINT_INDEX
+    length = float(np.linalg.norm(kp[J["thorax"]] - kp[J["pelvis"]]))
+    width = 2.0 * float(sample(distance_transform(mask), kp[J["spine"]]))
+    gap = max(np.linalg.norm(kp[J["l_" + j]] - kp[J["r_" + j]]) for j in ("shoulder", "hip"))
+    return width >= share * length and gap < share * width
+
+
+def biped_facing(mask: np.ndarray, keypoints: np.ndarray, share: float = 0.1) -> float:
+    """Which way a biped drawn from the side (:func:`drawn_from_side`) faces: +1 towards +x, −1
+    towards −x, 0 for any other drawing or if it cannot tell.
+
+    Feet point forwards: the drawn pixels below each ankle, within half a shin's length of it, lie
+    ahead of it on average; failing that, a knee drawn bent lies ahead of its hip–ankle line.
+    Either counts when it exceeds ``share`` of the mean shin length.  A character YAML may say it
+    (``facing``).
+    """
+    if not drawn_from_side(mask, keypoints):
+        return 0.0
+    m = np.asarray(mask, dtype=bool)
+    kp = np.asarray(keypoints, dtype=np.float64)
+    J = JOINT_INDEX
+    legs = (("r_hip", "r_knee", "r_ankle"), ("l_hip", "l_knee", "l_ankle"))
+    shin = float(np.mean([np.linalg.norm(kp[J[a]] - kp[J[k]]) for _, k, a in legs]))
+    ys, xs = np.nonzero(m)
+    ahead = 0.0
+    for _, _, a in legs:
+        x, y = kp[J[a]]
+        near = (ys > y) & ((xs - x) ** 2 + (ys - y) ** 2 <= (0.5 * shin) ** 2)
+        ahead += float(xs[near].mean() - x) if near.any() else 0.0
+    if abs(ahead) < share * shin:
+        ahead = sum(kp[J[k], 0] - 0.5 * (kp[J[h], 0] + kp[J[a], 0]) for h, k, a in legs)
+    return float(np.sign(ahead)) if abs(ahead) >= share * shin else 0.0
+
+
 def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", frames=None,
              foreshortening=(1.0, 1.0), rigid_torso: bool = True,
              torso_stretch=(1.0, 1.0), arms: str = "motion", body: str = "biped",
-             head: str = "motion") -> np.ndarray:
+             head: str = "motion", facing: float = 0.0) -> np.ndarray:
     """Map a motion ``(T, 17, 2)`` (any units) onto a character: ``(T, 17, 2)`` pixels.
 
     ``rest_keypoints`` ``(17, 2)``: the drawing's key points.
@@ -117,6 +158,10 @@ def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", fr
       pose and the body rigid (:func:`nnsf.reshape.quadruped.retarget_quadruped`;
       ``arms``, ``foreshortening`` and the torso options do not apply).
 
+    * ``facing``: the drawing's (:func:`biped_facing`; +1 towards +x, −1, 0 unknown).  A biped
+      motion that faces the other way (:func:`nnsf.reshape.quadruped.facing`) is mirrored, so a
+      figure drawn from the side does not walk backwards with its knees bent the wrong way.
+
     A NaN/Inf frame or a bone of zero median length raises
     :class:`InputError` naming ``source`` and the frame / bone.
     """
@@ -128,6 +173,9 @@ def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", fr
     rest = np.asarray(rest_keypoints, dtype=np.float64)
     if body == "quadruped":
         return retarget_quadruped(P, rest)
+    if facing * motion_facing(P) < 0:
+        P = P.copy()
+        P[..., 0] *= -1.0
     J = JOINT_INDEX
     mid = 0.5 * (P[:, J["pelvis"]] + P[:, J["thorax"]])
     if min(np.median(np.linalg.norm(P[:, J["spine"]] - P[:, k], axis=1)) for k in (J["pelvis"], J["thorax"])) <= 0:

@@ -7,7 +7,8 @@ Drawings and motions come from ``params.yaml`` (``reshape_eval``), never from th
   ``image:`` is relative to the data folder (joints written for a drawing that has none, choices).
   The held-out drawings were never looked at while the method was built; they are reported apart.
 * ``motions``: BVH files inside the data folder (projected in the view they move most in; a
-  quadruped always from the side, the view it is drawn in) or ``synthetic:<character>/<motion>``.
+  quadruped or a figure drawn from the side always from the side, the view it is drawn in) or
+  ``synthetic:<character>/<motion>``.
 
 Each (drawing, motion) is driven twice on the same mesh: the paper's method (key points and
 subkeys, the default) and key points only (the baseline of the paper's Fig. 8).  Every frame of
@@ -42,6 +43,7 @@ from nnsf.pipeline import StageResult
 from nnsf.reshape.animator import Animator, canvas
 from nnsf.reshape.artefacts import FrameMeasures, width_stats
 from nnsf.reshape.deform import Deformer
+from nnsf.reshape.drive import drawn_from_side
 from nnsf.reshape.formats import read_character
 from nnsf.safe_yaml import read_yaml
 from nnsf.names import safe_name
@@ -58,13 +60,13 @@ def _root(roots, rel) -> Path:
     return next((r for r in roots if (r / rel).exists()), roots[0])
 
 
-def _motion(spec: str, roots, quadruped: bool):
+def _motion(spec: str, roots, side: bool):
     """``(name, points (T, 17, 2), depth (T, 17) or None, fps, view)`` of a motion spec."""
     if spec.startswith("synthetic:"):
         who, what = spec[len("synthetic:"):].split("/")[:2]
         return f"synthetic-{what}", synthetic.clip_points(who, what, 48), None, 24.0, "front"
     path = _root(roots, spec) / spec
-    clip, view = load_clip_in_view(path, view="side" if quadruped else "auto", fps=30.0)
+    clip, view = load_clip_in_view(path, view="side" if side else "auto", fps=30.0)
     return path.stem.replace("dataset-1_", ""), clip.points, clip.depth, clip.fps, view
 
 
@@ -80,7 +82,8 @@ def _character(spec: str, roots):
 def evaluate_item(item: dict) -> dict:
     """One drawing × motion: rows per method, per-frame rows and a contact sheet (picklable)."""
     ch = _character(item["character"], item["data"])
-    name, points, depth, fps, view = _motion(item["motion"], item["data"], ch.body == "quadruped")
+    name, points, depth, fps, view = _motion(item["motion"], item["data"],
+                                             ch.body == "quadruped" or drawn_from_side(ch.mask, ch.keypoints))
     T = min(len(points), item["max_frames"])
     points, depth = points[:T], None if depth is None else depth[:T]
     animator = Animator(ch, item["n_vertices"], "ours", item["subkeys_per_limb"])

@@ -23,6 +23,7 @@ AnimatedDrawings folder, ``<stem>.yaml`` beside a PNG) or given as the character
     arms: drawing              # optional: motion | drawing (nnsf.reshape.drive.retarget)
     head: torso                # optional: motion | torso
     extra_arms: follow         # optional: follow (turn with the driven arm of their side) | body
+    facing: left               # optional: left | right, a figure drawn from the side (default: found)
     depth: [left_arm over torso]   # optional: parts always drawn over others
 
 Every YAML is read by :func:`nnsf.safe_yaml.read_yaml` (bounded, safe).
@@ -59,7 +60,8 @@ AD_JOINTS = tuple(AD_TO_OURS.values()) + ("hip", "torso")
 HEAD_TOP_SHARE = 0.9
 #: The most joints a skeleton may list.
 MAX_JOINTS = 256
-CHOICES = {"arms": ARM_CHOICES, "head": HEAD_CHOICES, "extra_arms": ("follow", "body")}
+CHOICES = {"arms": ARM_CHOICES, "head": HEAD_CHOICES, "extra_arms": ("follow", "body"),
+           "facing": ("left", "right")}
 FORMAT, VERSION = "nnsf.character", 1
 
 
@@ -265,7 +267,8 @@ def _from_yaml(path: Path, obj, root: Path | None, max_size: float, mask=None) -
         raise InputError(path, "drawing", "drawing: (an AnimatedDrawings folder) or image: (a PNG)")
     if obj.get("name") is not None:
         ch.name = str(obj["name"])
-    ch.arms, ch.head, ch.depth = choices.get("arms"), choices.get("head"), choices["depth"]
+    ch.arms, ch.head, ch.facing = choices.get("arms"), choices.get("head"), choices.get("facing")
+    ch.depth = choices["depth"]
     said = [f"{k} {v}" for k, v in choices.items() if k != "depth" and v] + (["depth"] if choices["depth"] else [])
     if said:
         ch.notes.append(f"{path}: character choices: " + ", ".join(said))

@@ -20,7 +20,10 @@ hangs from, and each bone's radius.
   their root cross-section (within :data:`ROOT_DEPTH` child radii of the line through the joint
   across the child's bone); there the two share vertices, so the joint bends as one piece of paper
   and cannot crack.  Elsewhere a boundary is only a candidate: :mod:`nnsf.reshape.mesh` cuts it
-  where one part lies over the other in the drawing, with an underlay beneath.
+  where one part lies over the other in the drawing, with an underlay beneath, or lies beside it
+  out to the outline.
+* **One limb drawn for two** (:func:`coincident_limbs`): a figure drawn from the side, its two arms
+  given the same joints, shows one arm; the left part takes it, the right is :attr:`Rig.hidden`.
 """
 from __future__ import annotations
 
@@ -57,6 +60,26 @@ def sample(img: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return img[ij[:, 1], ij[:, 0]].reshape(pts.shape[:-1])
 
 
+def coincident_limbs(keypoints: np.ndarray, bones: np.ndarray, radius: np.ndarray) -> tuple[int, ...]:
+    """The right limb's parts where the left and right limb of a pair are drawn as one ``(k,)``.
+
+    A drawing seen from the side shows one arm (or leg) where its joints are given twice: every key
+    point of the right chain lies within half the thinner limb's radius of the left one's.  Split
+    between two parts that the motion swings apart, the one drawn limb would tear into shards; so
+    the left part takes it whole, and the right draws nothing (it is hidden behind the body).
+    """
+    kp = np.asarray(keypoints, dtype=np.float64)
+    hidden = []
+    for left, right in ((("l_upper_arm", "l_forearm"), ("r_upper_arm", "r_forearm")),
+                        (("l_thigh", "l_shin"), ("r_thigh", "r_shin"))):
+        ids = [[PARTS.index(n) for n in side] for side in (left, right)]
+        chain = [np.unique(bones[np.isin(bones[:, 2], side), :2]) for side in ids]
+        r = min(radius[np.isin(bones[:, 2], ids[0] + ids[1])])
+        if len(chain[0]) == len(chain[1]) and np.linalg.norm(kp[chain[0]] - kp[chain[1]], axis=1).max() <= 0.5 * r:
+            hidden += ids[1]
+    return tuple(hidden)
+
+
 @dataclass
 class Rig:
     """The parts of one character at rest (module docstring).
@@ -81,6 +104,8 @@ class Rig:
     #: Parts whose seam with their parent is never cut: they move as one (a head that keeps its
     #: drawn angle to the body, ``head: torso``), so a cut would only open pinholes between them.
     fused: tuple[int, ...] = ()
+    #: Parts that get no pixels: the second of two limbs drawn as one (:func:`coincident_limbs`).
+    hidden: tuple[int, ...] = ()
     #: ``(H, W)`` int16, the part of each drawn pixel (−1 off the drawing), :meth:`segment`.
     labels: np.ndarray | None = None
 
@@ -116,8 +141,9 @@ class Rig:
             if lower:
                 radius[b] = min(radius[b], UPPER_TO_LOWER * min(radius[i] for i in lower))
         fused = (PARTS.index("head"),) if getattr(character, "head", None) == "torso" else ()
+        hidden = coincident_limbs(kp, bones, radius)
         rig = cls(kp, bones, radius.astype(np.float64), tuple(parts), np.array(parent), np.array(joint),
-                  tuple(sides), fused)
+                  tuple(sides), fused, hidden)
         rig.labels = rig.segment(character.texture, character.mask)
         return rig
 
@@ -144,9 +170,26 @@ class Rig:
         reach = np.median(sample(room, a[None] + lam * (b - a)[None]), axis=0)
         seed = np.minimum(self.radius, np.maximum(reach, 1.0))
         for k in np.argsort(-seed, kind="stable"):
+            if self.bones[k, 2] in self.hidden:
+                continue
             p, q = a[k] + 0.2 * (b[k] - a[k]), a[k] + 0.8 * (b[k] - a[k])
             cv2.line(markers, tuple(np.rint(p * 16).astype(int)), tuple(np.rint(q * 16).astype(int)),
                      int(self.bones[k, 2]) + 1, max(1, int(0.5 * seed[k])), cv2.LINE_8, 4)
+        # A limb drawn over another part (an arm across the chest, a hand on the hip) owns the pixels
+        # about its bones beyond its root: other limbs' and the body's seeds there (the spine's line
+        # under the arm) are dropped.  Its last bone reaches past its end by two radii (the hand).
+        chain = self.chains()
+        for k in np.flatnonzero(chain[self.bones[:, 2]] >= 0):
+            part = self.bones[k, 2]
+            if part in self.hidden:
+                continue
+            u = (b[k] - a[k]) / max(float(np.linalg.norm(b[k] - a[k])), 1e-9)
+            last = self.bones[k, 1] not in self.bones[self.bones[:, 2] != part, 0]
+            ends = np.rint(np.array([a[k] + 0.2 * (b[k] - a[k]), b[k] + 2.0 * seed[k] * u * last]) * 16).astype(int)
+            band = np.zeros((H, W), np.uint8)
+            cv2.line(band, tuple(ends[0]), tuple(ends[1]), 1, max(1, int(2 * seed[k])), cv2.LINE_8, 4)
+            other = (markers > 0) & (chain[np.maximum(markers - 1, 0)] != chain[part])
+            markers[(band > 0) & other] = 0
         seeds = markers.copy()
         markers[~mask] = self.n_parts + 1
         cv2.watershed(np.ascontiguousarray(texture[..., 2::-1]), markers)
@@ -265,7 +308,7 @@ class Rig:
         out = np.full((len(pts), self.n_parts), np.inf)
         for p in range(self.n_parts):
             sel = self.bones[:, 2] == p
-            if sel.any():
+            if sel.any() and p not in self.hidden:
                 out[:, p] = score[:, sel].min(axis=1)
         return out
 
