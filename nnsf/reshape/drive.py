@@ -195,4 +195,3 @@ def read_motion(path, clip: str | None = None) -> tuple[str, np.ndarray, np.ndar
     check_finite(vals[order].reshape(-1, N_JOINTS, 2), f"{path} (clip {name})", frames[order])
     table = contract.validate(rows, path)
     return name, table["frame"].to_numpy(), to_points(contract.features(table))
-

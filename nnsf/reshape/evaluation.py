@@ -235,4 +235,3 @@ def reshape_eval(params: dict, data_root, out_dir=Path("reports"), mapper=None) 
     metrics = {f"{k}_{m}": v for k, d in s["sets"].items() for m, v in d.items()}
     return StageResult(params={f"reshape_eval.{k}": (",".join(v) if isinstance(v, tuple) else v)
                                for k, v in kw.items()}, metrics=metrics, artifacts=s["artifacts"])
-

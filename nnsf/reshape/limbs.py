@@ -129,4 +129,3 @@ def fit_omega(mask: np.ndarray, keypoints: np.ndarray, samples: int = 24, span=(
         w = 2 * lam[usable] * (1 - lam[usable])
         omega[i, 1] = np.clip((w * m).sum() / (L * (w * w).sum()), -max_bend, max_bend)
     return omega
-

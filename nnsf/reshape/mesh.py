@@ -670,4 +670,3 @@ def underlay_texture(texture: np.ndarray, mask: np.ndarray, mesh: Mesh) -> np.nd
         out[sel, :3] = np.rint(colour).astype(np.uint8)
         out[sel, 3] = 255
     return out
-
