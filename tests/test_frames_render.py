@@ -11,8 +11,7 @@ from nnsf.frames.render import (
     keyframe_indices, render_character, render_clip,
 )
 from nnsf.io import read_npz
-from nnsf.reshape.formats import read_character
-from nnsf.reshape.stage import write_rendered_character
+from nnsf.reshape.formats import read_character, synthetic_character, write_character
 from nnsf.skeleton import JOINT_INDEX
 
 SIZE, T = 128, 6
@@ -115,7 +114,7 @@ def test_rest_character_is_a_valid_drawn_character(tmp_path):
     # Arms away from the body: wrists outside the torso's horizontal extent.
     J = JOINT_INDEX
     assert kp[J["l_wrist"], 0] > kp[J["l_shoulder"], 0] and kp[J["r_wrist"], 0] < kp[J["r_shoulder"], 0]
-    path = write_rendered_character("gus", tmp_path, 200)
+    path = write_character(synthetic_character("gus", 200), tmp_path / "gus.json")
     ch = read_character(path)                     # validates mask, key points inside it
     np.testing.assert_allclose(ch.keypoints, kp, rtol=5.1e-6)  # the JSON's 6 significant digits
     assert (ch.mask == mask).all() and (ch.texture == rgba).all()

@@ -6,8 +6,8 @@ import pytest
 
 from nnsf.reshape.character import stick_figure
 from nnsf.reshape.limbs import (
-    LIMB_PAIRS, STRAIGHT, bezier, control_from_omega, control_points, endpoints, fit_omega,
-    interpolate_omega, limb_curves, omega_from_control, rot90,
+    LIMB_PAIRS, STRAIGHT, bezier, control_from_omega, endpoints, fit_omega, limb_curves,
+    omega_from_control, rot90,
 )
 from nnsf.reshape.mesh import triangulate
 from nnsf.reshape.subkeys import SubkeyTracker, closest_on_bezier, init_subkeys, propagate
@@ -46,7 +46,7 @@ def test_limb_functions_broadcast_over_frames():
     fig = stick_figure(height=200)
     kp = np.stack([fig.keypoints, fig.keypoints + 5.0, fig.keypoints * 1.1])  # (3, 17, 2)
     om = np.tile(STRAIGHT, (3, 8, 1))
-    assert control_points(kp, om).shape == (3, 8, 2)
+    assert control_from_omega(*endpoints(kp), om).shape == (3, 8, 2)
     curves = limb_curves(kp, om, np.linspace(0, 1, 5))
     assert curves.shape == (3, 8, 5, 2)
     np.testing.assert_allclose(curves[:, :, 0], kp[:, LIMB_PAIRS[:, 0]])
@@ -69,26 +69,6 @@ def test_fit_omega_recovers_a_bent_limb():
     assert om[0, 0] == pytest.approx(0.5)
     assert om[0, 1] == pytest.approx(truth[1], abs=0.01)
     np.testing.assert_array_equal(om[1], STRAIGHT)
-
-
-def test_omega_interpolation_linear_and_catmull_rom():
-    kf = np.array([0.0, 10.0, 25.0, 30.0])
-    ko = rng.normal(size=(4, 8, 2))
-    t = np.arange(-5, 36)
-    for method in ("linear", "catmull-rom"):
-        out = interpolate_omega(kf, ko, t, method)
-        assert out.shape == (len(t), 8, 2)
-        np.testing.assert_allclose(out[np.isin(t, kf)], ko, atol=1e-12)  # passes through keys
-        np.testing.assert_allclose(out[0], ko[0])                         # held before the first key
-        np.testing.assert_allclose(out[-1], ko[-1])
-    lin = interpolate_omega(kf, ko, [5.0], "linear")[0]
-    np.testing.assert_allclose(lin, 0.5 * (ko[0] + ko[1]))
-    # Catmull-Rom reproduces a linear ramp exactly (its tangents are then exact).
-    ramp = kf[:, None, None] * np.ones((1, 8, 2)) * 0.01
-    np.testing.assert_allclose(interpolate_omega(kf, ramp, t[5:-5], "catmull-rom")[:, 0, 0], t[5:-5] * 0.01,
-                               atol=1e-12)
-    with pytest.raises(ValueError, match="increasing"):
-        interpolate_omega([0, 0], ko[:2], t)
 
 
 # --------------------------------------------------------------------------- Eq. 13-14

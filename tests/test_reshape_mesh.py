@@ -87,19 +87,19 @@ def test_cut_duplicates_exactly_the_vertices_along_the_cut():
             T += [[a, b, c], [a, c, d]]
     T = np.array(T)
     pairs = shared_edges(T)
-    none, origin = cut(T, len(V), np.zeros(len(pairs), bool), pairs)
+    none, origin = cut(T, np.zeros(len(pairs), bool), pairs)
     assert len(origin) == 25 and np.array_equal(V[origin][none], V[T])
     # Cut along the vertical line x = 2 from y = 0 to y = 4: its 5 vertices... the ends on the
     # outline split too (nothing joins the halves there), so 5 copies.
     a, b = T[pairs[:, 0], pairs[:, 1]], T[pairs[:, 0], (pairs[:, 1] + 1) % 3]
     on_line = (V[a, 0] == 2) & (V[b, 0] == 2)
-    T2, origin = cut(T, len(V), on_line, pairs)
+    T2, origin = cut(T, on_line, pairs)
     assert len(origin) == 30
     # Cut half of it (y from 0 to 2): the vertices at y = 0, 1 split, the one at y = 2 stays one.
     half = on_line & (np.maximum(V[a, 1], V[b, 1]) <= 2)
-    T3, origin = cut(T, len(V), half, pairs)
+    T3, origin = cut(T, half, pairs)
     assert len(origin) == 27
-    everything, origin = cut(T, len(V), np.ones(len(pairs), bool), pairs)
+    everything, origin = cut(T, np.ones(len(pairs), bool), pairs)
     assert len(origin) == 3 * len(T)
 
 

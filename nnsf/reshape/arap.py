@@ -89,22 +89,6 @@ class Handles:
         m = sp.csr_matrix((np.ones(k), (np.arange(k), index)), shape=(k, n_vertices))
         return cls(m, np.full(k, float(weight)))
 
-    @classmethod
-    def at_points(cls, vertices: np.ndarray, triangles: np.ndarray, points: np.ndarray,
-                  weight: float = 1.0) -> "Handles":
-        """One handle per point ``(k, 2)``: barycentric in its containing triangle.
-
-        A point outside every triangle (it may sit in the sliver between the
-        pixel mask and the simplified outline) uses the nearest triangle's
-        barycentric coordinates, slightly outside [0, 1]; the constraint stays
-        linear and exact at rest.
-        """
-        bary, tri = barycentric(vertices, triangles, points)
-        k = len(tri)
-        rows = np.repeat(np.arange(k), 3)
-        m = sp.csr_matrix((bary.ravel(), (rows, triangles[tri].ravel())), shape=(k, len(vertices)))
-        return cls(m, np.full(k, float(weight)))
-
 
 def barycentric(vertices: np.ndarray, triangles: np.ndarray, points: np.ndarray):
     """Barycentric coordinates ``(k, 3)`` and triangle index ``(k,)`` of points ``(k, 2)``.
@@ -220,23 +204,19 @@ class TwoStepARAP:
 
     Building the deformer assembles and factorises both systems; then
     :meth:`deform` maps handle targets ``(m, 2)`` or ``(F, m, 2)`` to vertex
-    positions ``(n, 2)`` or ``(F, n, 2)``.
-
-    Internally a point (x, y) is the complex number x + iy.  Step 1's
-    residual v'_c − v'_a − (x + iy)(v'_b − v'_a) is complex-linear in the
-    vertices, so its real 2n × 2n normal matrix G₁ = [[P, −Q], [Q, P]] (P
-    symmetric, Q antisymmetric) is the real form of the Hermitian n × n
-    matrix H = P + iQ: its LU has a quarter of the real factor's entries.
-    With n · m ≤ :data:`DENSE_STEP1_MAX`, step 1 is the product of the
-    precomputed M₁ = H⁻¹CᵀW² with the targets; otherwise a back-solve with
-    H.  Step 2 solves x and y as the two columns of one real solve.
+    positions ``(n, 2)`` or ``(F, n, 2)``.  Internally a point (x, y) is the
+    complex number x + iy, and step 1's real normal matrix G₁ = [[P, −Q], [Q, P]]
+    (P symmetric, Q antisymmetric) is factorised as H = P + iQ.  With
+    n · m ≤ :data:`DENSE_STEP1_MAX`, step 1 is the product of the precomputed
+    M₁ = H⁻¹CᵀW² with the targets; otherwise a back-solve with H.
     """
 
     def __init__(self, vertices: np.ndarray, triangles: np.ndarray, handles: Handles):
         self.vertices = np.asarray(vertices, dtype=np.float64)
         self.triangles = np.asarray(triangles, dtype=np.int64)
         self.handles = handles
-        check_orientation(self.vertices, self.triangles)
+        if np.any(triangle_areas(self.vertices, self.triangles) <= 0):
+            raise ValueError("rest triangles must be counter-clockwise with positive area")
         n = len(self.vertices)
         C = handles.matrix.tocsr()
         W2 = sp.diags(handles.weights ** 2)
@@ -327,17 +307,11 @@ class TwoStepARAP:
         z = _block_solve(self._lu2, rhs.view(np.float64))
         return np.ascontiguousarray(np.ascontiguousarray(z).reshape(n, F, 2).transpose(1, 0, 2))
 
-    def similarity_step(self, targets) -> np.ndarray:
-        """Step 1: vertices ``(n, 2)`` (or ``(F, n, 2)``) for targets ``(m, 2)`` (or ``(F, m, 2)``)."""
-        g, F = self._frames(targets)
-        out = _points(self._step1(g))
-        return out[0] if F is None else out
-
     def fitted_edges(self, v1: np.ndarray) -> np.ndarray:
         """Rest edges rotated onto the step-1 triangles: ``(..., n, 2)`` -> ``(..., t, 3, 2)``.
 
         The per-triangle reference implementation of what :meth:`_step2`
-        does with sparse operators; used by :meth:`scale_system`.
+        does with sparse operators, for :meth:`scale_system`.
         """
         q = v1[..., self.triangles, :]  # (..., t, 3, 2)
         P = self._rest_centred
@@ -349,13 +323,6 @@ class TwoStepARAP:
         s = np.where(ok, s / np.where(ok, r, 1.0), 0.0)[..., None]
         E = self._rest_edges
         return np.stack([c * E[..., 0] - s * E[..., 1], s * E[..., 0] + c * E[..., 1]], axis=-1)
-
-    def scale_step(self, v1: np.ndarray, targets) -> np.ndarray:
-        """Step 2 from step-1 vertices ``(n, 2)`` / ``(F, n, 2)`` and the same targets."""
-        g, F = self._frames(targets)
-        v1 = np.asarray(v1, dtype=np.float64).reshape(g.shape[0], self.n_vertices, 2)
-        out = self._step2((v1[..., 0] + 1j * v1[..., 1]).T, self._handle_rhs(g))
-        return out[0] if F is None else out
 
     def deform(self, targets, steps: int = 2) -> np.ndarray:
         """Vertex positions for handle targets: ``(m, 2)`` -> ``(n, 2)``; ``(F, m, 2)`` -> ``(F, n, 2)``.
@@ -389,9 +356,3 @@ class TwoStepARAP:
         R = np.vstack([self.fitted_edges(np.asarray(v1, dtype=np.float64)).reshape(-1, 2),
                        self.handles.weights[:, None] * g])
         return M, R
-
-
-def check_orientation(vertices: np.ndarray, triangles: np.ndarray) -> None:
-    """Raise ``ValueError`` unless every rest triangle has positive area (CCW)."""
-    if np.any(triangle_areas(vertices, triangles) <= 0):
-        raise ValueError("rest triangles must be counter-clockwise with positive area")

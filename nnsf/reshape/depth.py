@@ -1,28 +1,13 @@
 """Depth order of a character's parts, stable over time (docs/method.md §14, the paper's Fig. 10).
 
-Parts are :data:`nnsf.reshape.mesh.PARTS` (torso, head, the eight limb
-segments).  A frame's order lists part ids **back to front**; the renderer
-draws them in that order.
-
-* Part depth: the mean camera depth of the part's key points (larger is
-  farther), from the source motion's 3-D joints
-  (:func:`nnsf.datasets.bvh_source.load_clip` gives ``depth`` ``(F, 17)``).
-* Constraints "a is behind b" (z_a ≥ z_b + 1 in the paper's integer depths)
-  come from the source depth where it is clear: |z_a − z_b| > ``hysteresis``;
-  a pair whose depths are within ``hysteresis`` keeps the relation it had in
-  the previous frame, so noise near a tie cannot make two parts flicker.
-  Fixed annotations (``always``: pairs (behind, in front)) override the
-  source for the pairs they name.
-* The order is a topological sort of those constraints (Kahn's algorithm);
-  among the parts free to go next, the one earlier in the previous frame's
-  order goes first, so the order changes only where a constraint forces it.
-  A cycle (possible only through kept ties) is broken by taking the farthest
-  remaining part.
-
-Without depth (a 2-D or translated clip) :func:`default_order` gives one
-static order: torso, then head, then each leg and arm, upper segment before
-lower (a child segment is drawn over its parent, so its joint cap covers the
-seam).
+Parts are :data:`nnsf.reshape.parts.PARTS` (torso, head, the eight limb segments).  A frame's
+order lists part ids **back to front**; the renderer draws them in that order.  A part's depth is
+the mean camera depth of its key points (larger is farther), from the source motion's 3-D joints
+(:func:`nnsf.datasets.bvh_source.load_clip` gives ``depth`` ``(F, 17)``).  The constraints "a is
+behind b" come from depths further apart than a hysteresis band (a pair within it keeps its
+previous relation) and from the fixed annotations (:data:`ALWAYS`, :data:`_CHAIN`); the order is
+their topological sort, ties kept in the previous frame's order, a cycle broken by the farthest
+part.  Without depth, :func:`default_order` gives one static order.
 """
 from __future__ import annotations
 
@@ -38,15 +23,16 @@ N_PARTS = len(PARTS)
 PART_JOINTS: tuple[tuple[int, ...], ...] = tuple(
     tuple(sorted({j for a, b, p in PART_BONES if p == part for j in (a, b)})) for part in range(N_PARTS))
 
-#: Default annotations (behind, in front): the head over the torso and each
-#: lower limb segment over its upper one unless the source says clearly otherwise.
-DEFAULT_ALWAYS: tuple[tuple[int, int], ...] = ((PART_INDEX["torso"], PART_INDEX["head"]),)
+#: Fixed annotations (behind, in front): the head over the torso.
+ALWAYS: tuple[tuple[int, int], ...] = ((PART_INDEX["torso"], PART_INDEX["head"]),)
+#: Each lower limb segment is over its upper one unless the source says clearly otherwise.
 _CHAIN = tuple((PART_INDEX[a], PART_INDEX[b]) for a, b in (
     ("l_upper_arm", "l_forearm"), ("r_upper_arm", "r_forearm"), ("l_thigh", "l_shin"), ("r_thigh", "r_shin")))
 
 
 def default_order() -> np.ndarray:
-    """A static back-to-front order ``(10,)`` for clips without depth (module docstring)."""
+    """A static back-to-front order ``(10,)`` for clips without depth: torso, head, then each leg and
+    arm, upper segment before lower (a child segment is drawn over its parent)."""
     names = ("torso", "head", "l_thigh", "l_shin", "r_thigh", "r_shin",
              "l_upper_arm", "l_forearm", "r_upper_arm", "r_forearm")
     return np.array([PART_INDEX[n] for n in names], dtype=np.int64)
@@ -86,12 +72,12 @@ def _sort(behind: np.ndarray, prev_rank: np.ndarray, z: np.ndarray, hard: np.nda
     return np.array(order, dtype=np.int64)
 
 
-def part_overlaps(frames: np.ndarray, triangles: np.ndarray, parts: np.ndarray, pad: float = 0.0) -> np.ndarray:
+def part_overlaps(frames: np.ndarray, triangles: np.ndarray, parts: np.ndarray) -> np.ndarray:
     """Which parts overlap in the image, ``(T, 10, 10)`` bool, from deformed vertices ``(T, n, 2)``.
 
     Two parts overlap when their axis-aligned bounding boxes (over the
-    vertices of their triangles, grown by ``pad`` pixels) intersect: a cheap,
-    conservative test (only pairs that may overlap need a depth order).
+    vertices of their triangles) intersect: a cheap, conservative test (only
+    pairs that may overlap need a depth order).
     """
     V = np.asarray(frames, dtype=np.float64)
     T = len(V)
@@ -100,8 +86,8 @@ def part_overlaps(frames: np.ndarray, triangles: np.ndarray, parts: np.ndarray, 
     for p in range(N_PARTS):
         idx = np.unique(triangles[parts == p])
         if len(idx):
-            lo[:, p] = V[:, idx].min(axis=1) - pad
-            hi[:, p] = V[:, idx].max(axis=1) + pad
+            lo[:, p] = V[:, idx].min(axis=1)
+            hi[:, p] = V[:, idx].max(axis=1)
     sep = ((lo[:, :, None] > hi[:, None, :]) | (lo[:, None, :] > hi[:, :, None])).any(axis=-1)
     out = ~sep & np.isfinite(lo).all(-1)[:, :, None] & np.isfinite(lo).all(-1)[:, None, :]
     idx = np.arange(N_PARTS)
@@ -109,15 +95,11 @@ def part_overlaps(frames: np.ndarray, triangles: np.ndarray, parts: np.ndarray, 
     return out
 
 
-def depth_orders(part_z: np.ndarray, hysteresis: float, always=DEFAULT_ALWAYS, chain_margin: float | None = None,
-                 initial=None, pairs=None) -> np.ndarray:
+def depth_orders(part_z: np.ndarray, hysteresis: float, pairs=None) -> np.ndarray:
     """Back-to-front part orders ``(T, 10)`` from part depths ``(T, 10)`` (module docstring).
 
-    hysteresis : depth difference (source units) needed to set or flip a pair.
-    always : fixed (behind, in front) pairs.
-    chain_margin : a lower segment stays over its upper segment unless it is
-        farther by more than this (default ``2 × hysteresis``).
-    initial : order before frame 0 (default :func:`default_order`).
+    hysteresis : depth difference (source units) needed to set or flip a pair; a lower segment
+        stays over its upper segment unless it is farther by more than twice this.
     pairs : optional ``(T, 10, 10)`` bool, the pairs that overlap in the
         image (:func:`part_overlaps`); only those take their order from the
         depth, the others keep the previous frame's (an order change between
@@ -130,10 +112,8 @@ def depth_orders(part_z: np.ndarray, hysteresis: float, always=DEFAULT_ALWAYS, c
     if not np.isfinite(z).all():
         t = int(np.argwhere(~np.isfinite(z))[0, 0])
         raise InputError("depth", f"frame {t}", "finite depths", "NaN/Inf")
-    chain_margin = 2 * hysteresis if chain_margin is None else chain_margin
-    prev = default_order() if initial is None else np.asarray(initial, dtype=np.int64)
     rank = np.empty(P, dtype=np.int64)
-    rank[prev] = np.arange(P)
+    rank[default_order()] = np.arange(P)
     rel = rank[:, None] < rank[None, :]  # rel[a, b]: a currently behind b
     out = np.empty((T, P), dtype=np.int64)
     for t in range(T):
@@ -142,10 +122,10 @@ def depth_orders(part_z: np.ndarray, hysteresis: float, always=DEFAULT_ALWAYS, c
         rel = new if pairs is None else np.where(pairs[t], new, rel)
         hard = np.zeros((P, P), dtype=bool)
         for a, b in _CHAIN:  # upper segment behind lower unless clearly the other way
-            farther_lower = z[t, b] - z[t, a] > chain_margin
+            farther_lower = z[t, b] - z[t, a] > 2 * hysteresis
             rel[a, b], rel[b, a] = not farther_lower, farther_lower
             hard[a, b], hard[b, a] = not farther_lower, farther_lower
-        for a, b in always:
+        for a, b in ALWAYS:
             rel[a, b], rel[b, a] = True, False
             hard[a, b], hard[b, a] = True, False
         np.fill_diagonal(rel, False)

@@ -7,10 +7,7 @@ projected BVH clip.  :func:`retarget` puts it on a character:
 * bone directions come from the motion, frame by frame (with
   ``arms="drawing"`` the arms keep their drawn directions, turned by the
   motion's swing);
-* bone lengths come from the drawing: bone b of frame t becomes
-  ``v_b(t) · L_b(drawing) / median_t L_b(motion)``, so a bone the motion
-  foreshortens stays foreshortened by the same ratio, while the drawn
-  proportions are kept;
+* bone lengths come from the drawing;
 * the root is anchored at the drawing's pelvis: it moves by
   ``s · (root(t) − median root)``, with ``s`` the ratio of the drawing's to
   the motion's leg-plus-torso length (the body scale).
@@ -18,9 +15,9 @@ projected BVH clip.  :func:`retarget` puts it on a character:
 For limbs and head this is the composition ``W_char⁻¹ ∘ W_motion`` of two
 template-unification maps (``W = D⁻¹ R D``, :mod:`nnsf.skeleton.unify`),
 each fitted with :func:`nnsf.skeleton.character_scale`: the motion's on its
-own frames, the character's on its rest pose; two departures, both for
-drawings, are documented in :func:`retarget` (a rigid drawn torso, and a
-clipped foreshortening ratio).  Coordinates are pixels, x right, y down.
+own frames, the character's on its rest pose, less the motion's
+foreshortening; the drawn torso moves rigidly (:func:`retarget`).
+Coordinates are pixels, x right, y down.
 """
 from __future__ import annotations
 
@@ -58,8 +55,7 @@ def check_finite(points: np.ndarray, source="motion", frames=None) -> np.ndarray
     return P
 
 
-#: Key points moved as one rigid body by :func:`retarget` (rotation plus a
-#: clamped stretch along and across the spine), so the drawn torso keeps its shape;
+#: Key points moved as one rigid body by :func:`retarget` (turned with the spine), so the drawn torso keeps its shape;
 #: the neck is the base of the head in the drawings, so it moves with the torso
 #: and only head_top follows the motion (the head turns about the neck).
 TORSO = tuple(JOINT_INDEX[j] for j in (
@@ -111,32 +107,22 @@ def biped_facing(mask: np.ndarray, keypoints: np.ndarray, share: float = 0.1) ->
 
 
 def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", frames=None,
-             foreshortening=(1.0, 1.0), rigid_torso: bool = True,
-             torso_stretch=(1.0, 1.0), arms: str = "motion", body: str = "biped",
-             head: str = "motion", facing: float = 0.0) -> np.ndarray:
+             arms: str = "motion", body: str = "biped", head: str = "motion",
+             facing: float = 0.0) -> np.ndarray:
     """Map a motion ``(T, 17, 2)`` (any units) onto a character: ``(T, 17, 2)`` pixels.
 
     ``rest_keypoints`` ``(17, 2)``: the drawing's key points.
 
     * Root: the drawing's pelvis plus ``s · (root(t) − median root)``, ``s``
       the body-scale ratio (:func:`nnsf.skeleton.character_scale`).
-    * Torso (:data:`TORSO`, with ``rigid_torso``): the drawn torso, turned by
-      the motion's spine angle (pelvis→thorax) relative to the drawing's and
-      stretched along / across the spine by the motion's spine length /
-      hip-plus-shoulder width relative to their medians, each ratio clipped to
-      ``torso_stretch``.  The default (1, 1) keeps the torso rigid: ARAP
-      cannot meet handles that are not a similarity of the drawing (a kick's
-      0.85-1.15 stretch concentrated σ1/σ2 ≈ 5 at the shoulder handles in a
-      sixth of the frames).  A drawn torso is one rigid shape; copying the
-      motion's hip and shoulder bone directions would shear it.
-    * Every other bone (limbs, neck, head): the motion's direction, the
-      drawing's length times the motion's foreshortening ratio
-      ``L_b(t) / median_t L_b`` clipped to ``foreshortening``, chained from
-      its parent.  Without clipping this is exactly the inverse unification
-      ``W_char⁻¹ W_motion`` (module docstring).  The default (1, 1) keeps
-      the drawn lengths exactly (docs/method.md §12: bone lengths from the drawing):
-      a drawn limb cannot shrink without squashing, and with (0.6, 1.2) a
-      foreshortened shin squeezed its handle triangles to σ1/σ2 ≈ 18.
+    * Torso (:data:`TORSO`): the drawn torso, rigid, turned by the motion's
+      spine angle (pelvis→thorax) relative to the drawing's.  ARAP cannot
+      meet handles that are not a similarity of the drawing, and copying the
+      motion's hip and shoulder bone directions would shear the drawn torso.
+    * Every other bone (limbs, neck, head): the motion's direction at the
+      drawing's length, chained from its parent: the inverse unification
+      ``W_char⁻¹ W_motion`` (module docstring) without the motion's
+      foreshortening, since a drawn limb cannot shrink without squashing.
 
     * ``arms="drawing"``: each arm bone (:data:`ARM_BONES`) keeps its drawn
       direction turned by the motion's swing, the angle ``θ_b(t) − θ̄_b``
@@ -147,7 +133,7 @@ def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", fr
       swing, where ``"motion"`` hangs them as the performer's hang.  An
       unchanged motion arm gives the drawn pose exactly.
 
-    * ``head="torso"`` (with ``rigid_torso``): head_top moves with the drawn
+    * ``head="torso"``: head_top moves with the drawn
       torso, so the head keeps its drawn angle to the body.  For a drawing
       with no neck, whose head is the top of one shape (a cone whose tip is
       the head, a head sitting flat on its body): turned on its own, the head
@@ -156,7 +142,7 @@ def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", fr
 
     * ``body="quadruped"``: a four-legged drawing, every leg about its drawn
       pose and the body rigid (:func:`nnsf.reshape.quadruped.retarget_quadruped`;
-      ``arms``, ``foreshortening`` and the torso options do not apply).
+      ``arms`` does not apply).
 
     * ``facing``: the drawing's (:func:`biped_facing`; +1 towards +x, −1, 0 unknown).  A biped
       motion that faces the other way (:func:`nnsf.reshape.quadruped.facing`) is mirrored, so a
@@ -188,44 +174,29 @@ def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", fr
         drawn = character_scale(rest[None])
     except ValueError as exc:
         raise InputError(source, "bones", "bones of non-zero length", reason=str(exc)) from None
-    lo, hi = foreshortening
-    T = len(P)
     out = np.empty_like(P)
     out[:, 0] = rest[0] + (mot.root_scale / drawn.root_scale) * (P[:, 0] - mot.root_ref)
     vec = P[:, [c for _, c in BONES]] - P[:, [p for p, _ in BONES]]  # (T, 16, 2)
-    length = np.linalg.norm(vec, axis=2)
-    med = np.median(length, axis=0)
-    ratio = np.clip(length / np.maximum(med, 1e-12), lo, hi)
-    unit = vec / np.maximum(length, 1e-12)[..., None]
+    unit = vec / np.maximum(np.linalg.norm(vec, axis=2), 1e-12)[..., None]
     if arms == "drawing":
         unit = _swing_about_drawing(unit, rest)
     drawn_len = np.linalg.norm(rest[[c for _, c in BONES]] - rest[[p for p, _ in BONES]], axis=1)
     placed = np.zeros(N_JOINTS, dtype=bool)
-    placed[0] = True
-    if rigid_torso:
-        up_m = P[:, J["thorax"]] - P[:, J["pelvis"]]
-        up_d = rest[J["thorax"]] - rest[J["pelvis"]]
-        ang = np.arctan2(up_m[:, 1], up_m[:, 0]) - np.arctan2(up_d[1], up_d[0])
-        spine = np.linalg.norm(up_m, axis=1)
-        width = (np.linalg.norm(P[:, J["l_hip"]] - P[:, J["r_hip"]], axis=1)
-                 + np.linalg.norm(P[:, J["l_shoulder"]] - P[:, J["r_shoulder"]], axis=1))
-        s_up = np.clip(spine / np.median(spine), *torso_stretch)
-        s_across = np.clip(width / max(float(np.median(width)), 1e-12), *torso_stretch)
-        u = up_d / np.linalg.norm(up_d)
-        n = np.array([-u[1], u[0]])
-        rigid = TORSO + ((JOINT_INDEX["head_top"],) if head == "torso" else ())
-        rel = rest[list(rigid)] - rest[0]  # (k, 2)
-        a_up, a_across = rel @ u, rel @ n
-        local = (a_up[None] * s_up[:, None])[..., None] * u + (a_across[None] * s_across[:, None])[..., None] * n
-        c, s_ = np.cos(ang)[:, None], np.sin(ang)[:, None]
-        rot = np.stack([c * local[..., 0] - s_ * local[..., 1], s_ * local[..., 0] + c * local[..., 1]], -1)
-        out[:, list(rigid)] = out[:, :1] + rot
-        placed[list(rigid)] = True
+    up_m = P[:, J["thorax"]] - P[:, J["pelvis"]]
+    up_d = rest[J["thorax"]] - rest[J["pelvis"]]
+    ang = np.arctan2(up_m[:, 1], up_m[:, 0]) - np.arctan2(up_d[1], up_d[0])
+    u = up_d / np.linalg.norm(up_d)
+    n = np.array([-u[1], u[0]])
+    rigid = TORSO + ((JOINT_INDEX["head_top"],) if head == "torso" else ())
+    rel = rest[list(rigid)] - rest[0]  # (k, 2)
+    local = (rel @ u)[:, None] * u + (rel @ n)[:, None] * n
+    c, s_ = np.cos(ang)[:, None], np.sin(ang)[:, None]
+    rot = np.stack([c * local[..., 0] - s_ * local[..., 1], s_ * local[..., 0] + c * local[..., 1]], -1)
+    out[:, list(rigid)] = out[:, :1] + rot
+    placed[list(rigid)] = True
     for b, (p, c) in enumerate(BONES):
-        if placed[c]:
-            continue
-        out[:, c] = out[:, p] + unit[:, b] * (drawn_len[b] * ratio[:, b])[:, None]
-        placed[c] = True
+        if not placed[c]:
+            out[:, c] = out[:, p] + unit[:, b] * drawn_len[b]
     return out
 
 
@@ -273,9 +244,3 @@ def read_motion(path, clip: str | None = None) -> tuple[str, np.ndarray, np.ndar
     check_finite(vals[order].reshape(-1, N_JOINTS, 2), f"{path} (clip {name})", frames[order])
     table = contract.validate(rows, path)
     return name, table["frame"].to_numpy(), to_points(contract.features(table))
-
-
-def drive(character, points: np.ndarray, source="motion", frames=None) -> np.ndarray:
-    """Key points ``(T, 17, 2)`` in ``character``'s pixels for a motion ``(T, 17, 2)``."""
-    return retarget(points, character.keypoints, source=source, frames=frames,
-                    body=getattr(character, "body", "biped"))

@@ -26,7 +26,6 @@ both is rendered and measured by :mod:`nnsf.reshape.artefacts` against the drawi
 """
 from __future__ import annotations
 
-import argparse
 import time
 from pathlib import Path
 
@@ -37,7 +36,6 @@ from nnsf.datasets import synthetic
 from nnsf.datasets.views import load_clip_in_view
 from nnsf.errors import InputError
 from nnsf.io import atomic_path, write_csv, write_json
-from nnsf import params as params_mod
 from nnsf.params import checked
 from nnsf.pipeline import StageResult
 from nnsf.reshape.animator import Animator, canvas
@@ -240,27 +238,3 @@ def reshape_eval(params: dict, data_root, out_dir=Path("reports"), mapper=None) 
     metrics = {f"{k}_{m}": v for k, d in s["sets"].items() for m, v in d.items()}
     return StageResult(params={f"reshape_eval.{k}": (",".join(v) if isinstance(v, tuple) else v)
                                for k, v in kw.items()}, metrics=metrics, artifacts=s["artifacts"])
-
-
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description="Reshaping evaluation (docs/method.md §15.7)")
-    ap.add_argument("--data", type=Path, required=True, nargs="+")
-    ap.add_argument("--params", default="params.yaml")
-    ap.add_argument("--out", type=Path, default=Path("reports"))
-    ap.add_argument("--workers", type=int, default=1)
-    a = ap.parse_args(argv)
-    mapper = None
-    if a.workers > 1:
-        from concurrent.futures import ProcessPoolExecutor
-
-        def mapper(fn, xs):
-            with ProcessPoolExecutor(a.workers) as ex:
-                return list(ex.map(fn, xs))
-    res = reshape_eval(params_mod.load(a.params), a.data, a.out, mapper)
-    for k, v in res.metrics.items():
-        print(f"reshape-eval: {k} = {v}")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -21,25 +21,19 @@ is processed in one call.
 from __future__ import annotations
 
 import numpy as np
-from scipy.interpolate import CubicHermiteSpline
 
-from nnsf.errors import InputError
 from nnsf.skeleton import LIMBS
 
 #: ``(8, 2)`` key-point indices (p_j, p_{j+1}) of the limbs, in LIMBS order.
 LIMB_PAIRS = np.array(list(LIMBS.values()), dtype=np.int64)
-LIMB_NAMES: tuple[str, ...] = tuple(LIMBS)
-N_LIMBS = len(LIMB_NAMES)
+N_LIMBS = len(LIMBS)
 
 #: ω of a straight limb whose curve parameter equals the fraction along the bone.
 STRAIGHT = np.array([0.5, 0.0])
 
-#: Rotation by +90° in (x, y) axes: R90 @ (x, y) = (−y, x).
-R90 = np.array([[0.0, -1.0], [1.0, 0.0]])
-
 
 def rot90(v: np.ndarray) -> np.ndarray:
-    """R90 applied to vectors ``(..., 2)``."""
+    """R90 (module docstring) applied to vectors ``(..., 2)``."""
     return np.stack([-v[..., 1], v[..., 0]], axis=-1)
 
 
@@ -64,12 +58,6 @@ def omega_from_control(p0: np.ndarray, p1: np.ndarray, pcon: np.ndarray) -> np.n
     if np.any(dd == 0):
         raise ValueError("a limb has zero length: its end points coincide")
     return np.concatenate([(r * d).sum(-1, keepdims=True), (r * rot90(d)).sum(-1, keepdims=True)], -1) / dd
-
-
-def control_points(keypoints: np.ndarray, omega: np.ndarray) -> np.ndarray:
-    """Control points of all limbs: keypoints ``(..., 17, 2)``, ω ``(..., 8, 2)`` -> ``(..., 8, 2)``."""
-    p0, p1 = endpoints(keypoints)
-    return control_from_omega(p0, p1, omega)
 
 
 def bezier(p0: np.ndarray, pcon: np.ndarray, p1: np.ndarray, lam) -> np.ndarray:
@@ -141,41 +129,3 @@ def fit_omega(mask: np.ndarray, keypoints: np.ndarray, samples: int = 24, span=(
         w = 2 * lam[usable] * (1 - lam[usable])
         omega[i, 1] = np.clip((w * m).sum() / (L * (w * w).sum()), -max_bend, max_bend)
     return omega
-
-
-def interpolate_omega(key_frames, key_omega, frames, method: str = "catmull-rom") -> np.ndarray:
-    """Interpolate keyframed ω to every frame.
-
-    Parameters
-    ----------
-    key_frames : ``(K,)`` increasing frame numbers (any units of time).
-    key_omega : ``(K, 8, 2)`` ω at those frames.
-    frames : ``(T,)`` frames to evaluate; outside the keyframes ω is held.
-    method : ``"linear"`` or ``"catmull-rom"`` (cubic Hermite with
-        finite-difference tangents, (ω_{k+1} − ω_{k−1}) / (t_{k+1} − t_{k−1}),
-        one-sided at the ends; it passes through every keyframe, and with two
-        keyframes it is linear).
-
-    Returns ``(T, 8, 2)``.
-    """
-    kf = np.asarray(key_frames, dtype=np.float64)
-    ko = np.asarray(key_omega, dtype=np.float64)
-    if kf.ndim != 1 or kf.size == 0 or ko.shape[0] != kf.size:
-        raise InputError("keyframes", "frames", "one or more frame numbers matching the ω rows",
-                         f"{kf.shape} frames for {ko.shape[0] if ko.ndim else 0} rows")
-    if np.any(np.diff(kf) <= 0):
-        raise InputError("keyframes", "frames", "strictly increasing frame numbers", kf.tolist())
-    t = np.clip(np.asarray(frames, dtype=np.float64), kf[0], kf[-1])
-    if kf.size == 1:
-        return np.broadcast_to(ko[0], t.shape + ko.shape[1:]).copy()
-    if method == "linear":
-        k = np.clip(np.searchsorted(kf, t, side="right") - 1, 0, kf.size - 2)
-        u = ((t - kf[k]) / (kf[k + 1] - kf[k])).reshape(t.shape + (1,) * (ko.ndim - 1))
-        return (1 - u) * ko[k] + u * ko[k + 1]
-    if method == "catmull-rom":
-        slope = np.empty_like(ko)
-        slope[1:-1] = (ko[2:] - ko[:-2]) / (kf[2:] - kf[:-2]).reshape((-1,) + (1,) * (ko.ndim - 1))
-        slope[0] = (ko[1] - ko[0]) / (kf[1] - kf[0])
-        slope[-1] = (ko[-1] - ko[-2]) / (kf[-1] - kf[-2])
-        return CubicHermiteSpline(kf, ko, slope, axis=0, extrapolate=False)(t)
-    raise InputError("keyframes", "method", "'linear' or 'catmull-rom'", method)

@@ -270,10 +270,7 @@ def _triangulate_at(m8: np.ndarray, drawn: np.ndarray, h: float, min_angle: floa
     for _ in range(3):
         # Where the outline's edges are not Delaunay edges a triangle across them may be dropped and
         # leave drawn pixels uncovered: the corners of those regions become points, and Delaunay conforms.
-        cover = np.zeros(m8.shape, np.uint8)
-        for t in np.rint(points[tri] * 16).astype(np.int32):
-            cv2.fillConvexPoly(cover, t, 1, cv2.LINE_8, 4)
-        missed = (drawn & (cover == 0)).astype(np.uint8)
+        missed = (drawn & (_raster(points, tri, m8.shape) < 0)).astype(np.uint8)
         if not missed.any():
             break
         cs, _ = cv2.findContours(missed, cv2.RETR_LIST, cv2.CHAIN_APPROX_SIMPLE)
@@ -281,9 +278,7 @@ def _triangulate_at(m8: np.ndarray, drawn: np.ndarray, h: float, min_angle: floa
         tri = _delaunay_inside(points, m8, loose)
     tri = tri[triangle_areas(points, tri) > 1e-6]
     # The largest edge-connected group of triangles is the character.
-    pairs = shared_edges(tri)
-    labels = connected_components(coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 2])),
-                                             shape=(len(tri), len(tri))), directed=False)[1]
+    labels = _components(tri)
     tri = tri[labels == np.argmax(np.bincount(labels))]
     used = np.unique(tri)
     remap = np.full(len(points), -1, dtype=np.int64)
@@ -293,7 +288,7 @@ def _triangulate_at(m8: np.ndarray, drawn: np.ndarray, h: float, min_angle: floa
 
 # --------------------------------------------------------------------------- cutting
 
-def cut(triangles: np.ndarray, n_vertices: int, cut_edges: np.ndarray, pairs: np.ndarray | None = None):
+def cut(triangles: np.ndarray, cut_edges: np.ndarray, pairs: np.ndarray):
     """Duplicate vertices so the mesh comes apart along the chosen interior edges.
 
     ``pairs`` ``(e, 4)``: :func:`shared_edges` of ``triangles`` ``(t, 3)``; ``cut_edges`` ``(e,)``
@@ -302,8 +297,6 @@ def cut(triangles: np.ndarray, n_vertices: int, cut_edges: np.ndarray, pairs: np
     Returns the new triangles ``(t, 3)`` and the original vertex of each new one ``(n',)``.
     """
     t = len(triangles)
-    if pairs is None:
-        pairs = shared_edges(triangles)
     keep = pairs[~np.asarray(cut_edges, dtype=bool)]
     t1, k1, t2 = keep[:, 0], keep[:, 1], keep[:, 2]
     a, b = triangles[t1, k1], triangles[t1, (k1 + 1) % 3]
@@ -466,7 +459,7 @@ def build_mesh(character, rig, n_vertices: int = 800) -> Mesh:
     cut_edges, under = _lying_over(V, T, parts, pairs, candidates, cover, rig)
     cut_edges |= _slits(V, T, parts, pairs, candidates & ~cut_edges, rig, radius)
     for _ in range(50):
-        T2, origin = cut(T, len(V), cut_edges, pairs)
+        T2, origin = cut(T, cut_edges, pairs)
         comp = _components(T2)
         loose = comp != np.bincount(comp).argmax()
         if not loose.any():
@@ -497,9 +490,10 @@ def build_mesh(character, rig, n_vertices: int = 800) -> Mesh:
     return Mesh(vertices=V[origin[used]], triangles=remap[tris], parts=all_parts, layer=layer, spacing=float(h))
 
 
-def _raster(V: np.ndarray, T: np.ndarray, values: np.ndarray, shape) -> np.ndarray:
-    """``(H, W)`` int16: each triangle ``(t, 3)`` filled with its value ``(t,)``, −1 elsewhere."""
+def _raster(V: np.ndarray, T: np.ndarray, shape, values=None) -> np.ndarray:
+    """``(H, W)`` int16: each triangle ``(t, 3)`` filled with its value ``(t,)`` (default 0), −1 elsewhere."""
     img = np.full(shape, -1, np.int16)
+    values = np.zeros(len(T), np.int64) if values is None else values
     for tri, v in zip(np.rint(V[T] * 16).astype(np.int32), values.tolist()):
         cv2.fillConvexPoly(img, tri, int(v), cv2.LINE_8, 4)
     return img
@@ -515,7 +509,7 @@ def _covered(V, T, parts, shape) -> tuple[dict, np.ndarray]:
     bridges the limb's width, covers the limb there.  A limb beside a part (two legs pressed
     together, an arm hanging at the body's side) is bridged only in the corner where they meet.
     """
-    lab = _raster(V, T, parts, shape)
+    lab = _raster(V, T, shape, parts)
     present = sorted(set(np.unique(parts).tolist()))
     radius = np.zeros(int(parts.max()) + 1)
     out = {}
@@ -689,16 +683,10 @@ def underlay_texture(texture: np.ndarray, mask: np.ndarray, mesh: Mesh) -> np.nd
     out = texture.copy()
     deep = max(2, int(round(0.5 * mesh.spacing)))
     inner = np.ones((2 * deep + 1, 2 * deep + 1), np.uint8)
-
-    def raster(sel):
-        img = np.zeros((H, W), np.uint8)
-        for tri in mesh.vertices[mesh.triangles[sel]]:
-            cv2.fillConvexPoly(img, np.rint(tri * 16).astype(np.int32), 1, cv2.LINE_8, 4)
-        return img
-
     for p in np.unique(mesh.parts[mesh.layer == 1]):
-        region = raster((mesh.layer == 1) & (mesh.parts == p))
-        own = cv2.erode(raster((mesh.layer == 0) & (mesh.parts == p)), inner) & np.asarray(mask, np.uint8)
+        region = _raster(mesh.vertices, mesh.triangles[(mesh.layer == 1) & (mesh.parts == p)], (H, W)) >= 0
+        drawn = _raster(mesh.vertices, mesh.triangles[(mesh.layer == 0) & (mesh.parts == p)], (H, W)) >= 0
+        own = cv2.erode(drawn.astype(np.uint8), inner) & np.asarray(mask, np.uint8)
         pix = texture[own > 0][:, :3]
         if not len(pix):
             continue
@@ -706,8 +694,6 @@ def underlay_texture(texture: np.ndarray, mask: np.ndarray, mesh: Mesh) -> np.nd
         colour = pix[inv.ravel() == np.argmax(counts)].mean(axis=0)
         # Opaque over the underlay's own triangles (the limb's footprint where it covers the part),
         # within the drawing (the renderer masks it): wherever a cut beside it opens, this colour shows.
-        sel = region > 0
-        out[sel, :3] = np.rint(colour).astype(np.uint8)
-        out[sel, 3] = 255
+        out[region, :3] = np.rint(colour).astype(np.uint8)
+        out[region, 3] = 255
     return out
-

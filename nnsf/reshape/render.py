@@ -148,22 +148,6 @@ class Renderer:
             return to_uint8(out.astype(np.float32) / 255.0)
         return cv2.cvtColor(out, cv2.COLOR_RGBA2RGB)
 
-    def render_clip(self, frames, orders=None, background=None) -> np.ndarray:
-        """Frames ``(T, n, 2)`` → images ``(T, H, W, 4 or 3)`` uint8."""
-        return np.stack([self.render(frames[t], None if orders is None else orders[t], background)
-                         for t in range(len(frames))])
-
-
-def sample(texture: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Bilinear texels ``(N, 4)`` of ``texture`` at float32 coordinates ``u``, ``v`` ``(N,)`` (0 outside)."""
-    n = len(u)
-    width = 512  # cv2.remap wants images under 32767 pixels a side: the samples as rows of 512
-    pad = -n % width
-    mu = np.pad(u, (0, pad)).reshape(-1, width)
-    mv = np.pad(v, (0, pad)).reshape(-1, width)
-    out = cv2.remap(texture, mu, mv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0, 0))
-    return out.reshape(-1, 4)[:n]
-
 
 def to_uint8(premult: np.ndarray) -> np.ndarray:
     """Premultiplied float RGBA ``(H, W, 4)`` in [0, 1] → straight RGBA uint8."""

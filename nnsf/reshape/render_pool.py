@@ -1,7 +1,7 @@
 """Rendering the frames of an animation on several processes.
 
 :func:`render_frames` draws frame ``t`` of a deformed mesh with one
-:class:`~nnsf.reshape.render.MeshRenderer` call, as a serial loop would, and
+:class:`~nnsf.reshape.render.Renderer` call, as a serial loop would, and
 so gives the same bytes whatever the number of workers.  With more than one
 worker, the frames are split into contiguous chunks, each drawn by a
 process of a ``spawn`` pool straight into one shared-memory image array:
@@ -180,7 +180,7 @@ def render_frames(renderer, frames: np.ndarray, orders, offset, background, size
                   workers: int | None = None, progress=None) -> np.ndarray:
     """RGB frames ``(T, H, W, 3)`` uint8 of a deformed mesh, ``frames`` ``(T, n, 2)`` px.
 
-    ``orders``: per frame, the part order :meth:`MeshRenderer.render` takes;
+    ``orders``: per frame, the part order :meth:`~nnsf.reshape.render.Renderer.render` takes;
     ``offset`` ``(2,)`` is added to every vertex; ``size`` ``(H, W)``;
     ``background`` an RGB triple.  ``workers``: processes (default
     :func:`default_workers`; 1 draws in this process, as does a clip shorter

@@ -37,11 +37,9 @@ from nnsf.reshape import depth as depth_mod
 from nnsf.reshape.animator import BACKGROUND, Animation, Animator, canvas
 from nnsf.reshape.character import Character
 from nnsf.reshape.drive import read_motion
-from nnsf.reshape.formats import read_character, synthetic_character, write_character
+from nnsf.reshape.formats import read_character, synthetic_character
 from nnsf.reshape.metrics import deformation_report
 from nnsf.reshape.video import contact_sheet, write_gif, write_mp4, write_png_frames
-
-FORMATS = RESHAPE_FORMATS
 
 
 def resolve_character(spec, size: int = 512, root=Path("."), source="params.yaml") -> Character:
@@ -73,7 +71,7 @@ def extra_arms_notes(character: Character, arms: str, setting: str) -> list[str]
             f"the motion's do and may cross its body; {setting} drawing swings them about their drawn pose"]
 
 
-def report(animator: Animator, anim: Animation, depth_margin: float | None = None) -> dict:
+def report(animator: Animator, anim: Animation) -> dict:
     """docs/method.md §15.7 numbers of an animation (flat dict)."""
     d = animator.deformer
     out = deformation_report(animator.mesh, anim.frames, anim.keypoints, animator.rig.keypoints[:17], d.rest_omega)
@@ -82,7 +80,7 @@ def report(animator: Animator, anim: Animation, depth_margin: float | None = Non
     if anim.part_z is not None:
         pairs = depth_mod.part_overlaps(anim.frames, animator.mesh.triangles, np.minimum(animator.mesh.parts, 9))
         base = np.array([[p for p in o if p < depth_mod.N_PARTS] for o in anim.orders])
-        out.update(depth_mod.depth_metric(base, anim.part_z, depth_margin or 0.0, pairs=pairs))
+        out.update(depth_mod.depth_metric(base, anim.part_z, 0.0, pairs=pairs))
     return out
 
 
@@ -105,7 +103,7 @@ def stage_params(params: dict) -> dict:
     """
     defaults = {"clip": None, "character": "bruno", "character_size": 512, "n_vertices": 800,
                 "subkeys_per_limb": 4, "method": "ours", "propagation": "limb-frame", "fps": 24,
-                "max_frames": 240, "formats": list(FORMATS), "depth_overrides": [], "arms": None, "head": None}
+                "max_frames": 240, "formats": list(RESHAPE_FORMATS), "depth_overrides": [], "arms": None, "head": None}
     p = {key: checked(params, f"reshape.{key}", default) for key, default in defaults.items()}
     if p["method"] == "ours" and p["subkeys_per_limb"] == 0:
         raise InputError(source_of(params), "reshape.subkeys_per_limb", "at least 1 for method ours", 0)
@@ -156,8 +154,3 @@ def reshape(params: dict, motion_csv=TRANSLATION_DIR / "translated_features.csv"
                                for k, v in p.items()},
                        metrics=scalar, artifacts=artifacts + [out_dir / "metrics.json"])
 
-
-def write_rendered_character(name: str, folder, size: int = 256) -> Path:
-    """Write ``<folder>/<name>.json`` (+ texture and mask PNGs) of a built-in character; returns the JSON path."""
-    ch = synthetic_character(name, size)
-    return write_character(ch, Path(folder) / f"{ch.name}.json")

@@ -147,7 +147,7 @@ class Subkeys:
 
 
 def init_subkeys(vertices: np.ndarray, keypoints: np.ndarray, omega: np.ndarray,
-                 per_limb: int = 4, lambdas=None, candidates=None) -> Subkeys:
+                 per_limb: int = 4, candidates=None) -> Subkeys:
     """Eq. 11: the vertices nearest ``per_limb`` samples of each limb's rest curve.
 
     Parameters
@@ -157,13 +157,12 @@ def init_subkeys(vertices: np.ndarray, keypoints: np.ndarray, omega: np.ndarray,
     omega : ``(8, 2)`` rest ω.
     per_limb : samples λ_j = j / (per_limb + 1), j = 1..per_limb (the
         joints themselves are key-point handles already).
-    lambdas : optional explicit ``(L,)`` samples instead.
     candidates : optional list of 8 vertex-index arrays, the vertices each
         limb may pick from (a split mesh: the limb's own piece).
 
     A vertex picked twice (a short limb on a coarse mesh) is kept once.
     """
-    lam = (np.arange(1, per_limb + 1) / (per_limb + 1)) if lambdas is None else np.asarray(lambdas, float)
+    lam = np.arange(1, per_limb + 1) / (per_limb + 1)
     samples = limb_curves(keypoints, omega, lam)  # (8, L, 2)
     if candidates is None:
         _, idx = cKDTree(vertices).query(samples.reshape(-1, 2))
@@ -207,8 +206,6 @@ class SubkeyTracker:
     ----------
     subkeys : :class:`Subkeys`
     rest_keypoints : ``(17, 2)``; rest_omega : ``(8, 2)``.
-    fit : bool
-        Apply Eq. 13-14 after each propagation (``False``: Eq. 12 only).
     keep_offset : bool
         Add the rest offsets (module docstring).
     propagation : ``"eq12"`` (the paper, :func:`propagate`) or
@@ -219,15 +216,14 @@ class SubkeyTracker:
     subkeys; frames are sequential because Eq. 12 is a recurrence.
     """
 
-    def __init__(self, subkeys: Subkeys, rest_keypoints, rest_omega, fit: bool = True,
-                 keep_offset: bool = True, propagation: str = "eq12"):
+    def __init__(self, subkeys: Subkeys, rest_keypoints, rest_omega, keep_offset: bool = True,
+                 propagation: str = "eq12"):
         if propagation not in PROPAGATIONS:
             raise ValueError(f"propagation must be one of {PROPAGATIONS}, got {propagation!r}")
         self.propagation = propagation
         self.subkeys = subkeys
         self.rest_keypoints = np.asarray(rest_keypoints, dtype=np.float64)
         self.rest_omega = np.asarray(rest_omega, dtype=np.float64)
-        self.fit = fit
         self.keep_offset = keep_offset
         self._pairs = LIMB_PAIRS[subkeys.limb]  # (s, 2)
         self.reset()
@@ -256,9 +252,8 @@ class SubkeyTracker:
             s = propagate(self._state, self._keypoints[i0], self._keypoints[i1], kp[i0], kp[i1])
         else:
             s = propagate_in_frame(self._state, self._keypoints[i0], self._keypoints[i1], kp[i0], kp[i1])
-        if self.fit:
-            p0, p1 = kp[i0], kp[i1]
-            _, s = closest_on_bezier(p0, control_from_omega(p0, p1, om[self.subkeys.limb]), p1, s)
+        p0, p1 = kp[i0], kp[i1]
+        _, s = closest_on_bezier(p0, control_from_omega(p0, p1, om[self.subkeys.limb]), p1, s)
         self._state, self._keypoints = s, kp.copy()
         return self.positions()
 
