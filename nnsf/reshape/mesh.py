@@ -593,9 +593,9 @@ def _lying_over(V, T, parts, pairs, candidates, cover, rig):
 
 def _slits(V, T, parts, pairs, side_by_side, rig, radius) -> np.ndarray:
     """Which of the ``side_by_side`` ``(e,)`` edges (``pairs`` ``(e, 4)``) to cut: those between a limb and
-    another limb or the body that run, joined end to end, to the outline; between a limb and the
-    part it hangs from, only beyond :data:`SLIT_DEPTH` of its radii (``radius`` ``(P,)``, as
-    :meth:`~nnsf.reshape.rig.Rig.cuts`) from its root cross-section.
+    another limb or the torso, along the limb, that run, joined end to end, to the outline; between
+    a limb and the part it hangs from, only beyond :data:`SLIT_DEPTH` of its radii (``radius``
+    ``(P,)``, as :meth:`~nnsf.reshape.rig.Rig.cuts`) from its root cross-section.
 
     Cut there, the two open like the legs of a pair of compasses, from the outline in: the page
     that shows between them (between two legs drawn together, or an arm and the body it hangs
@@ -607,10 +607,26 @@ def _slits(V, T, parts, pairs, side_by_side, rig, radius) -> np.ndarray:
     chain = rig.chains()[parts]
     p, q = parts[pairs[:, 0]], parts[pairs[:, 2]]
     ca, cb = chain[pairs[:, 0]], chain[pairs[:, 2]]
-    keep = side_by_side & (ca != cb) & ((ca >= 0) | (cb >= 0))
+    # A limb beside another limb or the torso (not the head: hair lying on a shoulder stays on it).
+    keep = side_by_side & (ca != cb) & ((ca >= 0) | (p == 0)) & ((cb >= 0) | (q == 0))
     a = T[pairs[:, 0], pairs[:, 1]]
     b = T[pairs[:, 0], (pairs[:, 1] + 1) % 3]
     mid = 0.5 * (V[a] + V[b])
+    # Beside a limb the boundary runs along it: most of its length within 60° of the limb's nearest
+    # bone.  One across it (the top of a leg against the belly) would open as a slit inside the
+    # figure as the limb turns.
+    along = np.zeros(len(pairs), bool)
+    edge = V[b] - V[a]
+    for limb in np.unique(np.concatenate([p[keep & (ca >= 0)], q[keep & (cb >= 0)]])):
+        sel = np.flatnonzero(keep & ((p == limb) | (q == limb)))
+        bones = rig.bones[rig.bones[:, 2] == limb]
+        d = rig.keypoints[bones[:, 1]] - rig.keypoints[bones[:, 0]]                  # (B, 2)
+        rel = mid[sel, None] - rig.keypoints[bones[:, 0]][None]                         # (k, B, 2)
+        t = np.clip((rel * d).sum(-1) / np.maximum((d * d).sum(-1), 1e-12), 0, 1)
+        u = d[np.argmin(np.linalg.norm(rel - t[..., None] * d, axis=-1), axis=1)]     # (k, 2)
+        cos = np.abs((edge[sel] * u).sum(1)) / np.maximum(np.linalg.norm(edge[sel], axis=1)
+                                                          * np.linalg.norm(u, axis=1), 1e-9)
+        along[sel] |= cos >= np.cos(np.pi / 3)
     for child in np.unique(np.concatenate([p[keep], q[keep]])):
         up = rig.parent[child]
         sel = np.flatnonzero(keep & (((p == child) & (q == up)) | ((q == child) & (p == up))))
@@ -625,7 +641,10 @@ def _slits(V, T, parts, pairs, side_by_side, rig, radius) -> np.ndarray:
     outline[boundary_edges(T).ravel()] = True
     reach = np.zeros(group.max() + 1, bool)
     reach[group[outline]] = True
-    keep[sel] = reach[group[a[sel]]]
+    length = np.linalg.norm(edge[sel], axis=1)
+    share = np.bincount(group[a[sel]], length * along[sel], len(reach)) / np.maximum(
+        np.bincount(group[a[sel]], length, len(reach)), 1e-12)
+    keep[sel] = reach[group[a[sel]]] & (share[group[a[sel]]] > 0.5)
     return keep
 
 
