@@ -62,6 +62,10 @@ def test_a_crack_is_thin_enclosed_background_only():
     cov[42:46, 47:49] = False                 # a thin bit one drawn pixel from the 6 px hole: its
     assert A.cracks(cov)[0] == 3              # pinched end, not a crack ...
     assert A.cracks(cov, isolated=False)[0] == 4   # ... but a speck
+    labels = np.zeros(cov.shape, np.int32)   # the pixels counted, numbered by crack
+    n, px = A.cracks(cov, labels=labels)
+    assert (labels > 0).sum() == px and labels.max() == n and np.unique(labels[labels > 0]).size == n
+    assert (labels[10:30, 10:12] > 0).all() and not labels[40:46, 40:46].any()
 
 
 def test_a_crack_at_a_joint_is_told_from_one_elsewhere():

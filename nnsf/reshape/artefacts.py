@@ -51,7 +51,8 @@ def detached(cov: np.ndarray, min_area: int = 3) -> int:
 
 
 def cracks(cov: np.ndarray, width: float = CRACK_WIDTH, connectivity: int = 8,
-           isolated: bool = True, near: np.ndarray | None = None) -> tuple[int, int]:
+           isolated: bool = True, near: np.ndarray | None = None,
+           labels: np.ndarray | None = None) -> tuple[int, int]:
     """``(count, pixels)`` of enclosed background components no wider than ``width`` px.
 
     A component's width is the diameter of the largest disc it holds, measured on the image at twice
@@ -61,7 +62,8 @@ def cracks(cov: np.ndarray, width: float = CRACK_WIDTH, connectivity: int = 8,
     background: a thin gap opening inside the drawing.  Background one drawn pixel from other
     background is the pinched end of a wider gap (or of the outside) where two edges meet at a
     shallow angle; ``isolated=False, connectivity=4`` counts those too (the "specks").  ``near``
-    ``(H, W)`` bool: count only the cracks that touch it (the discs about the joints)."""
+    ``(H, W)`` bool: count only the cracks that touch it (the discs about the joints).  ``labels``
+    ``(H, W)`` int, optional: each counted crack's pixels are set to its number (1, 2, ...) there."""
     bg = (~np.asarray(cov, dtype=bool)).astype(np.uint8)
     n, lab, stats, _ = cv2.connectedComponentsWithStats(bg, connectivity=connectivity)
     if n <= 1:
@@ -86,6 +88,8 @@ def cracks(cov: np.ndarray, width: float = CRACK_WIDTH, connectivity: int = 8,
             if (ring & (bg[y0:y1, x0:x1] > 0) & (lab[y0:y1, x0:x1] != c)).any():
                 continue
         count, pixels = count + 1, pixels + int(area)
+        if labels is not None:
+            labels[y:y + h, x:x + w][lab[y:y + h, x:x + w] == c] = count
     return count, pixels
 
 
