@@ -67,10 +67,9 @@ ARM_BONES = tuple((JOINT_INDEX[p], JOINT_INDEX[c]) for p, c in (
 
 
 def drawn_from_side(mask: np.ndarray, keypoints: np.ndarray, share: float = 0.25) -> bool:
-    """Whether a biped is drawn from the side: a body (the torso drawn at least ``share`` of its
-    length wide, from the silhouette's depth at the spine) whose two shoulders and two hips each lie
-    less than ``share`` of that width apart.  Seen from the front they are about a torso's width
-    apart; a stick figure, whose shoulders meet on one line, is no body to see from the side."""
+    """Whether a biped is drawn from the side: its torso drawn at least ``share`` of its length wide
+    (the silhouette's depth at the spine; a stick figure's is not) and its two shoulders and two hips
+    each less than ``share`` of that width apart (docs/method.md §12)."""
     kp = np.asarray(keypoints, dtype=np.float64)
     J = JOINT_INDEX
     length = float(np.linalg.norm(kp[J["thorax"]] - kp[J["pelvis"]]))
@@ -80,14 +79,10 @@ def drawn_from_side(mask: np.ndarray, keypoints: np.ndarray, share: float = 0.25
 
 
 def biped_facing(mask: np.ndarray, keypoints: np.ndarray, share: float = 0.1) -> float:
-    """Which way a biped drawn from the side (:func:`drawn_from_side`) faces: +1 towards +x, −1
-    towards −x, 0 for any other drawing or if it cannot tell.
-
-    Feet point forwards: the drawn pixels below each ankle, within half a shin's length of it, lie
-    ahead of it on average; failing that, a knee drawn bent lies ahead of its hip–ankle line.
-    Either counts when it exceeds ``share`` of the mean shin length.  A character YAML may say it
-    (``facing``).
-    """
+    """Which way a biped drawn from the side (:func:`drawn_from_side`) faces: +1 towards +x, −1, 0 for
+    any other drawing or if it cannot tell.  Feet point forwards (the mean offset of the drawn pixels
+    below each ankle, within half a shin), failing that bent knees do; either counts beyond
+    ``share`` of the mean shin length."""
     if not drawn_from_side(mask, keypoints):
         return 0.0
     m = np.asarray(mask, dtype=bool)

@@ -597,12 +597,8 @@ def _slits(V, T, parts, pairs, side_by_side, rig, radius) -> np.ndarray:
     a limb and the part it hangs from, only beyond :data:`SLIT_DEPTH` of its radii (``radius``
     ``(P,)``, as :meth:`~nnsf.reshape.rig.Rig.cuts`) from its root cross-section.
 
-    Cut there, the two open like the legs of a pair of compasses, from the outline in: the page
-    that shows between them (between two legs drawn together, or an arm and the body it hangs
-    against) is the page around the figure, as it would be drawn.  Joined, the mesh between them
-    would stretch into a web.  A cut that reaches no outline would open a hole: it stays joined.
-    Near the joint the limb turns about, the parent's edge there hardly moves: cut, it would hang
-    as a flap (the body's wedge between the thighs).
+    Cut there, the two open from the outline in, and the page between them is the page around the
+    figure; joined, the mesh between them would stretch into a web (docs/method.md §13).
     """
     chain = rig.chains()[parts]
     p, q = parts[pairs[:, 0]], parts[pairs[:, 2]]

@@ -61,13 +61,9 @@ def sample(img: np.ndarray, pts: np.ndarray) -> np.ndarray:
 
 
 def coincident_limbs(keypoints: np.ndarray, bones: np.ndarray, radius: np.ndarray) -> tuple[int, ...]:
-    """The right limb's parts where the left and right limb of a pair are drawn as one ``(k,)``.
-
-    A drawing seen from the side shows one arm (or leg) where its joints are given twice: every key
-    point of the right chain lies within half the thinner limb's radius of the left one's.  Split
-    between two parts that the motion swings apart, the one drawn limb would tear into shards; so
-    the left part takes it whole, and the right draws nothing (it is hidden behind the body).
-    """
+    """The right limb's parts ``(k,)`` where a pair's two chains are drawn as one (each key point within
+    half the thinner limb's radius of its twin): the left part takes the drawn limb whole, the
+    right draws nothing (docs/method.md §12, a figure drawn from the side)."""
     kp = np.asarray(keypoints, dtype=np.float64)
     hidden = []
     for left, right in ((("l_upper_arm", "l_forearm"), ("r_upper_arm", "r_forearm")),
