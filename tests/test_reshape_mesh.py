@@ -146,35 +146,22 @@ def _shared(m, rig, a, b) -> np.ndarray:
     return m.vertices[(count[:, PART_INDEX[a]] > 0) & (count[:, PART_INDEX[b]] > 0)]
 
 
-def test_an_arm_beside_the_body_opens_from_the_hand_up_and_pulls_no_web():
-    """Side by side is not lying over: the arm and the body stay joined near the shoulder only, the
-    boundary below is cut from the hand up (it runs out to the outline), and nothing is copied
-    under it.  Swung out, the page opens between them as around the figure: no web of stretched
-    body, the body's side where it was drawn, and no crack or detached piece."""
-    from nnsf.reshape.artefacts import FrameMeasures
-    from nnsf.reshape.mesh import _components
-
+def test_an_arm_beside_the_body_stays_joined_all_the_way_down():
+    """Side by side is not lying over: the arm and the body share vertices down the arm's side (they
+    stretch apart, no page can open between them), and nothing is cut, so no underlay is made."""
     ch = _arm_against_the_body()
     rig = Rig.build(ch)
     m = build_mesh(ch, rig, 800)
+    from nnsf.reshape.mesh import _components
+
     assert _components(m.triangles).max() == 0
-    sh, el = ch.keypoints[J["l_shoulder"], 1], ch.keypoints[J["l_elbow"], 1]
     shared = _shared(m, rig, "torso", "l_upper_arm")
-    assert len(shared) and shared[:, 1].max() < sh + 0.5 * (el - sh)
+    assert np.ptp(shared[:, 1]) > 0.6 * (ch.keypoints[J["l_elbow"], 1] - ch.keypoints[J["l_shoulder"], 1])
     assert not (m.layer == 1).any()
     # The outline of the rest mesh has no T-junction: each outline vertex has two outline edges.
     own = m.layer == 0
     deg = np.bincount(boundary_edges(m.triangles[own]).ravel(), minlength=m.n_vertices)
     assert set(np.unique(deg[deg > 0])) <= {2, 4, 6}
-    pose = _swing(ch.keypoints, [J["l_elbow"], J["l_wrist"]], J["l_shoulder"], -60)
-    _, (img,), offset = _render(ch, [pose])
-    cov = img[..., 3] >= 128
-    x, y = np.rint(offset).astype(int)
-    assert not cov[y + 130:y + 185, x + 161:x + 168].any()          # where the arm hung: page, no web
-    assert cov[y + 70:y + 190, x + 140:x + 152].all()               # the body up to its side, as drawn
-    measure = FrameMeasures(ch.texture, ch.mask, ch.keypoints)
-    res = measure(img, pose + offset)
-    assert res["detached"] == 0 and res["cracks"] == 0
 
 
 def _figure(arm_over_body: bool, legs_touch: bool) -> Character:
@@ -266,15 +253,13 @@ def test_an_arm_lying_over_the_body_swung_out_leaves_the_body_whole():
 
 
 def test_two_legs_pressed_together_parted_show_no_crack():
-    """Legs drawn touching are cut apart from the feet up (side by side, the cut runs out to the
-    outline): spread apart, the page opens between them as around the figure, with no web and no
-    crack or detached piece in any frame."""
+    """Legs drawn touching share vertices (side by side, never cut): spread apart they stretch,
+    and no frame has a crack or a detached piece."""
     from nnsf.reshape.artefacts import FrameMeasures
 
     ch = _figure(arm_over_body=False, legs_touch=True)
     a, _, _ = _render(ch, [ch.keypoints])
-    shared = _shared(a.mesh, a.rig, "l_thigh", "r_thigh")
-    assert len(shared) <= 2 and (shared[:, 1] < ch.keypoints[J["l_knee"], 1]).all()
+    assert len(_shared(a.mesh, a.rig, "l_thigh", "r_thigh")) >= 3
     poses = []
     for d in (10, 20, 30):
         kp = _swing(ch.keypoints, [J["l_knee"], J["l_ankle"]], J["l_hip"], -d)
@@ -284,8 +269,6 @@ def test_two_legs_pressed_together_parted_show_no_crack():
     for kp, img in zip(poses, frames):
         got = measure(img, kp + offset)
         assert got["cracks"] <= measure.rest()["cracks"] and got["detached"] == 0, got
-    between = np.rint(0.5 * (poses[-1][J["l_ankle"]] + poses[-1][J["r_ankle"]]) + offset).astype(int)
-    assert frames[-1][between[1] - 3:between[1] + 3, between[0] - 2:between[0] + 3, 3].max() < 128
 
 
 @pytest.mark.parametrize("name", ["char1", "char4"])

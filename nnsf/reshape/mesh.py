@@ -1,4 +1,4 @@
-"""One triangle mesh of a drawing's silhouette, cut where a limb lies over another part or opens from it.
+"""One triangle mesh of a drawing's silhouette, cut only where a limb lies over another part.
 
 :func:`triangulate` meshes the silhouette:
 
@@ -18,10 +18,9 @@
 
 :func:`cut` duplicates the vertices along chosen edges: the mesh stays one connected piece
 wherever it is not cut, so the two sides of an uncut edge move together in every frame and no
-crack can open there.  :func:`build_mesh` cuts where a limb lies over another part in the drawing,
-with an underlay of that part beneath, so such a cut shows the part beneath, never the page; and
-between a limb and a part it lies beside, from the outline in, so that cut opens onto the page
-around the figure, never as a hole.
+crack can open there.  :func:`build_mesh` cuts only where a limb lies over another part in the
+drawing, and puts an underlay of that part beneath every cut, so an opening cut shows the part
+beneath, never the page.
 """
 from __future__ import annotations
 
@@ -43,9 +42,6 @@ GROW = 2
 #: reaches over it (:func:`_covered`): the disc bridges the limb's width (two radii) with room for
 #: a limb that widens.
 OVER_REACH = 1.5
-#: A limb and the part it hangs from, side by side, open apart only this many limb radii past its
-#: root cross-section (:func:`_slits`).
-SLIT_DEPTH = 2.0
 
 
 @dataclass
@@ -439,10 +435,10 @@ def build_mesh(character, rig, n_vertices: int = 800) -> Mesh:
 
     * Parts: each vertex's lowest :meth:`~nnsf.reshape.rig.Rig.scores`, the triangles split along the
       boundaries (:func:`split_seams`), cleaned so each part is one region.
-    * Cuts, never across a joint (:meth:`~nnsf.reshape.rig.Rig.cuts`): where a limb lies over another
-      part in the drawing (:func:`_lying_over`), and where it lies beside one, along a boundary
-      that runs out to the outline (:func:`_slits`).  A piece the cuts would set apart from the
-      rest stays joined where it touches: the mesh is one connected piece.
+    * Cuts (:func:`_lying_over`): only where a limb lies over another part in the drawing, and not
+      across a joint (:meth:`~nnsf.reshape.rig.Rig.cuts`); parts side by side stay joined.  A piece
+      the cuts would set apart from the rest stays joined where it touches: the mesh is one
+      connected piece.
     * Underlays (:func:`_underlays`): beneath every cut, copies of the limb's triangles where it
       covers the part beneath, put in that part and sharing its vertices where they meet it: when
       the limb moves, the part beneath is there (textured by :func:`underlay_texture`).
@@ -457,7 +453,6 @@ def build_mesh(character, rig, n_vertices: int = 800) -> Mesh:
     cover, radius = _covered(V, T, parts, shape)
     candidates = rig.cuts(0.5 * (V[a] + V[b]), parts[pairs[:, 0]], parts[pairs[:, 2]], radius)
     cut_edges, under = _lying_over(V, T, parts, pairs, candidates, cover, rig)
-    cut_edges |= _slits(V, T, parts, pairs, candidates & ~cut_edges, rig, radius)
     for _ in range(50):
         T2, origin = cut(T, cut_edges, pairs)
         comp = _components(T2)
@@ -557,12 +552,14 @@ def _lying_over(V, T, parts, pairs, candidates, cover, rig):
     """Which of the ``candidates`` ``(e,)`` interior edges (``pairs`` ``(e, 4)``) to cut, and the part
     lying under each cut ``(e,)`` (−1 where no underlay is needed).
 
-    An opening inside the figure must never show the page.  So an edge between a limb and
-    another part is cut here only when it lies over: the limb's triangle beside it, and the middle
+    A cut may open; what shows in the opening must never be the page.  So an edge between a limb
+    and another part is cut only when it lies over: the limb's triangle beside it, and the middle
     of the limb beside it (the nearest point of its bones, ``rig`` a
     :class:`~nnsf.reshape.rig.Rig`), lie where limbs cover that part (:func:`_covered`).  The part
     beneath gets an underlay there (:func:`_underlays`), and however far the limb moves away, the
-    opening shows its colour.  Parts side by side are left to :func:`_slits`.
+    opening shows its colour.  Every other boundary stays joined by shared vertices: parts side by
+    side (two legs pressed together, an arm hanging against the body's side) stretch apart rather
+    than open, the head stays on the body, and a continuous map of a joined mesh cannot open a crack.
     """
     p, q = parts[pairs[:, 0]], parts[pairs[:, 2]]
     a = T[pairs[:, 0], pairs[:, 1]]
@@ -589,59 +586,6 @@ def _lying_over(V, T, parts, pairs, candidates, cover, rig):
             cut_edges[hit] = True
             under[hit] = u
     return cut_edges, under
-
-
-def _slits(V, T, parts, pairs, side_by_side, rig, radius) -> np.ndarray:
-    """Which of the ``side_by_side`` ``(e,)`` edges (``pairs`` ``(e, 4)``) to cut: those between a limb and
-    another limb or the torso, along the limb, that run, joined end to end, to the outline; between
-    a limb and the part it hangs from, only beyond :data:`SLIT_DEPTH` of its radii (``radius``
-    ``(P,)``, as :meth:`~nnsf.reshape.rig.Rig.cuts`) from its root cross-section.
-
-    Cut there, the two open from the outline in, and the page between them is the page around the
-    figure; joined, the mesh between them would stretch into a web (docs/method.md §13).
-    """
-    chain = rig.chains()[parts]
-    p, q = parts[pairs[:, 0]], parts[pairs[:, 2]]
-    ca, cb = chain[pairs[:, 0]], chain[pairs[:, 2]]
-    # A limb beside another limb or the torso (not the head: hair lying on a shoulder stays on it).
-    keep = side_by_side & (ca != cb) & ((ca >= 0) | (p == 0)) & ((cb >= 0) | (q == 0))
-    a = T[pairs[:, 0], pairs[:, 1]]
-    b = T[pairs[:, 0], (pairs[:, 1] + 1) % 3]
-    mid = 0.5 * (V[a] + V[b])
-    # Beside a limb the boundary runs along it: most of its length within 60° of the limb's nearest
-    # bone.  One across it (the top of a leg against the belly) would open as a slit inside the
-    # figure as the limb turns.
-    along = np.zeros(len(pairs), bool)
-    edge = V[b] - V[a]
-    for limb in np.unique(np.concatenate([p[keep & (ca >= 0)], q[keep & (cb >= 0)]])):
-        sel = np.flatnonzero(keep & ((p == limb) | (q == limb)))
-        bones = rig.bones[rig.bones[:, 2] == limb]
-        d = rig.keypoints[bones[:, 1]] - rig.keypoints[bones[:, 0]]                  # (B, 2)
-        rel = mid[sel, None] - rig.keypoints[bones[:, 0]][None]                         # (k, B, 2)
-        t = np.clip((rel * d).sum(-1) / np.maximum((d * d).sum(-1), 1e-12), 0, 1)
-        u = d[np.argmin(np.linalg.norm(rel - t[..., None] * d, axis=-1), axis=1)]     # (k, 2)
-        cos = np.abs((edge[sel] * u).sum(1)) / np.maximum(np.linalg.norm(edge[sel], axis=1)
-                                                          * np.linalg.norm(u, axis=1), 1e-9)
-        along[sel] |= cos >= np.cos(np.pi / 3)
-    for child in np.unique(np.concatenate([p[keep], q[keep]])):
-        up = rig.parent[child]
-        sel = np.flatnonzero(keep & (((p == child) & (q == up)) | ((q == child) & (p == up))))
-        r = radius[child] if radius[child] > 0 else None
-        keep[sel[rig.root_distance(mid[sel], child, r) <= SLIT_DEPTH]] = False
-    sel = np.flatnonzero(keep)
-    if not len(sel):
-        return keep
-    n = len(V)
-    _, group = connected_components(coo_matrix((np.ones(len(sel)), (a[sel], b[sel])), shape=(n, n)), directed=False)
-    outline = np.zeros(n, bool)
-    outline[boundary_edges(T).ravel()] = True
-    reach = np.zeros(group.max() + 1, bool)
-    reach[group[outline]] = True
-    length = np.linalg.norm(edge[sel], axis=1)
-    share = np.bincount(group[a[sel]], length * along[sel], len(reach)) / np.maximum(
-        np.bincount(group[a[sel]], length, len(reach)), 1e-12)
-    keep[sel] = reach[group[a[sel]]] & (share[group[a[sel]]] > 0.5)
-    return keep
 
 
 def _nearest_on_bones(rig, part: int, points: np.ndarray) -> np.ndarray:

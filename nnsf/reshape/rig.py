@@ -20,8 +20,7 @@ hangs from, and each bone's radius.
   their root cross-section (within :data:`ROOT_DEPTH` child radii of the line through the joint
   across the child's bone); there the two share vertices, so the joint bends as one piece of paper
   and cannot crack.  Elsewhere a boundary is only a candidate: :mod:`nnsf.reshape.mesh` cuts it
-  where one part lies over the other in the drawing, with an underlay beneath, or lies beside it
-  out to the outline.
+  where one part lies over the other in the drawing, with an underlay beneath.
 * **One limb drawn for two** (:func:`coincident_limbs`): a figure drawn from the side, its two arms
   given the same joints, shows one arm; the left part takes it, the right is :attr:`Rig.hidden`.
 """
