@@ -62,7 +62,7 @@ def ours(data: Path, char: str, motion: str, frames: int):
     from nnsf.reshape.evaluation import _character, _motion
 
     ch = _character(char, [data])
-    _, pts, depth, _, _ = _motion(motion, [data], ch.body == "quadruped")
+    _, pts, depth, _, _ = _motion(motion, [data], ch)
     pts, depth = pts[:frames], None if depth is None else depth[:frames]
     a = Animator(ch)
     anim = a.animate(pts, depth)

@@ -256,7 +256,7 @@ def footprint_colours(fp: dict[str, np.ndarray]) -> np.ndarray:
 def run_item(item: dict) -> dict:
     """One drawing × motion: the per-origin counts, the openings and the figure's candidates."""
     ch = _character(item["character"], item["data"])
-    name, points, depth, _, _ = _motion(item["motion"], item["data"], ch.body == "quadruped")
+    name, points, depth, _, _ = _motion(item["motion"], item["data"], ch)
     T = min(len(points), item["max_frames"])
     points, depth = points[:T], None if depth is None else depth[:T]
     animator = Animator(ch, item["n_vertices"], "ours", item["subkeys_per_limb"])

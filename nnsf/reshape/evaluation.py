@@ -58,8 +58,10 @@ def _root(roots, rel) -> Path:
     return next((r for r in roots if (r / rel).exists()), roots[0])
 
 
-def _motion(spec: str, roots, side: bool):
-    """``(name, points (T, 17, 2), depth (T, 17) or None, fps, view)`` of a motion spec."""
+def _motion(spec: str, roots, ch):
+    """``(name, points (T, 17, 2), depth (T, 17) or None, fps, view)`` of a motion spec for the character
+    ``ch`` (seen from the side when ``ch`` is drawn from the side)."""
+    side = ch.body == "quadruped" or drawn_from_side(ch.mask, ch.keypoints)
     if spec.startswith("synthetic:"):
         who, what = spec[len("synthetic:"):].split("/")[:2]
         return f"synthetic-{what}", synthetic.clip_points(who, what, 48), None, 24.0, "front"
@@ -80,8 +82,7 @@ def _character(spec: str, roots):
 def evaluate_item(item: dict) -> dict:
     """One drawing × motion: rows per method, per-frame rows and a contact sheet (picklable)."""
     ch = _character(item["character"], item["data"])
-    name, points, depth, fps, view = _motion(item["motion"], item["data"],
-                                             ch.body == "quadruped" or drawn_from_side(ch.mask, ch.keypoints))
+    name, points, depth, fps, view = _motion(item["motion"], item["data"], ch)
     T = min(len(points), item["max_frames"])
     points, depth = points[:T], None if depth is None else depth[:T]
     animator = Animator(ch, item["n_vertices"], "ours", item["subkeys_per_limb"])
