@@ -66,10 +66,8 @@ from nnsf import params as params_mod
 from nnsf.errors import InputError
 from nnsf.io import atomic_path, write_csv, write_json
 from nnsf.params import checked
-from nnsf.reshape.animator import Animator, canvas
 from nnsf.reshape.artefacts import FrameMeasures, coverage, cracks
-from nnsf.reshape.deform import Deformer
-from nnsf.reshape.evaluation import _character, _motion, _over_white
+from nnsf.reshape.evaluation import _over_white, drive_item
 from nnsf.reshape.render import Renderer
 
 #: Origins of a crack component, in the order they are decided.
@@ -255,15 +253,9 @@ def footprint_colours(fp: dict[str, np.ndarray]) -> np.ndarray:
 
 def run_item(item: dict) -> dict:
     """One drawing × motion: the per-origin counts, the openings and the figure's candidates."""
-    ch = _character(item["character"], item["data"])
-    name, points, depth, _, _ = _motion(item["motion"], item["data"], ch)
-    T = min(len(points), item["max_frames"])
-    points, depth = points[:T], None if depth is None else depth[:T]
-    animator = Animator(ch, item["n_vertices"], "ours", item["subkeys_per_limb"])
-    anim = animator.animate(points, depth, source=item["motion"])
-    # The evaluation's canvas holds both of its methods' frames: the same canvas, the same pixels.
-    base = Deformer(animator.mesh, animator.rig, ch.mask, "keypoints").run(anim.keypoints)
-    offset, size = canvas(np.concatenate([anim.frames, base]), shape=ch.shape)
+    # The evaluation's own frames on its own canvas: the same pixels it measured.
+    ch, name, _, animator, anim, _, offset, size = drive_item(item)
+    T = len(anim.frames)
     renderer = animator.renderer(size)
     fp = Footprint(renderer, animator.mesh, ch.texture, ch.mask, animator.underlay)
     row = {"character": ch.name, "motion": name, "set": item["set"], "frames": 0, "frames_with_cracks": 0,

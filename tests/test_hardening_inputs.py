@@ -33,16 +33,13 @@ import pytest
 from nnsf.errors import InputError
 
 from test_bvh import _tiny_human
+from test_hardening import _assert_one_line
 
 
 def _one_line(code: int, err: str, *needles: str) -> str:
-    lines = [line for line in err.strip().splitlines() if not line.startswith("animate: ")]
-    assert code == 2, err
-    assert len(lines) == 1 and lines[0].startswith("error: "), err
-    assert "Traceback" not in err
-    for needle in needles:
-        assert needle in lines[0], (needle, lines[0])
-    return lines[0]
+    """:func:`test_hardening._assert_one_line` on stderr without ``nnsf animate``'s progress lines."""
+    return _assert_one_line(code, "\n".join(line for line in err.strip().splitlines()
+                                             if not line.startswith("animate: ")), *needles)
 
 
 def _run(capsys, *argv) -> tuple[int, str]:

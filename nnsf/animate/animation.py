@@ -33,7 +33,7 @@ from nnsf.datasets import contract
 from nnsf.io import atomic_path, check_writable
 from nnsf.reshape.animator import BACKGROUND, Animator, canvas
 from nnsf.reshape.character import MAX_SIZE, Character
-from nnsf.reshape.drive import drawn_from_side
+from nnsf.reshape.drive import seen_from_side
 from nnsf.skeleton.layout import BONE_NAMES, bone_lengths
 from nnsf.params import ARM_CHOICES, HEAD_CHOICES
 from nnsf.reshape.drive import read_motion
@@ -226,7 +226,7 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
     ch = (character if isinstance(character, Character)
           else read_character(character, joints, size, mask=mask, max_size=max_size))
     arms, head = arms or ch.arms or "motion", head or ch.head or "motion"
-    drawn_side = ch.body == "quadruped" or drawn_from_side(ch.mask, ch.keypoints)
+    drawn_side = seen_from_side(ch)
     auto = view == "auto"
     if auto and drawn_side and not isinstance(motion, Motion):
         view = "side"

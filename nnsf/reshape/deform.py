@@ -34,9 +34,11 @@ METHODS = ("ours", "keypoints")
 def keypoint_handles(mesh: Mesh, rig, weight: float) -> Handles:
     """One handle per rig key point (module docstring)."""
     own = mesh.layer == 0
-    rows = []
+    rows, weights = [], []
     for k, p in enumerate(rig.keypoints):
         parts = np.unique(rig.bones[(rig.bones[:, 0] == k) | (rig.bones[:, 1] == k), 2])
+        # A key point of hidden parts only (a limb drawn as its twin) pins nothing.
+        weights.append(0.0 if len(parts) and set(parts.tolist()) <= set(rig.hidden) else float(weight))
         cand = np.flatnonzero(own & np.isin(mesh.parts, parts))
         bary, tri = barycentric(mesh.vertices, mesh.triangles[cand], p[None]) if len(cand) else (None, None)
         # A key point just outside its parts' triangles (under a limb drawn over its part, in a
@@ -52,10 +54,7 @@ def keypoint_handles(mesh: Mesh, rig, weight: float) -> Handles:
     m = sp.csr_matrix((np.concatenate([b for _, b in rows]),
                        (np.repeat(np.arange(len(rows)), 3), np.concatenate([t for t, _ in rows]))),
                       shape=(len(rows), mesh.n_vertices))
-    # A key point of hidden parts only (a limb drawn as its twin) pins nothing.
-    parts_of = [set(rig.bones[(rig.bones[:, 0] == k) | (rig.bones[:, 1] == k), 2].tolist()) for k in range(len(rows))]
-    alone = [bool(s) and s <= set(rig.hidden) for s in parts_of]
-    return Handles(m, np.where(alone, 0.0, float(weight)))
+    return Handles(m, np.asarray(weights))
 
 
 def underlay_riders(mesh: Mesh):

@@ -29,7 +29,7 @@ import pandas as pd
 from nnsf.datasets import contract
 from nnsf.errors import InputError
 from nnsf.params import ARM_CHOICES, HEAD_CHOICES
-from nnsf.reshape.quadruped import facing as motion_facing, retarget_quadruped, swing
+from nnsf.reshape.quadruped import facing as motion_facing, knees_ahead, retarget_quadruped, swing
 from nnsf.reshape.rig import distance_transform, sample
 from nnsf.skeleton import BONES, JOINT_INDEX, JOINTS, N_JOINTS, character_scale, to_points
 from nnsf.skeleton.layout import FEATURE_COLUMNS
@@ -78,6 +78,12 @@ def drawn_from_side(mask: np.ndarray, keypoints: np.ndarray, share: float = 0.25
     return width >= share * length and gap < share * width
 
 
+def seen_from_side(ch) -> bool:
+    """Whether a character's motion is seen from the side, the view it is drawn in: a quadruped, or a
+    biped :func:`drawn_from_side`."""
+    return ch.body == "quadruped" or drawn_from_side(ch.mask, ch.keypoints)
+
+
 def biped_facing(mask: np.ndarray, keypoints: np.ndarray, share: float = 0.1) -> float:
     """Which way a biped drawn from the side (:func:`drawn_from_side`) faces: +1 towards +x, −1, 0 for
     any other drawing or if it cannot tell.  Feet point forwards (the mean offset of the drawn pixels
@@ -97,7 +103,7 @@ def biped_facing(mask: np.ndarray, keypoints: np.ndarray, share: float = 0.1) ->
         near = (ys > y) & ((xs - x) ** 2 + (ys - y) ** 2 <= (0.5 * shin) ** 2)
         ahead += float(xs[near].mean() - x) if near.any() else 0.0
     if abs(ahead) < share * shin:
-        ahead = sum(kp[J[k], 0] - 0.5 * (kp[J[h], 0] + kp[J[a], 0]) for h, k, a in legs)
+        ahead = knees_ahead(kp[None])
     return float(np.sign(ahead)) if abs(ahead) >= share * shin else 0.0
 
 

@@ -41,7 +41,7 @@ from nnsf.pipeline import StageResult
 from nnsf.reshape.animator import Animator, canvas
 from nnsf.reshape.artefacts import FrameMeasures, width_stats
 from nnsf.reshape.deform import Deformer
-from nnsf.reshape.drive import drawn_from_side
+from nnsf.reshape.drive import seen_from_side
 from nnsf.reshape.formats import read_character
 from nnsf.safe_yaml import read_yaml
 from nnsf.names import safe_name
@@ -60,13 +60,12 @@ def _root(roots, rel) -> Path:
 
 def _motion(spec: str, roots, ch):
     """``(name, points (T, 17, 2), depth (T, 17) or None, fps, view)`` of a motion spec for the character
-    ``ch`` (seen from the side when ``ch`` is drawn from the side)."""
-    side = ch.body == "quadruped" or drawn_from_side(ch.mask, ch.keypoints)
+    ``ch`` (:func:`~nnsf.reshape.drive.seen_from_side`, else the view it moves most in)."""
     if spec.startswith("synthetic:"):
         who, what = spec[len("synthetic:"):].split("/")[:2]
         return f"synthetic-{what}", synthetic.clip_points(who, what, 48), None, 24.0, "front"
     path = _root(roots, spec) / spec
-    clip, view = load_clip_in_view(path, view="side" if side else "auto", fps=30.0)
+    clip, view = load_clip_in_view(path, view="side" if seen_from_side(ch) else "auto", fps=30.0)
     return path.stem.replace("dataset-1_", ""), clip.points, clip.depth, clip.fps, view
 
 
@@ -79,10 +78,12 @@ def _character(spec: str, roots):
     return read_character(_root(roots, spec) / spec)
 
 
-def evaluate_item(item: dict) -> dict:
-    """One drawing × motion: rows per method, per-frame rows and a contact sheet (picklable)."""
+def drive_item(item: dict):
+    """The frames one drawing × motion ``item`` (:func:`run`'s) is measured on: ``(character, motion
+    name, view, animator, animation, {method: vertices (T, n, 2)}, offset (2,), canvas size (H, W))``,
+    the canvas holding both methods' frames."""
     ch = _character(item["character"], item["data"])
-    name, points, depth, fps, view = _motion(item["motion"], item["data"], ch)
+    name, points, depth, _, view = _motion(item["motion"], item["data"], ch)
     T = min(len(points), item["max_frames"])
     points, depth = points[:T], None if depth is None else depth[:T]
     animator = Animator(ch, item["n_vertices"], "ours", item["subkeys_per_limb"])
@@ -90,6 +91,13 @@ def evaluate_item(item: dict) -> dict:
     base = Deformer(animator.mesh, animator.rig, ch.mask, "keypoints")
     frames = {"ours": anim.frames, "keypoints": base.run(anim.keypoints)}
     offset, size = canvas(np.concatenate(list(frames.values())), shape=ch.shape)
+    return ch, name, view, animator, anim, frames, offset, size
+
+
+def evaluate_item(item: dict) -> dict:
+    """One drawing × motion: rows per method, per-frame rows and a contact sheet (picklable)."""
+    ch, name, view, animator, anim, frames, offset, size = drive_item(item)
+    T = len(anim.frames)
     renderer = animator.renderer(size)
     measure = FrameMeasures(ch.texture, ch.mask, ch.keypoints)
     rest = measure.rest()

@@ -89,14 +89,20 @@ def quadruped_keypoints(loc: dict, mask: np.ndarray, source) -> np.ndarray:
     return kp
 
 
-def facing(points: np.ndarray) -> float:
-    """+1 when a biped motion ``(T, 17, 2)`` (image coordinates) faces +x, −1 when it faces −x, 0 if
-    unknown: the side its knees bend to (a knee lies ahead of its hip–ankle line)."""
+def knees_ahead(points: np.ndarray) -> float:
+    """How far (x, the points' units) a biped's knees lie ahead of their hip–ankle lines, summed over
+    both legs: the median over the frames of ``points`` ``(T, 17, 2)``."""
     P = np.asarray(points, dtype=np.float64)
     ahead = 0.0
     for hip, knee, ankle in (("r_hip", "r_knee", "r_ankle"), ("l_hip", "l_knee", "l_ankle")):
         ahead += float(np.median(P[:, J[knee], 0] - 0.5 * (P[:, J[hip], 0] + P[:, J[ankle], 0])))
-    return float(np.sign(ahead))
+    return ahead
+
+
+def facing(points: np.ndarray) -> float:
+    """+1 when a biped motion ``(T, 17, 2)`` (image coordinates) faces +x, −1 when it faces −x, 0 if
+    unknown: the side its knees bend to (:func:`knees_ahead`)."""
+    return float(np.sign(knees_ahead(points)))
 
 
 def drawn_facing(rest: np.ndarray) -> float:
