@@ -209,3 +209,33 @@ def test_a_drawing_over_the_size_limit_is_downscaled_with_a_note(tmp_path, figur
     s = ch.mask.shape[0] / figure.mask.shape[0]
     np.testing.assert_allclose(ch.keypoints[J["pelvis"]], (figure.keypoints[J["pelvis"]] + 0.5) * s - 0.5, atol=1.5)
     assert read_character(png, max_size=0).mask.shape == figure.mask.shape
+
+
+def test_a_piece_touching_the_silhouette_only_at_a_corner_is_dropped_with_a_note():
+    """A zero-width link does not survive resampling: turned by 30° and grown by 10 %, two squares
+    that touch at a corner render as two pieces (joined by one pixel's edge, they stay one), so the
+    silhouette is one 4-connected component."""
+    from nnsf.reshape.character import largest_component
+    from nnsf.reshape.mesh import Mesh
+    from nnsf.reshape.render import Renderer
+
+    mask = np.zeros((24, 24), bool)
+    mask[4:12, 4:12] = True                       # the body
+    mask[12:16, 12:16] = True                     # touches it at one pixel corner only
+    tex = np.dstack([np.full((24, 24, 3), 90, np.uint8), np.full((24, 24), 255, np.uint8)])
+    uv = np.array([[0.0, 0.0], [23.0, 0.0], [23.0, 23.0], [0.0, 23.0]])
+    mesh = Mesh(uv, np.array([[0, 1, 2], [0, 2, 3]]), np.zeros(2, np.int64), np.zeros(2, np.int64), 1.0)
+    c, s = np.cos(np.pi / 6), np.sin(np.pi / 6)
+    moved = 1.1 * (uv - 12) @ np.array([[c, s], [-s, c]]) + 16
+
+    def pieces(m):
+        drawn = Renderer(mesh, tex, m, (34, 34)).render(moved)[..., 3] >= 128
+        return cv2.connectedComponents(drawn.astype(np.uint8), connectivity=8)[0] - 1
+
+    assert cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)[0] - 1 == 1     # one piece at rest
+    assert pieces(mask) == 2
+    bridged = mask.copy()
+    bridged[12, 11] = True
+    assert pieces(bridged) == 1
+    kept, note = largest_component(mask, "m.png")
+    assert kept.sum() == 64 and not kept[12:16, 12:16].any() and "dropped 16 px" in note

@@ -12,8 +12,9 @@ Reading a drawing goes through the checks of this module, whatever the format
 * **Joints** (:func:`snap_joints`): a key point a few pixels off the drawing (a pose estimator's
   usual error) is moved to the nearest drawn pixel when it is within :data:`SNAP_SHARE` of the
   figure's height, with a note; one farther out is refused, naming the joint and the distance.
-* **One silhouette**: the mask's largest 8-connected component is kept (scanned drawings carry
-  specks of stray ink), with a note saying what was dropped.
+* **One silhouette**: the mask's largest 4-connected component is kept, with a note saying what was
+  dropped: specks of stray ink, and pieces touching it at a pixel's corner only (no resampled frame
+  keeps a zero-width link: they floated beside the body).
 """
 from __future__ import annotations
 
@@ -45,7 +46,7 @@ class Character:
     ----------
     name : str
     texture : ``(H, W, 4)`` uint8 RGBA (RGB order).
-    mask : ``(H, W)`` bool, the silhouette: one 8-connected component.
+    mask : ``(H, W)`` bool, the silhouette: one 4-connected component.
     keypoints : ``(17, 2)`` float64 rest key points in :data:`nnsf.skeleton.JOINTS` order, pixels
         ``(x, y)``, origin at the top-left pixel's centre.
     source : where it was read from (for messages); notes : what the reader changed or chose.
@@ -159,8 +160,8 @@ def head_top_along(mask: np.ndarray, neck: np.ndarray, up: np.ndarray, share: fl
 
 
 def largest_component(mask: np.ndarray, source="<memory>") -> tuple[np.ndarray, str | None]:
-    """The largest 8-connected component of ``mask`` ``(H, W)`` and a note of what was dropped (or None)."""
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    """The largest 4-connected component of ``mask`` ``(H, W)`` and a note of what was dropped (or None)."""
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=4)
     if n <= 2:
         return mask.astype(bool), None
     areas = stats[1:, cv2.CC_STAT_AREA]
