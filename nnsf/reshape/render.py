@@ -11,10 +11,8 @@ Per frame, for each part in the frame's back-to-front order:
    1/16 px vertices): OpenCV fills a polygon's boundary pixels too, so triangles that share an
    edge leave no pixel between them, flipped or not;
 2. each covered pixel's texture coordinate is its triangle's affine map (deformed → rest) of the
-   pixel centre, kept within :data:`REACH` of the triangle's rest footprint (OpenCV fills the
-   pixels a triangle's edges touch, and the map of a triangle squeezed thin, extrapolated to
-   them, reached texels far across the drawing), and ``cv2.remap`` samples the premultiplied
-   texture bilinearly;
+   pixel centre, kept within :data:`REACH` of the triangle's rest footprint (:meth:`Renderer.texels`),
+   and ``cv2.remap`` samples the premultiplied texture bilinearly;
 3. the part is laid over what is drawn so far ("over", premultiplied alpha), so a limb's
    anti-aliased edge blends with the body under it.
 
@@ -70,22 +68,19 @@ class Renderer:
         # 8 bits a channel, premultiplied: bilinear sampling and compositing run on OpenCV's
         # saturating uint8 arithmetic (a level of rounding per layer, no more).
         self.texture = np.ascontiguousarray(np.clip(tex * 255.0 + 0.5, 0, 255).astype(np.uint8))
-        self.uv = uv
-        # A pixel samples its triangle's rest footprint grown by REACH texels, no farther
-        # (:meth:`render`): each triangle's grown corners, as weights ``(t, 3, 3)`` of its own
-        # corners (edge k offset by REACH: the barycentric coordinate of the corner opposite it
-        # falls to −REACH / height), the same weights in every frame.
+        # A pixel samples its triangle's rest footprint grown by REACH texels (:meth:`texels`): the
+        # grown corners as weights (t, 3, 3) of the triangle's own (edge k offset by REACH: the
+        # barycentric coordinate of the corner opposite it falls to −REACH / height).
         f = uv[:, 1:] - uv[:, :1]
         area = np.abs(f[:, 0, 0] * f[:, 1, 1] - f[:, 0, 1] * f[:, 1, 0])
         opposite = np.linalg.norm(uv[:, [2, 0, 1]] - uv[:, [1, 2, 0]], axis=2)     # (t, 3)
         m = REACH * opposite / np.maximum(area, 1e-12)[:, None]                    # REACH / height
         self._grow = np.eye(3)[None] * (1.0 + m.sum(axis=1))[:, None, None] - m[:, None, :]
         grown = np.einsum("tij,tjx->tix", self._grow, uv)
-        # Per triangle (row 0: "no triangle", far outside the texture) the texel at barycentric
-        # (l1, l2) of its grown footprint: u = u0 + l1 du1 + l2 du2, v likewise.
-        g = grown[:, 1:] - grown[:, :1]
-        table = np.column_stack([grown[:, 0, 0], g[:, 0, 0], g[:, 1, 0], grown[:, 0, 1], g[:, 0, 1], g[:, 1, 1]])
-        self._texels = np.vstack([[-1e4, 0, 0, -1e4, 0, 0], table]).astype(np.float32).T
+        # Per triangle (column 0: none, far outside the texture) the texel at barycentric (l1, l2)
+        # of its grown footprint: u = u0 + l1 du1 + l2 du2, v likewise (rows u0, du1, du2, v0, ...).
+        g = np.concatenate([grown[:, :1], grown[:, 1:] - grown[:, :1]], axis=1).transpose(2, 1, 0)
+        self._texels = np.hstack([[[-1e4], [0], [0], [-1e4], [0], [0]], g.reshape(6, -1)]).astype(np.float32)
         self.parts = np.asarray(mesh.parts, dtype=np.int64)
         # Within a part, the last triangle filled wins a pixel.  Where the part folds over itself
         # (a joint bent past its drawn angle), a triangle along the outline (half in the transparent
@@ -99,11 +94,11 @@ class Renderer:
                                for t in (np.flatnonzero(self.parts == p) for p in range(int(self.parts.max()) + 1))]
         self._ids = None
 
-    def _maps(self, vertices: np.ndarray) -> np.ndarray:
-        """Per triangle the affine map ``(t + 1, 6)`` float32 from a deformed pixel to its barycentric
-        coordinates at corners 1 and 2 of the triangle's grown footprint: l1 = c0 x + c1 y + c2,
-        l2 = c3 x + c4 y + c5.  Row 0 is "no triangle"; a collapsed triangle maps every pixel to one
-        point inside it."""
+    def coefficients(self, vertices: np.ndarray) -> np.ndarray:
+        """Per triangle ``(12, t + 1)`` float32 (column 0: "no triangle"): the affine map from a deformed
+        pixel to its barycentric coordinates at corners 1 and 2 of the triangle's grown footprint,
+        l1 = c0 x + c1 y + c2, l2 = c3 x + c4 y + c5 (a collapsed triangle: one point inside it),
+        then the texel at (l1, l2) (rows 6-11, :attr:`_texels`)."""
         D = np.einsum("tij,tjx->tix", self._grow, vertices[self.triangles])
         e = D[:, 1:] - D[:, :1]                                         # (t, 2, 2): deformed edges
         det = e[:, 0, 0] * e[:, 1, 1] - e[:, 0, 1] * e[:, 1, 0]
@@ -114,9 +109,36 @@ class Renderer:
         A[~ok] = 0
         b = -np.einsum("tij,tj->ti", A, D[:, 0])
         b[~ok] = 1.0 / 3.0
-        out = np.zeros((len(D) + 1, 6), np.float32)
-        out[1:, :2], out[1:, 2], out[1:, 3:5], out[1:, 5] = A[:, 0], b[:, 0], A[:, 1], b[:, 1]
+        out = np.zeros((12, len(D) + 1), np.float32)
+        out[:2, 1:], out[2, 1:], out[3:5, 1:], out[5, 1:] = A[:, 0].T, b[:, 0], A[:, 1].T, b[:, 1]
+        out[6:] = self._texels
         return out
+
+    @staticmethod
+    def texels(coef: np.ndarray, ids: np.ndarray, X: np.ndarray, Y: np.ndarray):
+        """Texture coordinates ``(u, v)`` (float32, ``ids``' shape) of pixel centres ``X``, ``Y``
+        (broadcast to ``ids``) in triangles ``ids`` (1 + the triangle, 0 none), from
+        :meth:`coefficients` ``coef``.
+
+        The pixel centre's barycentric coordinates in its triangle's grown footprint, clamped into
+        it.  OpenCV fills the pixels a triangle's edges touch, whose centres may lie outside it: at
+        rest at most a pixel out, so they sample what they show, but the extrapolated map of a
+        triangle squeezed thin reached texels far across the drawing, drawn as specks beside it.
+        """
+        g = coef.take(ids, axis=1)                                      # (12, ...): one gather
+        g[0:4:3] *= X                                                   # rows (0, 3), (1, 4), ...
+        g[1:5:3] *= Y
+        lam = g[0:4:3]                                                  # (l1, l2), a view
+        lam += g[1:5:3]
+        lam += g[2:6:3]
+        np.maximum(lam, 0, out=lam)
+        s = np.maximum(lam[0] + lam[1], 1, out=g[1])
+        lam /= s
+        g[7:11:3] *= lam[0]
+        g[8:12:3] *= lam[1]
+        g[6:10:3] += g[7:11:3]
+        g[6:10:3] += g[8:12:3]
+        return g[6], g[9]
 
     def render(self, vertices, order=None, background=None) -> np.ndarray:
         """One frame from vertices ``(n, 2)`` (output pixels) and a back-to-front part order:
@@ -126,7 +148,7 @@ class Renderer:
         out = np.zeros((H, W, 4), np.uint8)                             # premultiplied RGBA
         if background is not None:  # an opaque page: the parts are laid straight onto its colour
             out[:] = tuple(int(b) for b in background) + (255,)
-        coef = np.ascontiguousarray(np.vstack([self._maps(V).T, self._texels]))  # (12, t + 1)
+        coef = self.coefficients(V)
         P = np.rint(V[self.triangles] * 16).astype(np.int32)            # (t, 3, 2), 4 fractional bits
         order = range(len(self.part_triangles)) if order is None else order
         if self._ids is None or self._ids.shape != (H, W):
@@ -148,32 +170,7 @@ class Renderer:
             for k, tri in zip((tris + 1).tolist(), local):
                 cv2.fillConvexPoly(ids, tri, k, cv2.LINE_8, 4)
             X, Y = gx[x0:x1], gy[y0:y1]
-            # The pixel centre's barycentric coordinates in its triangle's grown footprint, clamped
-            # into it.  OpenCV fills the pixels a triangle's edges touch, whose centres may lie
-            # outside it: at rest at most a pixel out, so they sample what they show, but the
-            # extrapolated map of a triangle squeezed thin reached texels far across the drawing,
-            # and drew them as specks beside the character.
-            g = coef.take(ids, axis=1)                                  # (12, h, w): one gather
-            g[0] *= X
-            g[1] *= Y
-            g[3] *= X
-            g[4] *= Y
-            l1, l2 = g[0], g[3]
-            l1 += g[1]
-            l1 += g[2]
-            l2 += g[4]
-            l2 += g[5]
-            np.maximum(l1, 0, out=l1)
-            np.maximum(l2, 0, out=l2)
-            s = np.add(l1, l2, out=g[1])
-            np.maximum(s, 1, out=s)
-            l1 /= s
-            l2 /= s
-            u, v = g[6], g[9]
-            u += np.multiply(g[7], l1, out=g[7])
-            u += np.multiply(g[8], l2, out=g[8])
-            v += np.multiply(g[10], l1, out=g[10])
-            v += np.multiply(g[11], l2, out=g[11])
+            u, v = self.texels(coef, ids, X, Y)
             src = cv2.remap(self.texture, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                             borderValue=(0, 0, 0, 0))
             dst = out[y0:y1, x0:x1]
