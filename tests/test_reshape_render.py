@@ -136,6 +136,24 @@ def test_triangles_that_share_an_edge_leave_no_pixel_between_them():
         assert n == 2, "background enclosed by the mesh"
 
 
+@pytest.mark.parametrize("corner", [(100.0, 99.0), (100.4, 99.3), (101.0, 99.0), (60.5, 59.8)])
+def test_a_sliver_triangle_shows_only_its_own_texels(corner):
+    """A triangle squashed to a sliver gets pixels along its outline whose centres lie outside it;
+    its affine map would fetch their texels many pixels beyond the mesh (onto the page).  Each
+    pixel shows a texel within a pixel of its own triangle's rest box."""
+    yy, xx = np.mgrid[:200, :200]
+    tex = np.dstack([xx, yy, np.zeros_like(xx), np.full_like(xx, 255)]).astype(np.uint8)  # texel = (x, y)
+    uv = np.array([[80, 80], [120, 80], [120, 120], [80, 120]], float)
+    r = _renderer(uv, [[0, 3, 2], [0, 2, 1]], [0, 0], tex)
+    V = uv.copy()
+    V[1] = corner                       # almost onto the diagonal 0-2: triangle (0, 2, 1) a sliver
+    img = r.render(V)
+    cov = img[..., 3] >= 128
+    u, v = img[..., 0][cov].astype(int), img[..., 1][cov].astype(int)
+    assert cov.sum() > 800
+    assert u.min() >= 79 and u.max() <= 121 and v.min() >= 79 and v.max() <= 121
+
+
 def test_depth_order_decides_which_part_is_seen():
     # two overlapping squares, parts torso (red) and l_forearm (blue)
     V = np.array([[0, 0], [40, 0], [40, 40], [0, 40], [20, 20], [60, 20], [60, 60], [20, 60]], float)

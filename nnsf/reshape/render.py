@@ -11,7 +11,8 @@ Per frame, for each part in the frame's back-to-front order:
    1/16 px vertices): OpenCV fills a polygon's boundary pixels too, so triangles that share an
    edge leave no pixel between them, flipped or not;
 2. each covered pixel's texture coordinate is its triangle's affine map (deformed → rest) of the
-   pixel centre, and ``cv2.remap`` samples the premultiplied texture bilinearly;
+   pixel centre, kept within a pixel of the triangle's rest box, and ``cv2.remap`` samples the
+   premultiplied texture bilinearly;
 3. the part is laid over what is drawn so far ("over", premultiplied alpha), so a limb's
    anti-aliased edge blends with the body under it.
 
@@ -65,6 +66,15 @@ class Renderer:
         # saturating uint8 arithmetic (a level of rounding per layer, no more).
         self.texture = np.ascontiguousarray(np.clip(tex * 255.0 + 0.5, 0, 255).astype(np.uint8))
         self.uv = uv
+        f = uv[:, 1:] - uv[:, :1]                                       # (t, 2, 2): rest edges
+        self.edges = (f[:, 0, 0], f[:, 0, 1], f[:, 1, 0], f[:, 1, 1])    # u0, v0 of e0; u1, v1 of e1
+        # Each triangle's texels lie in its rest box grown by a pixel (row 0: "no triangle", far
+        # outside).  The rasteriser gives a triangle the pixels its outline touches, whose centres lie
+        # up to a pixel outside it: at rest they map a pixel out at most and keep their own texel,
+        # but a thin or folded triangle's map would carry them far beyond it, onto the page.
+        lo, hi = uv.min(axis=1) - 1.0, uv.max(axis=1) + 1.0
+        self.box = [np.ascontiguousarray(np.concatenate([[e], col]).astype(np.float32))
+                    for e, col in ((-1e4, lo[:, 0]), (-1e4, hi[:, 0]), (-1e4, lo[:, 1]), (-1e4, hi[:, 1]))]
         self.parts = np.asarray(mesh.parts, dtype=np.int64)
         # Within a part, the last triangle filled wins a pixel.  Where the part folds over itself
         # (a joint bent past its drawn angle), a triangle along the outline (half in the transparent
@@ -82,19 +92,22 @@ class Renderer:
         """Per triangle the affine map ``(t + 1, 6)`` float32 from a deformed pixel to its texel: u = c0 x +
         c1 y + c2, v = c3 x + c4 y + c5.  Row 0 is "no triangle", mapping far outside the texture."""
         D = vertices[self.triangles]
-        e = D[:, 1:] - D[:, :1]                                         # (t, 2, 2): deformed edges
-        f = self.uv[:, 1:] - self.uv[:, :1]                             # rest edges
-        det = e[:, 0, 0] * e[:, 1, 1] - e[:, 0, 1] * e[:, 1, 0]
+        # Component arithmetic on (t,) arrays: einsum over 2 × 2 blocks costs more than the maps.
+        ex0, ey0 = D[:, 1, 0] - D[:, 0, 0], D[:, 1, 1] - D[:, 0, 1]      # deformed edges e0, e1
+        ex1, ey1 = D[:, 2, 0] - D[:, 0, 0], D[:, 2, 1] - D[:, 0, 1]
+        fu0, fv0, fu1, fv1 = self.edges
+        det = ex0 * ey1 - ex1 * ey0
         ok = np.abs(det) > 1e-9
-        inv = np.stack([np.stack([e[:, 1, 1], -e[:, 1, 0]], -1), np.stack([-e[:, 0, 1], e[:, 0, 0]], -1)], -1)
-        inv /= np.where(ok, det, 1.0)[:, None, None]                    # columns: inverse of [e0 e1]
-        A = np.einsum("tki,tkj->tij", f, inv.transpose(0, 2, 1))        # (t, 2 uv, 2 xy)
-        A[~ok] = 0                                                      # a collapsed triangle: one texel
-        b = self.uv[:, 0] - np.einsum("tij,tj->ti", A, D[:, 0])
-        b[~ok] = self.uv[~ok].mean(axis=1)
+        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)            # a collapsed triangle: one texel
+        # [f0 f1] · [e0 e1]^-1, the inverse being [[ey1, -ex1], [-ey0, ex0]] / det.
+        a, bb = (fu0 * ey1 - fu1 * ey0) * inv, (fu1 * ex0 - fu0 * ex1) * inv
+        c, d = (fv0 * ey1 - fv1 * ey0) * inv, (fv1 * ex0 - fv0 * ex1) * inv
+        u0, v0 = self.uv[:, 0, 0], self.uv[:, 0, 1]
         out = np.empty((len(D) + 1, 6), np.float32)
         out[0] = (0, 0, -1e4, 0, 0, -1e4)
-        out[1:, :2], out[1:, 2], out[1:, 3:5], out[1:, 5] = A[:, 0], b[:, 0], A[:, 1], b[:, 1]
+        out[1:, 0], out[1:, 1], out[1:, 3], out[1:, 4] = a, bb, c, d
+        out[1:, 2] = np.where(ok, u0 - a * D[:, 0, 0] - bb * D[:, 0, 1], self.uv[:, :, 0].mean(axis=1))
+        out[1:, 5] = np.where(ok, v0 - c * D[:, 0, 0] - d * D[:, 0, 1], self.uv[:, :, 1].mean(axis=1))
         return out
 
     def render(self, vertices, order=None, background=None) -> np.ndarray:
@@ -104,7 +117,8 @@ class Renderer:
         H, W = self.size
         out = np.zeros((H, W, 4), np.uint8)                             # premultiplied RGBA
         if background is not None:  # an opaque page: the parts are laid straight onto its colour
-            out[:] = tuple(int(b) for b in background) + (255,)
+            # One 32-bit word a pixel: numpy broadcasts a 4-tuple over an image far more slowly.
+            out.view(np.uint32)[:] = np.array(tuple(int(b) for b in background) + (255,), np.uint8).view(np.uint32)[0]
         c = [np.ascontiguousarray(col) for col in self._maps(V).T]
         P = np.rint(V[self.triangles] * 16).astype(np.int32)            # (t, 3, 2), 4 fractional bits
         order = range(len(self.part_triangles)) if order is None else order
@@ -139,6 +153,11 @@ class Renderer:
             tmp *= Y
             v += tmp
             v += c[5].take(ids)
+            b = self.box
+            cv2.max(u, b[0].take(ids), dst=u)
+            cv2.min(u, b[1].take(ids), dst=u)
+            cv2.max(v, b[2].take(ids), dst=v)
+            cv2.min(v, b[3].take(ids), dst=v)
             src = cv2.remap(self.texture, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                             borderValue=(0, 0, 0, 0))
             dst = out[y0:y1, x0:x1]
