@@ -26,11 +26,11 @@ Method: every frame of every drawing × motion of ``params.yaml`` ``reshape_eval
 rendered as ``nnsf reshape-eval`` does (the default method, ``ours``; the same helpers, the same
 canvas), and measured with the measure itself, which hands back the pixels it counted.  On a frame
 with cracks the frame's renderer draws it once more with every triangle showing one texel that
-names it (:class:`Footprint`), which gives each pixel's topmost triangle; the renderer's own
-texel rule (:meth:`nnsf.reshape.render.Renderer.texels`) gives the pixel's texel, read off the
-drawing.  ``beyond_px`` (``page_far_beyond_px``: of the far page) counts crack pixels whose texel
-lies more than 1 px outside its own triangle at rest (the renderer keeps a texel within a pixel of
-the triangle's footprint, except beyond a sharp corner of it).
+names it (:class:`Footprint`), which gives each pixel's topmost triangle; that triangle's affine
+map gives the pixel's texel, read off the drawing.  ``beyond_px`` (``page_far_beyond_px``: of
+the far page) counts crack pixels whose texel lies more than 1 px outside its own triangle at
+rest (the renderer keeps it within the triangle's rest box grown by a pixel): a thin or folded
+triangle's map stretched over the pixels the rasteriser gives it along its edges.
 
     python -m experiments.crack_origins --data /work/shared/data /work/extra-drawings --out reports
 
@@ -68,7 +68,7 @@ from nnsf.io import atomic_path, write_csv, write_json
 from nnsf.params import checked
 from nnsf.reshape.artefacts import FrameMeasures, coverage, cracks
 from nnsf.reshape.evaluation import _over_white, drive_item
-from nnsf.reshape.render import ATLAS_GAP, Renderer
+from nnsf.reshape.render import Renderer
 
 #: Origins of a crack component, in the order they are decided.
 ORIGINS = ("opening", "page", "thinned")
@@ -93,29 +93,28 @@ class Footprint:
     ``underlay`` (or None) are what it was built from.  A shallow copy of the renderer keeps its
     triangles, their fill order and its compositing, but each triangle's texture coordinates all
     point at one texel of an opaque texture that names it: drawn, a frame holds each pixel's
-    topmost triangle.  The renderer's texel rule (:meth:`~nnsf.reshape.render.Renderer.texels`) gives
-    the pixel's texel, which is read off the drawing.  :meth:`__call__` returns ``(H, W)`` bool maps,
-    filled at the pixels of ``where``: ``covered`` (some triangle), ``in_mask`` (the texel lies in
-    the mask: bilinear mask ≥ ½), ``drawn`` (the drawing's alpha there, the underlay's for underlay
-    triangles, ≥ 128), ``gap``, ``margin`` (page kinds; a gap is never margin), ``underlay`` (an
-    underlay triangle) and ``beyond`` (the texel lies more than :data:`BEYOND` px outside its own
-    triangle at rest: beyond a sharp corner of it, where the renderer's grown footprint reaches).
+    topmost triangle.  That triangle's affine map (deformed → rest) clamped to its rest box grown by
+    a pixel, as the renderer's, gives the pixel's texel, which is read off the drawing.
+    :meth:`__call__` returns ``(H, W)`` bool maps, filled at the pixels of ``where``: ``covered``
+    (some triangle), ``in_mask`` (the texel lies in the mask: bilinear mask ≥ ½), ``drawn`` (the
+    drawing's alpha there, the underlay's for underlay triangles, ≥ 128), ``gap``, ``margin`` (page
+    kinds; a gap is never margin), ``underlay`` (an underlay triangle) and ``beyond`` (the texel lies more than :data:`BEYOND` px outside its own
+    triangle at rest: a thin or folded triangle's map stretched over pixels it barely touches).
     """
 
     def __init__(self, renderer: Renderer, mesh, texture: np.ndarray, mask: np.ndarray, underlay):
-        self.mesh, self.renderer = mesh, renderer
+        self.mesh = mesh
         t = len(mesh.triangles)
         side = int(np.ceil(np.sqrt(t + 1)))
         ids = np.arange(side * side)
         name = np.dstack([ids & 255, (ids >> 8) & 255, (ids >> 16) & 255, np.full_like(ids, 255)])
         self.ids = copy.copy(renderer)
         self.ids.texture = np.ascontiguousarray(name.reshape(side, side, 4).astype(np.uint8))
-        at = np.zeros((6, t + 1), np.float32)                # one texel per triangle: a constant map
-        at[[0, 3], 0] = -1e4
-        at[0, 1:], at[3, 1:] = ids[:t] % side, ids[:t] // side
-        self.ids._texels = at
+        at = np.stack([ids[:t] % side, ids[:t] // side], axis=-1).astype(np.float64)
+        self.ids.uv = np.repeat(at[:, None], 3, axis=1)      # one texel per triangle: a constant map,
+        self.ids.edges = (np.zeros(t),) * 4                  # not clamped off it by the drawing's boxes
+        self.ids.box = [np.concatenate([[-1e4], c]).astype(np.float32) for c in (at[:, 0], at[:, 0], at[:, 1], at[:, 1])]
         m = np.asarray(mask, bool)
-        self.atlas = m.shape[1] + ATLAS_GAP
         disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (GAP_DISC, GAP_DISC))
         pad = GAP_DISC                                       # the closing sees no image border
         closed = cv2.morphologyEx(np.pad(m, pad).astype(np.uint8), cv2.MORPH_CLOSE, disc)[pad:-pad, pad:-pad]
@@ -144,13 +143,18 @@ class Footprint:
         if not len(ys):
             return out
         k = top[ys, xs]
-        R = self.mesh.vertices[self.mesh.triangles[k]]                                    # (N, 3, 2)
-        # The texel as the renderer takes it: clamped to the triangle's rest footprint grown by a pixel.
-        u, v = self.renderer.texels(self.renderer.coefficients(np.asarray(vertices, np.float64)), (k + 1)[None],
-                                    xs[None].astype(np.float32), ys[None].astype(np.float32))
-        uv = np.column_stack([u[0], v[0]]).astype(np.float64)
-        uv[np.asarray(self.mesh.layer)[k] == 1, 0] -= self.atlas      # the underlay's half of the atlas
-        out["beyond"][ys, xs] = _outside(uv, R) > BEYOND
+        tri = self.mesh.triangles[k]
+        D, R = np.asarray(vertices, np.float64)[tri], self.mesh.vertices[tri]           # (N, 3, 2)
+        e = np.stack([D[:, 1] - D[:, 0], D[:, 2] - D[:, 0]], axis=-1)                  # (N, 2, 2) columns
+        det = np.linalg.det(e)
+        ok = np.abs(det) > 1e-9
+        lam = np.zeros((len(k), 2))
+        rhs = np.stack([xs, ys], axis=-1) - D[:, 0]
+        lam[ok] = np.linalg.solve(e[ok], rhs[ok][..., None])[..., 0]
+        uv = R[:, 0] + lam[:, :1] * (R[:, 1] - R[:, 0]) + lam[:, 1:] * (R[:, 2] - R[:, 0])
+        uv[~ok] = R[~ok].mean(axis=1)                        # a collapsed triangle shows one texel
+        uv = np.clip(uv, R.min(axis=1) - 1.0, R.max(axis=1) + 1.0)   # as the renderer: its rest box + 1 px
+        out["beyond"][ys, xs] = ok & (_outside(uv, R) > BEYOND)
         layer = np.asarray(self.mesh.layer)[k]
         u, v = uv[:, 0].astype(np.float32), uv[:, 1].astype(np.float32)
         read = np.zeros((len(k), 2), np.float32)

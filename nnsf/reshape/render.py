@@ -11,8 +11,8 @@ Per frame, for each part in the frame's back-to-front order:
    1/16 px vertices): OpenCV fills a polygon's boundary pixels too, so triangles that share an
    edge leave no pixel between them, flipped or not;
 2. each covered pixel's texture coordinate is its triangle's affine map (deformed → rest) of the
-   pixel centre, kept within :data:`REACH` of the triangle's rest footprint (:meth:`Renderer.texels`),
-   and ``cv2.remap`` samples the premultiplied texture bilinearly;
+   pixel centre, kept within a pixel of the triangle's rest box, and ``cv2.remap`` samples the
+   premultiplied texture bilinearly;
 3. the part is laid over what is drawn so far ("over", premultiplied alpha), so a limb's
    anti-aliased edge blends with the body under it.
 
@@ -28,9 +28,6 @@ from nnsf.reshape.mesh import Mesh
 
 #: Transparent columns between the drawing and the underlay in the texture atlas, pixels.
 ATLAS_GAP = 8
-#: How far outside its triangle's rest footprint a pixel may sample, texels: one pixel, the most by
-#: which a pixel the fill gives a triangle lies outside it at rest.
-REACH = 1.0
 
 
 def premultiplied(texture: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
@@ -68,19 +65,16 @@ class Renderer:
         # 8 bits a channel, premultiplied: bilinear sampling and compositing run on OpenCV's
         # saturating uint8 arithmetic (a level of rounding per layer, no more).
         self.texture = np.ascontiguousarray(np.clip(tex * 255.0 + 0.5, 0, 255).astype(np.uint8))
-        # A pixel samples its triangle's rest footprint grown by REACH texels (:meth:`texels`): the
-        # grown corners as weights (t, 3, 3) of the triangle's own (edge k offset by REACH: the
-        # barycentric coordinate of the corner opposite it falls to −REACH / height).
-        f = uv[:, 1:] - uv[:, :1]
-        area = np.abs(f[:, 0, 0] * f[:, 1, 1] - f[:, 0, 1] * f[:, 1, 0])
-        opposite = np.linalg.norm(uv[:, [2, 0, 1]] - uv[:, [1, 2, 0]], axis=2)     # (t, 3)
-        m = REACH * opposite / np.maximum(area, 1e-12)[:, None]                    # REACH / height
-        self._grow = np.eye(3)[None] * (1.0 + m.sum(axis=1))[:, None, None] - m[:, None, :]
-        grown = np.einsum("tij,tjx->tix", self._grow, uv)
-        # Per triangle (column 0: none, far outside the texture) the texel at barycentric (l1, l2)
-        # of its grown footprint: u = u0 + l1 du1 + l2 du2, v likewise (rows u0, du1, du2, v0, ...).
-        g = np.concatenate([grown[:, :1], grown[:, 1:] - grown[:, :1]], axis=1).transpose(2, 1, 0)
-        self._texels = np.hstack([[[-1e4], [0], [0], [-1e4], [0], [0]], g.reshape(6, -1)]).astype(np.float32)
+        self.uv = uv
+        f = uv[:, 1:] - uv[:, :1]                                       # (t, 2, 2): rest edges
+        self.edges = (f[:, 0, 0], f[:, 0, 1], f[:, 1, 0], f[:, 1, 1])    # u0, v0 of e0; u1, v1 of e1
+        # Each triangle's texels lie in its rest box grown by a pixel (row 0: "no triangle", far
+        # outside).  The rasteriser gives a triangle the pixels its outline touches, whose centres lie
+        # up to a pixel outside it: at rest they map a pixel out at most and keep their own texel,
+        # but a thin or folded triangle's map would carry them far beyond it, onto the page.
+        lo, hi = uv.min(axis=1) - 1.0, uv.max(axis=1) + 1.0
+        self.box = [np.ascontiguousarray(np.concatenate([[e], col]).astype(np.float32))
+                    for e, col in ((-1e4, lo[:, 0]), (-1e4, hi[:, 0]), (-1e4, lo[:, 1]), (-1e4, hi[:, 1]))]
         self.parts = np.asarray(mesh.parts, dtype=np.int64)
         # Within a part, the last triangle filled wins a pixel.  Where the part folds over itself
         # (a joint bent past its drawn angle), a triangle along the outline (half in the transparent
@@ -94,51 +88,27 @@ class Renderer:
                                for t in (np.flatnonzero(self.parts == p) for p in range(int(self.parts.max()) + 1))]
         self._ids = None
 
-    def coefficients(self, vertices: np.ndarray) -> np.ndarray:
-        """Per triangle ``(12, t + 1)`` float32 (column 0: "no triangle"): the affine map from a deformed
-        pixel to its barycentric coordinates at corners 1 and 2 of the triangle's grown footprint,
-        l1 = c0 x + c1 y + c2, l2 = c3 x + c4 y + c5 (a collapsed triangle: one point inside it),
-        then the texel at (l1, l2) (rows 6-11, :attr:`_texels`)."""
-        D = np.einsum("tij,tjx->tix", self._grow, vertices[self.triangles])
-        e = D[:, 1:] - D[:, :1]                                         # (t, 2, 2): deformed edges
-        det = e[:, 0, 0] * e[:, 1, 1] - e[:, 0, 1] * e[:, 1, 0]
+    def _maps(self, vertices: np.ndarray) -> np.ndarray:
+        """Per triangle the affine map ``(t + 1, 6)`` float32 from a deformed pixel to its texel: u = c0 x +
+        c1 y + c2, v = c3 x + c4 y + c5.  Row 0 is "no triangle", mapping far outside the texture."""
+        D = vertices[self.triangles]
+        # Component arithmetic on (t,) arrays: einsum over 2 × 2 blocks costs more than the maps.
+        ex0, ey0 = D[:, 1, 0] - D[:, 0, 0], D[:, 1, 1] - D[:, 0, 1]      # deformed edges e0, e1
+        ex1, ey1 = D[:, 2, 0] - D[:, 0, 0], D[:, 2, 1] - D[:, 0, 1]
+        fu0, fv0, fu1, fv1 = self.edges
+        det = ex0 * ey1 - ex1 * ey0
         ok = np.abs(det) > 1e-9
-        inv = np.stack([np.stack([e[:, 1, 1], -e[:, 1, 0]], -1), np.stack([-e[:, 0, 1], e[:, 0, 0]], -1)], -1)
-        inv /= np.where(ok, det, 1.0)[:, None, None]                    # columns: inverse of [e0 e1]
-        A = inv.transpose(0, 2, 1)                                      # (t, 2 bary, 2 xy)
-        A[~ok] = 0
-        b = -np.einsum("tij,tj->ti", A, D[:, 0])
-        b[~ok] = 1.0 / 3.0
-        out = np.zeros((12, len(D) + 1), np.float32)
-        out[:2, 1:], out[2, 1:], out[3:5, 1:], out[5, 1:] = A[:, 0].T, b[:, 0], A[:, 1].T, b[:, 1]
-        out[6:] = self._texels
+        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)            # a collapsed triangle: one texel
+        # [f0 f1] · [e0 e1]^-1, the inverse being [[ey1, -ex1], [-ey0, ex0]] / det.
+        a, bb = (fu0 * ey1 - fu1 * ey0) * inv, (fu1 * ex0 - fu0 * ex1) * inv
+        c, d = (fv0 * ey1 - fv1 * ey0) * inv, (fv1 * ex0 - fv0 * ex1) * inv
+        u0, v0 = self.uv[:, 0, 0], self.uv[:, 0, 1]
+        out = np.empty((len(D) + 1, 6), np.float32)
+        out[0] = (0, 0, -1e4, 0, 0, -1e4)
+        out[1:, 0], out[1:, 1], out[1:, 3], out[1:, 4] = a, bb, c, d
+        out[1:, 2] = np.where(ok, u0 - a * D[:, 0, 0] - bb * D[:, 0, 1], self.uv[:, :, 0].mean(axis=1))
+        out[1:, 5] = np.where(ok, v0 - c * D[:, 0, 0] - d * D[:, 0, 1], self.uv[:, :, 1].mean(axis=1))
         return out
-
-    @staticmethod
-    def texels(coef: np.ndarray, ids: np.ndarray, X: np.ndarray, Y: np.ndarray):
-        """Texture coordinates ``(u, v)`` (float32, ``ids``' shape) of pixel centres ``X``, ``Y``
-        (broadcast to ``ids``) in triangles ``ids`` (1 + the triangle, 0 none), from
-        :meth:`coefficients` ``coef``.
-
-        The pixel centre's barycentric coordinates in its triangle's grown footprint, clamped into
-        it.  OpenCV fills the pixels a triangle's edges touch, whose centres may lie outside it: at
-        rest at most a pixel out, so they sample what they show, but the extrapolated map of a
-        triangle squeezed thin reached texels far across the drawing, drawn as specks beside it.
-        """
-        g = coef.take(ids, axis=1)                                      # (12, ...): one gather
-        g[0:4:3] *= X                                                   # rows (0, 3), (1, 4), ...
-        g[1:5:3] *= Y
-        lam = g[0:4:3]                                                  # (l1, l2), a view
-        lam += g[1:5:3]
-        lam += g[2:6:3]
-        np.maximum(lam, 0, out=lam)
-        s = np.maximum(lam[0] + lam[1], 1, out=g[1])
-        lam /= s
-        g[7:11:3] *= lam[0]
-        g[8:12:3] *= lam[1]
-        g[6:10:3] += g[7:11:3]
-        g[6:10:3] += g[8:12:3]
-        return g[6], g[9]
 
     def render(self, vertices, order=None, background=None) -> np.ndarray:
         """One frame from vertices ``(n, 2)`` (output pixels) and a back-to-front part order:
@@ -147,8 +117,9 @@ class Renderer:
         H, W = self.size
         out = np.zeros((H, W, 4), np.uint8)                             # premultiplied RGBA
         if background is not None:  # an opaque page: the parts are laid straight onto its colour
-            out[:] = tuple(int(b) for b in background) + (255,)
-        coef = self.coefficients(V)
+            # One 32-bit word a pixel: numpy broadcasts a 4-tuple over an image far more slowly.
+            out.view(np.uint32)[:] = np.array(tuple(int(b) for b in background) + (255,), np.uint8).view(np.uint32)[0]
+        c = [np.ascontiguousarray(col) for col in self._maps(V).T]
         P = np.rint(V[self.triangles] * 16).astype(np.int32)            # (t, 3, 2), 4 fractional bits
         order = range(len(self.part_triangles)) if order is None else order
         if self._ids is None or self._ids.shape != (H, W):
@@ -170,7 +141,23 @@ class Renderer:
             for k, tri in zip((tris + 1).tolist(), local):
                 cv2.fillConvexPoly(ids, tri, k, cv2.LINE_8, 4)
             X, Y = gx[x0:x1], gy[y0:y1]
-            u, v = self.texels(coef, ids, X, Y)
+            u = c[0].take(ids)
+            u *= X
+            tmp = c[1].take(ids)
+            tmp *= Y
+            u += tmp
+            u += c[2].take(ids)
+            v = c[3].take(ids)
+            v *= X
+            tmp = c[4].take(ids, out=tmp)
+            tmp *= Y
+            v += tmp
+            v += c[5].take(ids)
+            b = self.box
+            cv2.max(u, b[0].take(ids), dst=u)
+            cv2.min(u, b[1].take(ids), dst=u)
+            cv2.max(v, b[2].take(ids), dst=v)
+            cv2.min(v, b[3].take(ids), dst=v)
             src = cv2.remap(self.texture, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                             borderValue=(0, 0, 0, 0))
             dst = out[y0:y1, x0:x1]
