@@ -553,9 +553,9 @@ def _lying_over(V, T, parts, pairs, candidates, cover, rig):
     lying under each cut ``(e,)`` (−1 where no underlay is needed).
 
     A cut may open; what shows in the opening must never be the page.  So an edge between a limb
-    and another part is cut only when it lies over: the limb's triangle beside it, and the middle
-    of the limb beside it (the nearest point of its bones, ``rig`` a
-    :class:`~nnsf.reshape.rig.Rig`), lie where limbs cover that part (:func:`_covered`).  The part
+    and another part is cut only when it lies over: the middle of the limb beside it (the nearest
+    point of its bones, ``rig`` a :class:`~nnsf.reshape.rig.Rig`; not the joint it shares with
+    that part) lies where limbs cover that part (:func:`_covered`).  The part
     beneath gets an underlay there (:func:`_underlays`), and however far the limb moves away, the
     opening shows its colour.  Every other boundary stays joined by shared vertices: parts side by
     side (two legs pressed together, an arm hanging against the body's side) stretch apart rather
@@ -581,8 +581,14 @@ def _lying_over(V, T, parts, pairs, candidates, cover, rig):
                 continue
             # Covered at the limb's middle beside the edge (the nearest point of its bones), not
             # only in the corner where it meets the part: the limb can move away by its width and
-            # still uncover only underlay.
-            hit = sel[_lookup(covered[u], _nearest_on_bones(rig, o, mid[sel])) > 0]
+            # still uncover only underlay.  An edge past the joint the limb shares with the part
+            # (behind a thigh's hip, past its knee into the shin) has that joint for its nearest
+            # point, which lies on their boundary, in the corner the closing fills: there the limb
+            # lies beside the part, not over it, and a cut would tear open as the joint bends.
+            near = _nearest_on_bones(rig, o, mid[sel])
+            j = rig.joint[o] if rig.parent[o] == u else rig.joint[u] if rig.parent[u] == o else -1
+            beside = np.abs(near - rig.keypoints[j]).max(axis=1) < 1e-6 if j >= 0 else np.zeros(len(sel), bool)
+            hit = sel[(_lookup(covered[u], near) > 0) & ~beside]
             cut_edges[hit] = True
             under[hit] = u
     return cut_edges, under
