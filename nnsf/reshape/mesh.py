@@ -553,9 +553,9 @@ def _lying_over(V, T, parts, pairs, candidates, cover, rig):
     lying under each cut ``(e,)`` (−1 where no underlay is needed).
 
     A cut may open; what shows in the opening must never be the page.  So an edge between a limb
-    and another part is cut only when it lies over: the limb's triangle beside it, and the middle
-    of the limb beside it (the nearest point of its bones, ``rig`` a
-    :class:`~nnsf.reshape.rig.Rig`), lie where limbs cover that part (:func:`_covered`).  The part
+    and another part is cut only when it lies over: the middle of the limb beside it (the nearest
+    point of its bones, ``rig`` a :class:`~nnsf.reshape.rig.Rig`; not the joint it shares with
+    that part) lies where limbs cover that part (:func:`_covered`).  The part
     beneath gets an underlay there (:func:`_underlays`), and however far the limb moves away, the
     opening shows its colour.  Every other boundary stays joined by shared vertices: parts side by
     side (two legs pressed together, an arm hanging against the body's side) stretch apart rather
@@ -581,8 +581,14 @@ def _lying_over(V, T, parts, pairs, candidates, cover, rig):
                 continue
             # Covered at the limb's middle beside the edge (the nearest point of its bones), not
             # only in the corner where it meets the part: the limb can move away by its width and
-            # still uncover only underlay.
-            hit = sel[_lookup(covered[u], _nearest_on_bones(rig, o, mid[sel])) > 0]
+            # still uncover only underlay.  An edge past the joint the limb shares with the part
+            # (behind a thigh's hip, past its knee into the shin) has that joint for its nearest
+            # point, which lies on their boundary, in the corner the closing fills: there the limb
+            # lies beside the part, not over it, and a cut would tear open as the joint bends.
+            near = _nearest_on_bones(rig, o, mid[sel])
+            j = rig.joint[o] if rig.parent[o] == u else rig.joint[u] if rig.parent[u] == o else -1
+            beside = np.abs(near - rig.keypoints[j]).max(axis=1) < 1e-6 if j >= 0 else np.zeros(len(sel), bool)
+            hit = sel[(_lookup(covered[u], near) > 0) & ~beside]
             cut_edges[hit] = True
             under[hit] = u
     return cut_edges, under
@@ -603,26 +609,28 @@ def _underlays(V, T, parts, pairs, under, cover) -> tuple[np.ndarray, np.ndarray
     """The triangles to copy into underlays ``(c,)`` and the part each copy goes to ``(c,)``.
 
     Beneath a limb that is cut from a part it lies over, its triangles where it covers that part
-    (:func:`_covered`) are copied into that part, and so is every limb triangle beside a cut: when
-    the limb moves away, the part beneath is there, joined to it by shared vertices, so an opening
-    seam shows its colour, never the page.  A triangle lying over two parts is copied into both
-    (each copy moves with its own part).  Nothing else is copied: beneath a joined boundary an
-    underlay would only poke out as a flap when the mesh bends there.
+    (:func:`_covered`) are copied into that part, and so is every limb triangle touching a cut:
+    when the limb moves away, the part beneath is there, joined to it by shared vertices, so an
+    opening seam shows its colour, never the page.  Touching, not only along the cut's edges: a
+    triangle meeting the cut at a corner alone (a sliver at the cut's mouth on the outline, a fan
+    at an elbow) outside the cover left a hole in the underlay, which opened as a pinhole.  A
+    triangle lying over two parts is copied into both (each copy moves with its own part).
+    Nothing else is copied: beneath a joined boundary an underlay would only poke out as a flap
+    when the mesh bends there.
     """
     centre = V[T].mean(axis=1)
     cut = np.flatnonzero(under >= 0)
-    p, q = parts[pairs[cut, 0]], parts[pairs[cut, 2]]
     u = under[cut]
-    pick = [(np.where(p == u, pairs[cut, 2], pairs[cut, 0]), u)]
-    used = {(int(x), int(y)) for x, y in zip(u, np.where(p == u, q, p))}
-    for (uu, oo), f in sorted(cover.items()):
-        if (uu, oo) in used:
-            sel = np.flatnonzero(parts == oo)
-            sel = sel[_lookup(f.astype(np.uint8), centre[sel]) > 0]
-            pick.append((sel, np.full(len(sel), uu)))
-    tri = np.concatenate([t for t, _ in pick]).astype(np.int64)
-    to = np.concatenate([w for _, w in pick]).astype(np.int64)
-    both = np.unique(np.column_stack([to, tri]), axis=0)
+    o = np.where(parts[pairs[cut, 0]] == u, parts[pairs[cut, 2]], parts[pairs[cut, 0]])
+    ends = np.column_stack([T[pairs[cut, 0], pairs[cut, 1]], T[pairs[cut, 0], (pairs[cut, 1] + 1) % 3]])
+    tri, to = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
+    for uu, oo in sorted({(int(x), int(y)) for x, y in zip(u, o)}):
+        limb = parts == oo
+        sel = np.flatnonzero(limb & (np.isin(T, ends[(u == uu) & (o == oo)]).any(axis=1)
+                                     | (_lookup(cover[(uu, oo)].astype(np.uint8), centre) > 0)))
+        tri.append(sel)
+        to.append(np.full(len(sel), uu))
+    both = np.unique(np.column_stack([np.concatenate(to), np.concatenate(tri)]).astype(np.int64), axis=0)
     return both[:, 1], both[:, 0]
 
 
