@@ -69,7 +69,7 @@ from nnsf.io import atomic_path, write_csv, write_json
 from nnsf.params import checked
 from nnsf.reshape.artefacts import FrameMeasures, coverage, cracks
 from nnsf.reshape.evaluation import _over_white, drive_item
-from nnsf.reshape.render import Renderer
+from nnsf.reshape.render import Renderer, rest_boxes
 
 #: Origins of a crack component, in the order they are decided.
 ORIGINS = ("opening", "page", "thinned")
@@ -112,9 +112,7 @@ class Footprint:
         self.ids = copy.copy(renderer)
         self.ids.texture = np.ascontiguousarray(name.reshape(side, side, 4).astype(np.uint8))
         at = np.stack([ids[:t] % side, ids[:t] // side], axis=-1).astype(np.float64)
-        self.ids.uv = np.repeat(at[:, None], 3, axis=1)      # one texel per triangle: a constant map,
-        self.ids.edges = (np.zeros(t),) * 4                  # not clamped off it by the drawing's boxes
-        self.ids.box = [np.concatenate([[-1e4], c]).astype(np.float32) for c in (at[:, 0], at[:, 0], at[:, 1], at[:, 1])]
+        self.ids.set_texture_coordinates(np.repeat(at[:, None], 3, axis=1))   # one texel per triangle
         m = np.asarray(mask, bool)
         disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (GAP_DISC, GAP_DISC))
         pad = GAP_DISC                                       # the closing sees no image border
@@ -154,7 +152,7 @@ class Footprint:
         lam[ok] = np.linalg.solve(e[ok], rhs[ok][..., None])[..., 0]
         uv = R[:, 0] + lam[:, :1] * (R[:, 1] - R[:, 0]) + lam[:, 1:] * (R[:, 2] - R[:, 0])
         uv[~ok] = R[~ok].mean(axis=1)                        # a collapsed triangle shows one texel
-        uv = np.clip(uv, R.min(axis=1) - 1.0, R.max(axis=1) + 1.0)   # as the renderer: its rest box + 1 px
+        uv = np.clip(uv, *rest_boxes(R))                     # as the renderer
         out["beyond"][ys, xs] = ok & (_outside(uv, R) > BEYOND)
         layer = np.asarray(self.mesh.layer)[k]
         u, v = uv[:, 0].astype(np.float32), uv[:, 1].astype(np.float32)

@@ -28,6 +28,15 @@ from nnsf.reshape.mesh import Mesh
 
 #: Transparent columns between the drawing and the underlay in the texture atlas, pixels.
 ATLAS_GAP = 8
+#: How far outside its triangle's rest box a pixel's texel may lie, pixels: the rasteriser gives a
+#: triangle the pixels its outline touches, centres up to a pixel outside it, which a thin or folded
+#: triangle's map would carry far beyond it, onto the page (at rest they keep their own texel).
+REACH = 1.0
+
+
+def rest_boxes(uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per triangle ``uv`` ``(t, 3, 2)`` (texels) the box its pixels' texels are kept in: ``(lo, hi)``, each ``(t, 2)``."""
+    return uv.min(axis=1) - REACH, uv.max(axis=1) + REACH
 
 
 def premultiplied(texture: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
@@ -65,16 +74,7 @@ class Renderer:
         # 8 bits a channel, premultiplied: bilinear sampling and compositing run on OpenCV's
         # saturating uint8 arithmetic (a level of rounding per layer, no more).
         self.texture = np.ascontiguousarray(np.clip(tex * 255.0 + 0.5, 0, 255).astype(np.uint8))
-        self.uv = uv
-        f = uv[:, 1:] - uv[:, :1]                                       # (t, 2, 2): rest edges
-        self.edges = (f[:, 0, 0], f[:, 0, 1], f[:, 1, 0], f[:, 1, 1])    # u0, v0 of e0; u1, v1 of e1
-        # Each triangle's texels lie in its rest box grown by a pixel (row 0: "no triangle", far
-        # outside).  The rasteriser gives a triangle the pixels its outline touches, whose centres lie
-        # up to a pixel outside it: at rest they map a pixel out at most and keep their own texel,
-        # but a thin or folded triangle's map would carry them far beyond it, onto the page.
-        lo, hi = uv.min(axis=1) - 1.0, uv.max(axis=1) + 1.0
-        self.box = [np.ascontiguousarray(np.concatenate([[e], col]).astype(np.float32))
-                    for e, col in ((-1e4, lo[:, 0]), (-1e4, hi[:, 0]), (-1e4, lo[:, 1]), (-1e4, hi[:, 1]))]
+        self.set_texture_coordinates(uv)
         self.parts = np.asarray(mesh.parts, dtype=np.int64)
         # Within a part, the last triangle filled wins a pixel.  Where the part folds over itself
         # (a joint bent past its drawn angle), a triangle along the outline (half in the transparent
@@ -87,6 +87,16 @@ class Renderer:
         self.part_triangles = [t[np.argsort(key[t], kind="stable")]
                                for t in (np.flatnonzero(self.parts == p) for p in range(int(self.parts.max()) + 1))]
         self._ids = None
+
+    def set_texture_coordinates(self, uv: np.ndarray) -> None:
+        """Each triangle's corners in the texture, ``(t, 3, 2)`` texels, and what :meth:`_maps` and
+        :meth:`render` derive from them once: the rest edges and the boxes of :func:`rest_boxes`."""
+        self.uv = uv
+        f = uv[:, 1:] - uv[:, :1]                                       # (t, 2, 2): rest edges
+        self.edges = (f[:, 0, 0], f[:, 0, 1], f[:, 1, 0], f[:, 1, 1])    # u0, v0 of e0; u1, v1 of e1
+        lo, hi = rest_boxes(uv)                                         # row 0: "no triangle", far outside
+        self.box = [np.ascontiguousarray(np.concatenate([[-1e4], col]).astype(np.float32))
+                    for col in (lo[:, 0], hi[:, 0], lo[:, 1], hi[:, 1])]
 
     def _maps(self, vertices: np.ndarray) -> np.ndarray:
         """Per triangle the affine map ``(t + 1, 6)`` float32 from a deformed pixel to its texel: u = c0 x +
