@@ -14,7 +14,8 @@
 3. ``scipy.spatial.Delaunay`` of all points, keeping triangles whose centroid and edge midpoints
    lie in the silhouette (a stand-in for a constrained triangulation: no triangle bridges a
    concavity such as the gap between the legs); slivers lose their flattest corner and the points
-   are triangulated again; a drawn pixel left outside every triangle becomes a point, until none is.
+   are triangulated again; drawn pixels left outside every triangle get points at least
+   :data:`MIN_SPACING` apart (one per region at least), until none is.
 
 :func:`cut` duplicates the vertices along chosen edges: the mesh stays one connected piece
 wherever it is not cut, so the two sides of an uncut edge move together in every frame and no
@@ -42,6 +43,9 @@ GROW = 2
 #: reaches over it (:func:`_covered`): the disc bridges the limb's width (two radii) with room for
 #: a limb that widens.
 OVER_REACH = 1.5
+#: The closest two mesh points may lie, pixels: a triangle thinner than a pixel is rasterised as a
+#: pixel-wide needle sampling texels beside it, and a deformation stretches it.
+MIN_SPACING = 2.0
 
 
 @dataclass
@@ -79,12 +83,9 @@ def triangle_areas(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
 def triangle_angles(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """Interior angles ``(t, 3)`` in degrees, at each triangle's three corners."""
     p = vertices[triangles]
-    out = np.empty(triangles.shape)
-    for k in range(3):
-        a, b = p[:, (k + 1) % 3] - p[:, k], p[:, (k + 2) % 3] - p[:, k]
-        cos = (a * b).sum(1) / np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-12)
-        out[:, k] = np.degrees(np.arccos(np.clip(cos, -1, 1)))
-    return out
+    a, b = np.roll(p, -1, axis=1) - p, np.roll(p, -2, axis=1) - p       # (t, 3, 2): the edges from each corner
+    cos = (a * b).sum(2) / np.maximum(np.linalg.norm(a, axis=2) * np.linalg.norm(b, axis=2), 1e-12)
+    return np.degrees(np.arccos(np.clip(cos, -1, 1)))
 
 
 def boundary_edges(triangles: np.ndarray) -> np.ndarray:
@@ -234,7 +235,7 @@ def _triangulate_at(m8: np.ndarray, drawn: np.ndarray, h: float, min_angle: floa
     radius = cv2.dilate(dist, np.ones((k, k), np.uint8))   # a square: separable, fast on big drawings
 
     def spacing_at(pts):  # across a strip 2r wide, equilateral triangles have sides ≈ 2r·2/√3
-        return np.clip(2.3 * _lookup(radius, pts), 2.0, h)
+        return np.clip(2.3 * _lookup(radius, pts), MIN_SPACING, h)
 
     boundary = []
     for c in _contours(m8):
@@ -266,11 +267,15 @@ def _triangulate_at(m8: np.ndarray, drawn: np.ndarray, h: float, min_angle: floa
     for _ in range(3):
         # Where the outline's edges are not Delaunay edges a triangle across them may be dropped and
         # leave drawn pixels uncovered: the corners of those regions become points, and Delaunay conforms.
+        # Corners a pixel apart would make slivers, which a deformation stretches into needles of ink: each
+        # region's corner farthest from the points is added, another only MIN_SPACING from every point.
         missed = (drawn & (_raster(points, tri, m8.shape) < 0)).astype(np.uint8)
         if not missed.any():
             break
-        cs, _ = cv2.findContours(missed, cv2.RETR_LIST, cv2.CHAIN_APPROX_SIMPLE)
-        points = np.vstack([points] + [c[:, 0, :].astype(np.float64) for c in cs])
+        for c in cv2.findContours(missed, cv2.RETR_LIST, cv2.CHAIN_APPROX_SIMPLE)[0]:
+            for i, k in enumerate(np.argsort(-cKDTree(points).query(c[:, 0])[0], kind="stable")):
+                if i == 0 or cKDTree(points).query(c[k, 0])[0] >= MIN_SPACING:
+                    points = np.vstack([points, c[k, 0]])
         tri = _delaunay_inside(points, m8, loose)
     tri = tri[triangle_areas(points, tri) > 1e-6]
     # The largest edge-connected group of triangles is the character.
@@ -445,10 +450,9 @@ def build_mesh(character, rig, n_vertices: int = 800) -> Mesh:
     """
     V, T, h = triangulate(character.mask, n_vertices)
     V, T, parts, _ = split_seams(V, T, rig.scores(V), chains=rig.chains())
-    parts = _clean_labels(T, parts, shared_edges(T), rig.parent)
     pairs = shared_edges(T)
-    a = T[pairs[:, 0], pairs[:, 1]]
-    b = T[pairs[:, 0], (pairs[:, 1] + 1) % 3]
+    parts = _clean_labels(T, parts, pairs, rig.parent)
+    a, b = T[pairs[:, 0], pairs[:, 1]], T[pairs[:, 0], (pairs[:, 1] + 1) % 3]
     shape = np.asarray(character.mask).shape
     cover, radius = _covered(V, T, parts, shape)
     candidates = rig.cuts(0.5 * (V[a] + V[b]), parts[pairs[:, 0]], parts[pairs[:, 2]], radius)
@@ -511,8 +515,7 @@ def _covered(V, T, parts, shape) -> tuple[dict, np.ndarray]:
     for o in present:
         if o < 2:          # the body and the head lie over nothing
             continue
-        box = _box(lab == o, 0)
-        y0, y1, x0, x1 = box
+        y0, y1, x0, x1 = _box(lab == o, 0)
         # The limb's own half-width, from its region (the drawing's distance transform does not
         # see a limb drawn inside the body's silhouette).
         radius[o] = float(cv2.distanceTransform(np.pad((lab[y0:y1, x0:x1] == o).astype(np.uint8), 1),
@@ -539,10 +542,8 @@ def _covered(V, T, parts, shape) -> tuple[dict, np.ndarray]:
 
 
 def _box(sel: np.ndarray, pad: int):
-    """``(y0, y1, x0, x1)`` of ``sel``'s bounding box grown by ``2 pad``, or None if empty."""
+    """``(y0, y1, x0, x1)`` of ``sel``'s (non-empty) bounding box grown by ``2 pad``."""
     ys, xs = np.nonzero(sel)
-    if not len(ys):
-        return None
     H, W = sel.shape
     return (max(ys.min() - 2 * pad, 0), min(ys.max() + 2 * pad + 1, H),
             max(xs.min() - 2 * pad, 0), min(xs.max() + 2 * pad + 1, W))
@@ -562,9 +563,7 @@ def _lying_over(V, T, parts, pairs, candidates, cover, rig):
     than open, the head stays on the body, and a continuous map of a joined mesh cannot open a crack.
     """
     p, q = parts[pairs[:, 0]], parts[pairs[:, 2]]
-    a = T[pairs[:, 0], pairs[:, 1]]
-    b = T[pairs[:, 0], (pairs[:, 1] + 1) % 3]
-    mid = 0.5 * (V[a] + V[b])
+    mid = 0.5 * (V[T[pairs[:, 0], pairs[:, 1]]] + V[T[pairs[:, 0], (pairs[:, 1] + 1) % 3]])
     cut_edges = np.zeros(len(pairs), bool)
     under = np.full(len(pairs), -1, dtype=np.int64)
     # Where limbs cover each part.  The limb's middle beside an edge may lie in the next segment of
