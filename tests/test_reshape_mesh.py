@@ -337,3 +337,22 @@ def test_drawn_characters_mesh_in_one_piece(name):
     assert _components(m.triangles).max() == 0 and (triangle_areas(m.vertices, m.triangles) > 0).all()
     assert not (ch.mask & ~_fill(ch.mask.shape, m.vertices, m.triangles[m.layer == 0])).any()
     assert set(np.unique(m.parts[m.layer == 0])) == set(range(10))
+
+
+def test_a_forearm_drawn_round_its_elbow_ends_at_the_elbow():
+    """char1's arm is a wide lobe whose outline runs round the elbow; the forearm's flood ran along it
+    behind the elbow, and as the elbow bent fully the forearm folded onto itself (its outline's
+    transparent margin hid its own ink, leaving slivers of ink apart from the body).  A limb hanging
+    from a limb owns nothing behind the joint it hangs from."""
+    if not (DATA / "animated-drawings" / "characters" / "char1").is_dir():
+        pytest.skip("AnimatedDrawings examples not found")
+    from nnsf.reshape.formats import read_character
+
+    ch = read_character(DATA / "animated-drawings" / "characters" / "char1")
+    rig = Rig.build(ch)
+    for part, (joint, end) in (("l_forearm", ("l_elbow", "l_wrist")), ("r_forearm", ("r_elbow", "r_wrist")),
+                               ("l_shin", ("l_knee", "l_ankle")), ("r_shin", ("r_knee", "r_ankle"))):
+        a, b = ch.keypoints[J[joint]], ch.keypoints[J[end]]
+        ys, xs = np.nonzero(rig.labels == PART_INDEX[part])
+        along = (np.column_stack([xs, ys]) - a) @ (b - a) / np.linalg.norm(b - a)
+        assert along.min() > -5.0, part          # the re-flood of thin strips may cross by a few pixels

@@ -267,8 +267,7 @@ def _triangulate_at(m8: np.ndarray, drawn: np.ndarray, h: float, min_angle: floa
     for _ in range(3):
         # Where the outline's edges are not Delaunay edges a triangle across them may be dropped and
         # leave drawn pixels uncovered: the corners of those regions become points, and Delaunay conforms.
-        # Corners a pixel apart would make slivers, which a deformation stretches into needles of ink: each
-        # region's corner farthest from the points is added, another only MIN_SPACING from every point.
+        # Corners a pixel apart make slivers: a region's corner farthest from the points, others MIN_SPACING away.
         missed = (drawn & (_raster(points, tri, m8.shape) < 0)).astype(np.uint8)
         if not missed.any():
             break
@@ -281,10 +280,8 @@ def _triangulate_at(m8: np.ndarray, drawn: np.ndarray, h: float, min_angle: floa
     # The largest edge-connected group of triangles is the character.
     labels = _components(tri)
     tri = tri[labels == np.argmax(np.bincount(labels))]
-    used = np.unique(tri)
-    remap = np.full(len(points), -1, dtype=np.int64)
-    remap[used] = np.arange(len(used))
-    return points[used], remap[tri], h
+    used, inv = np.unique(tri, return_inverse=True)
+    return points[used], inv.reshape(tri.shape), h
 
 
 # --------------------------------------------------------------------------- cutting
@@ -467,8 +464,7 @@ def build_mesh(character, rig, n_vertices: int = 800) -> Mesh:
     under[~cut_edges] = -1
     copied, owner = _underlays(V, T, parts, pairs, under, cover)
     lookup = np.full((rig.n_parts, len(V)), -1, dtype=np.int64)
-    own = np.repeat(parts, 3)
-    lookup[own, origin[T2.ravel()]] = T2.ravel()
+    lookup[np.repeat(parts, 3), origin[T2.ravel()]] = T2.ravel()
     extra = []
     for p in np.unique(owner):
         for v in np.unique(T[copied[owner == p]]):
@@ -483,10 +479,8 @@ def build_mesh(character, rig, n_vertices: int = 800) -> Mesh:
     comp = _components(tris)
     keep = np.isin(comp, comp[layer == 0])
     tris, layer, all_parts = tris[keep], layer[keep], all_parts[keep]
-    used = np.unique(tris)
-    remap = np.full(len(origin), -1, dtype=np.int64)
-    remap[used] = np.arange(len(used))
-    return Mesh(vertices=V[origin[used]], triangles=remap[tris], parts=all_parts, layer=layer, spacing=float(h))
+    used, inv = np.unique(tris, return_inverse=True)
+    return Mesh(vertices=V[origin[used]], triangles=inv.reshape(tris.shape), parts=all_parts, layer=layer, spacing=float(h))
 
 
 def _raster(V: np.ndarray, T: np.ndarray, shape, values=None) -> np.ndarray:

@@ -198,8 +198,10 @@ class Rig:
             u = self.keypoints[j] - self.keypoints[i]
             u = u / max(float(np.linalg.norm(u)), 1e-9)
             n, grow = np.array([-u[1], u[0]]), reach[p]
-            box = np.array([self.keypoints[i] - grow * u + (r + grow) * n, self.keypoints[j] + grow * u + (r + grow) * n,
-                            self.keypoints[j] + grow * u - (r + grow) * n, self.keypoints[i] - grow * u - (r + grow) * n])
+            # Nothing behind the joint a limb hangs from on a limb (a forearm flooded round the elbow folds on itself).
+            back = 0.0 if (i == self.joint[p] and self.parent[p] > 0) else grow
+            box = np.array([self.keypoints[i] - back * u + (r + grow) * n, self.keypoints[j] + grow * u + (r + grow) * n,
+                            self.keypoints[j] + grow * u - (r + grow) * n, self.keypoints[i] - back * u - (r + grow) * n])
             cv2.fillConvexPoly(near[p], np.rint(box * 16).astype(np.int32), 1, cv2.LINE_8, 4)
         ok = (labels >= 0) & (labels < self.n_parts)
         own = np.zeros((H, W), bool)
