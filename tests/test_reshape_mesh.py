@@ -93,6 +93,18 @@ def test_seams_follow_the_score_boundary_and_stay_conforming():
     assert (side == parts).mean() > 0.95
 
 
+def test_a_seam_near_a_corner_splits_the_rest_of_the_triangle_without_a_sliver():
+    """The seam crosses a long thin-ish triangle near its lone corner: of the quad left beside it, the
+    diagonal from that corner's end of the seam to the far corner would make a 3° sliver."""
+    V = np.array([[77.4, 96.3], [79.0, 89.0], [82.0, 102.0]])  # counter-clockwise
+    T = np.array([[0, 1, 2]])
+    S = np.array([[0.0, 1.0], [0.0, 1.0], [1.0, 0.95]])      # the lone corner only just in part 1
+    V2, T2, parts, _ = split_seams(V, T, S)
+    assert len(T2) == 3 and np.isclose(triangle_areas(V2, T2).sum(), triangle_areas(V, T).sum())
+    assert (triangle_areas(V2, T2) > 0).all() and triangle_angles(V2, T2).min() > 10
+    assert sorted(parts.tolist()) == [0, 0, 1]
+
+
 def test_cut_duplicates_exactly_the_vertices_along_the_cut():
     # A 4 x 4 grid of squares, each two triangles.
     xs, ys = np.meshgrid(np.arange(5.0), np.arange(5.0))

@@ -360,17 +360,17 @@ def _clean_labels(triangles: np.ndarray, parts: np.ndarray, pairs: np.ndarray, p
 
 
 def split_seams(vertices: np.ndarray, triangles: np.ndarray, scores: np.ndarray, clamp: float = 0.2,
-                chains=None):
+                chains=None, min_angle: float = 15.0):
     """Split triangles so the boundary between two parts follows the zero of their score difference.
 
-    ``scores`` ``(n, P)``: each vertex's score per part (:meth:`nnsf.reshape.rig.Rig.scores`); a
-    vertex belongs to its lowest.  An edge whose ends belong to parts p and q gets a vertex where
-    s_p − s_q changes sign (linear along the edge, kept ``clamp`` of the edge from its ends so no
-    sliver is made); a triangle with two parts becomes a triangle and a quad, one with three a fan
-    about its centroid.  The boundary is then a smooth curve, not a staircase of triangle edges
-    (which shows as a jagged edge once the parts move apart).  Returns ``(vertices, triangles,
-    part per triangle, the triangle each came from)``; the mesh stays conforming (every new vertex
-    is shared by both triangles of its edge).
+    ``scores`` ``(n, P)``: each vertex's score per part (:meth:`nnsf.reshape.rig.Rig.scores`); a vertex
+    belongs to its lowest.  An edge whose ends belong to parts p and q gets a vertex where s_p − s_q
+    changes sign (linear along the edge, kept ``clamp`` of the edge from its ends so no sliver is made);
+    a triangle with two parts becomes a triangle and a quad (split along its other diagonal where that
+    lifts a least angle under ``min_angle`` degrees), one with three a fan about its centroid.  The
+    boundary is then a smooth curve, not a staircase of triangle edges (a jagged edge once the parts
+    move apart).  Returns ``(vertices, triangles, part per triangle, the triangle each came from)``;
+    the mesh stays conforming (every new vertex is shared by both triangles of its edge).
     """
     n = len(vertices)
     lab = np.argmin(scores, axis=1)
@@ -397,7 +397,12 @@ def split_seams(vertices: np.ndarray, triangles: np.ndarray, scores: np.ndarray,
         k = np.where(Lt[:, 0] != Lt[:, 1], np.where(Lt[:, 0] != Lt[:, 2], 0, 1), 2)
         c0, c1, c2 = (triangles[two, (k + i) % 3] for i in range(3))
         m01, m20 = M[two, k], M[two, (k + 2) % 3]
-        tris += [np.column_stack([c0, m01, m20]), np.column_stack([m01, c1, c2]), np.column_stack([m01, c2, m20])]
+        # The quad (m01, c1, c2, m20): with the seam near the lone corner, the diagonal m01-c2 can leave a
+        # sliver (which a deformation collapses into a needle); then the other one, if its least angle is larger.
+        A, B = np.stack([m01, c1, c2, m01, c2, m20], 1), np.stack([m01, c1, m20, c1, c2, m20], 1)
+        least = [triangle_angles(np.vstack([vertices, new]), Q.reshape(-1, 3)).min(1).reshape(-1, 2).min(1) for Q in (A, B)]
+        Q = np.where(((least[0] >= min_angle) | (least[0] >= least[1]))[:, None], A, B)
+        tris += [np.column_stack([c0, m01, m20]), Q[:, :3], Q[:, 3:]]
         parts += [lab[c0], lab[c1], lab[c1]]
         src += [two, two, two]
     three = np.flatnonzero(kinds == 3)
