@@ -164,27 +164,28 @@ class Rig:
         lam = np.linspace(0.2, 0.8, 7)[:, None, None]
         reach = np.median(sample(room, a[None] + lam * (b - a)[None]), axis=0)
         seed = np.minimum(self.radius, np.maximum(reach, 1.0))
-        for k in np.argsort(-seed, kind="stable"):
-            if self.bones[k, 2] in self.hidden:
-                continue
-            p, q = a[k] + 0.2 * (b[k] - a[k]), a[k] + 0.8 * (b[k] - a[k])
-            cv2.line(markers, tuple(np.rint(p * 16).astype(int)), tuple(np.rint(q * 16).astype(int)),
+        u = (b - a) / np.maximum(np.linalg.norm(b - a, axis=1), 1e-9)[:, None]
+        # A bone that ends its limb (at the wrist, the ankle) owns its end key point and a seed's
+        # width beyond: a hand drawn over the body, its outline closing it off from the forearm,
+        # was flooded from the body's seeds around it, and stayed on the body when the arm moved.
+        chain, shown = self.chains(), ~np.isin(self.bones[:, 2], self.hidden)
+        last = np.array([j not in self.bones[self.bones[:, 2] != q, 0] and chain[q] >= 0 for _, j, q in self.bones])
+        start, ends = a + 0.2 * (b - a), np.where(last[:, None], b + seed[:, None] * u, a + 0.8 * (b - a))
+        for k in [k for k in np.argsort(-seed, kind="stable") if shown[k]]:
+            cv2.line(markers, tuple(np.rint(start[k] * 16).astype(int)), tuple(np.rint(ends[k] * 16).astype(int)),
                      int(self.bones[k, 2]) + 1, max(1, int(0.5 * seed[k])), cv2.LINE_8, 4)
         # A limb drawn over another part (an arm across the chest, a hand on the hip) owns the pixels
         # about its bones beyond its root: other limbs' and the body's seeds there (the spine's line
         # under the arm) are dropped.  Its last bone reaches past its end by two radii (the hand).
-        chain = self.chains()
-        for k in np.flatnonzero(chain[self.bones[:, 2]] >= 0):
-            part = self.bones[k, 2]
-            if part in self.hidden:
-                continue
-            u = (b[k] - a[k]) / max(float(np.linalg.norm(b[k] - a[k])), 1e-9)
-            last = self.bones[k, 1] not in self.bones[self.bones[:, 2] != part, 0]
-            ends = np.rint(np.array([a[k] + 0.2 * (b[k] - a[k]), b[k] + 2.0 * seed[k] * u * last]) * 16).astype(int)
-            band = np.zeros((H, W), np.uint8)
-            cv2.line(band, tuple(ends[0]), tuple(ends[1]), 1, max(1, int(2 * seed[k])), cv2.LINE_8, 4)
+        for k in np.flatnonzero((chain[self.bones[:, 2]] >= 0) & shown):
+            part, tip = self.bones[k, 2], b[k] + 2.0 * seed[k] * u[k] * last[k]
+            band = cv2.line(np.zeros((H, W), np.uint8), tuple(np.rint(start[k] * 16).astype(int)),
+                            tuple(np.rint(tip * 16).astype(int)), 1, max(1, int(2 * seed[k])), cv2.LINE_8, 4)
             other = (markers > 0) & (chain[np.maximum(markers - 1, 0)] != chain[part])
             markers[(band > 0) & other] = 0
+            if last[k]:   # a hand on the body is wider than its arm: the body's seeds within two widths
+                cv2.circle(band, tuple(np.rint(b[k] * 16).astype(int)), int(32 * seed[k]), 1, -1, cv2.LINE_8, 4)
+                markers[(band > 0) & other & (chain[np.maximum(markers - 1, 0)] < 0)] = 0
         seeds = markers.copy()
         markers[~mask] = self.n_parts + 1
         cv2.watershed(np.ascontiguousarray(texture[..., 2::-1]), markers)
@@ -194,14 +195,12 @@ class Rig:
         # the watershed's boundary pixels take the band's part.
         near = np.zeros((self.n_parts, H, W), np.uint8)
         reach = np.maximum(2.0, self.part_radius())
-        for (i, j, p), r in zip(self.bones, self.radius):
-            u = self.keypoints[j] - self.keypoints[i]
-            u = u / max(float(np.linalg.norm(u)), 1e-9)
-            n, grow = np.array([-u[1], u[0]]), reach[p]
+        for k, ((i, _, p), r) in enumerate(zip(self.bones, self.radius)):
+            n, grow = np.array([-u[k, 1], u[k, 0]]), reach[p]
             # Nothing behind the joint a limb hangs from on a limb (a forearm flooded round the elbow folds on itself).
             back = 0.0 if (i == self.joint[p] and self.parent[p] > 0) else grow
-            box = np.array([self.keypoints[i] - back * u + (r + grow) * n, self.keypoints[j] + grow * u + (r + grow) * n,
-                            self.keypoints[j] + grow * u - (r + grow) * n, self.keypoints[i] - back * u - (r + grow) * n])
+            box = np.array([a[k] - back * u[k] + (r + grow) * n, b[k] + grow * u[k] + (r + grow) * n,
+                            b[k] + grow * u[k] - (r + grow) * n, a[k] - back * u[k] - (r + grow) * n])
             cv2.fillConvexPoly(near[p], np.rint(box * 16).astype(np.int32), 1, cv2.LINE_8, 4)
         ok = (labels >= 0) & (labels < self.n_parts)
         own = np.zeros((H, W), bool)
