@@ -5,6 +5,7 @@ with an OpenCV ``mp4v`` file as the control it must refuse.
 """
 from __future__ import annotations
 
+import ctypes
 import os
 import resource
 import shutil
@@ -50,6 +51,34 @@ def test_mp4_keeps_an_ntsc_rate_exact(tmp_path):
     path = write_mp4(tmp_path / "n.mp4", _frames(6), fps=30000 / 1001)
     with av.open(str(path)) as c:
         assert c.streams.video[0].average_rate.numerator == 30000
+
+
+def _moving_disc(W, H=160, T=24):
+    yy, xx = np.mgrid[:H, :W]
+    return np.array([np.where(((xx - 9 * t % W) ** 2 + (yy - H // 2) ** 2 < 400)[..., None],
+                              np.uint8([200, 40, 20]), np.uint8([250, 250, 250])) for t in range(T)])
+
+
+def test_mp4_bytes_do_not_depend_on_the_cores_or_on_unwritten_memory(tmp_path):
+    """Same frames, same bytes: on one core and on all (x264's thread count must not follow the
+    cores), and when every fresh allocation holds a pattern (the encoder reads nothing it did not write)."""
+    clip = _moving_disc(302)                           # 19 macroblocks wide: not a multiple of 8
+    first = write_mp4(tmp_path / "a.mp4", clip, fps=12).read_bytes()
+    cores = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else set()
+    if len(cores) > 1:
+        os.sched_setaffinity(0, {min(cores)})          # this thread, and the encoder threads it starts
+        try:
+            assert write_mp4(tmp_path / "b.mp4", clip, fps=12).read_bytes() == first
+        finally:
+            os.sched_setaffinity(0, cores)
+    libc = ctypes.CDLL(None)
+    if not hasattr(libc, "mallopt"):
+        pytest.skip("no mallopt (not glibc): the unwritten-memory half needs M_PERTURB")
+    libc.mallopt(-6, 1)                                # glibc's M_PERTURB: malloc fills what it returns with 0xfe
+    try:
+        assert write_mp4(tmp_path / "c.mp4", clip, fps=12).read_bytes() == first
+    finally:
+        libc.mallopt(-6, 0)
 
 
 def test_gif_decodes_back_with_held_frames_counted(tmp_path):

@@ -171,11 +171,13 @@ MP4_PIX_FMT = "yuv420p"
 #: x264's constant-rate factor: 18 keeps a drawing's flat colours and ink lines without visible
 #: blocking (x264's own default, 23, smears thin lines) at a few hundred kB per second of 512 px.
 MP4_CRF = 18
-
-
-def _rate(fps: float) -> Fraction:
-    """A frame rate as the exact fraction FFmpeg wants (29.97 -> 30000/1001)."""
-    return Fraction(float(fps)).limit_denominator(1001)
+#: x264's frame threads, a fixed count: its bytes depend on the count, which FFmpeg takes from the cores.
+MP4_THREADS = 4
+#: libx264's options; on a CPU with AVX-512 (OpenCV's feature 13, ``CPU_AVX_512F``), x264's code only up to
+#: AVX2.  Why: x264's AVX-512 MB-tree kernel (``mbtree_propagate_list``) takes 8 macroblocks a step and, past
+#: the last row of a frame not a multiple of 8 macroblocks wide, adds in what it reads from memory the encoder
+#: never wrote, so the bytes changed with what the process had freed before.  The AVX2 form stops at the row's end.
+MP4_OPTIONS = {"crf": str(MP4_CRF), **({"x264-params": "asm=AVX2"} if cv2.checkHardwareSupport(13) else {})}
 
 
 def write_mp4(path, images, fps: float) -> Path:
@@ -192,21 +194,19 @@ def write_mp4(path, images, fps: float) -> Path:
     path = Path(path)
     if not (fps > 0 and np.isfinite(fps)):
         raise ValueError(f"fps must be > 0, got {fps!r}")
-    first = np.asarray(images[0])
-    H, W = first.shape[:2]
+    H, W = np.asarray(images[0]).shape[:2]
     He, We = H + H % 2, W + W % 2
+    rate = Fraction(float(fps)).limit_denominator(1001)        # exact, as FFmpeg wants: 29.97 -> 30000/1001
     with atomic_path(path) as tmp:
         with av.open(str(tmp), mode="w", format="mp4", options={"movflags": "+faststart"}) as container:
-            stream = container.add_stream(MP4_CODEC, rate=_rate(fps))
+            stream = container.add_stream(MP4_CODEC, rate=rate, options=MP4_OPTIONS)
             stream.width, stream.height, stream.pix_fmt = We, He, MP4_PIX_FMT
-            stream.options = {"crf": str(MP4_CRF)}
+            stream.codec_context.thread_type, stream.codec_context.thread_count = "FRAME", MP4_THREADS
             frame = np.full((He, We, 3), 255, np.uint8)
             for img in images:
                 frame[:H, :W] = _over_white(img)
-                for packet in stream.encode(av.VideoFrame.from_ndarray(frame, format="rgb24")):
-                    container.mux(packet)
-            for packet in stream.encode():
-                container.mux(packet)
+                container.mux(stream.encode(av.VideoFrame.from_ndarray(frame, format="rgb24")))
+            container.mux(stream.encode())                     # flush the frames x264 holds back
         n, size = _mp4_frames(tmp)
         if (n, size) != (len(images), (We, He)):
             raise OSError(errno.EIO, f"decoded back {n} frames of {size[0]}x{size[1]} px, "
