@@ -7,7 +7,8 @@ clip), translate it into a style of a saved style model
 (:func:`nnsf.factor.style_model.translate`), retarget it to the character's
 proportions (:func:`nnsf.reshape.drive.retarget`), deform the character's
 mesh and render every frame (:class:`nnsf.reshape.animator.Animator`) and encode MP4, GIF, PNG frames
-and a contact sheet.  It reports the time of each part.
+and a contact sheet.  It reports the time of each part.  The MP4 is encoded on a thread
+(:func:`encoding_meanwhile`) as the frames are drawn, so drawing and encoding share the cores.
 
 Character formats: :func:`nnsf.reshape.formats.read_character`.
 
@@ -17,8 +18,11 @@ contract (one clip), or ``synthetic:<character>/<motion>[/<frames>]``.
 """
 from __future__ import annotations
 
+import queue
 import sys
+import threading
 import time
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -160,6 +164,58 @@ def write_keypoints(path, points, motion: str, style: str) -> Path:
     return Path(path)
 
 
+class _Stopped(Exception):
+    """The frames' producer failed or was interrupted: the encoder drops its file."""
+
+
+@contextmanager
+def encoding_meanwhile(write, path, fps):
+    """Run ``write(path, frames, fps)`` (:func:`~nnsf.reshape.video.write_mp4`) on a thread
+    while the caller draws; yields ``feed(image)``, which hands it the next frame.
+
+    The x264 encoder and the renderer each hold about a core, and both
+    release the GIL in their C code, so on a thread the encoder works while
+    the next frames are drawn instead of after the last.  Leaving the block
+    waits for the file to be finished; an error of the writer is raised
+    in the caller (at the next ``feed`` or on leaving); an error or interrupt of
+    the caller stops the writer at its next frame, leaving no file.
+    """
+    frames, stop, failed = queue.SimpleQueue(), threading.Event(), []
+    end = object()
+
+    def taken():
+        while (img := frames.get()) is not end and not stop.is_set():
+            yield img
+        if stop.is_set():
+            raise _Stopped
+
+    def run():
+        try:
+            write(path, taken(), fps)
+        except _Stopped:
+            pass
+        except BaseException as exc:  # raised in the caller
+            failed.append(exc)
+
+    def feed(img):
+        if failed:
+            raise failed[0]
+        frames.put(img)
+
+    thread = threading.Thread(target=run, name="nnsf-encode", daemon=True)
+    thread.start()
+    try:
+        yield feed
+    except BaseException:
+        stop.set()
+        raise
+    finally:
+        frames.put(end)
+        thread.join()
+    if failed:
+        raise failed[0]
+
+
 @phased("animate")
 def animate_files(character, motion, style="none", model=None, view="auto", out="animation.mp4",
                   fps=None, joints=None, source_style=None, n_vertices=800, max_frames=5000,
@@ -284,12 +340,15 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
             said[0] = done
             _say(progress, f"animate: rendered frame {done}/{total}")
 
-    images = render_frames(renderer, V, orders, offset, BACKGROUND, sz, workers=workers, progress=rendered)
-    # ---- encode
-    ph.start("encode", "writing " + ", ".join(sorted(targets)))
     files = {}
+    with (encoding_meanwhile(write_mp4, targets["mp4"], out_fps) if "mp4" in targets
+          else nullcontext(None)) as feed:
+        images = render_frames(renderer, V, orders, offset, BACKGROUND, sz, workers=workers, progress=rendered,
+                               each=feed)
+        # ---- encode (the MP4's last frames; it was encoded as they were drawn)
+        ph.start("encode", "writing " + ", ".join(sorted(targets)))
     if "mp4" in targets:
-        files["mp4"] = write_mp4(targets["mp4"], images, out_fps)
+        files["mp4"] = Path(targets["mp4"])
     if "gif" in targets:
         files["gif"] = write_gif(targets["gif"], images, out_fps)
     if "png" in targets:
