@@ -367,6 +367,12 @@ def test_frames_rendered_by_two_processes_are_the_frames_of_one(monkeypatch):
     assert np.array_equal(two, one)
     assert seen[-1] == (len(V), len(V)) and len(seen) == 8  # 4 chunks per worker
     assert not (one == one[:, :1, :1]).all()  # something was drawn
+    # Handed over one by one, in order, as they are drawn (an encoder's feed); not kept if not asked.
+    for workers in (1, 2):
+        got = []
+        assert render_pool.render_frames(r, V, orders, offset, BACKGROUND, size, workers=workers,
+                                         each=got.append, keep=False) is None
+        assert np.array_equal(np.stack(got), one)
 
 
 # --------------------------------------------------------------------------- the MP4 encoded as drawn

@@ -18,6 +18,7 @@ contract (one clip), or ``synthetic:<character>/<motion>[/<frames>]``.
 """
 from __future__ import annotations
 
+import itertools
 import queue
 import sys
 import threading
@@ -340,11 +341,22 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
             said[0] = done
             _say(progress, f"animate: rendered frame {done}/{total}")
 
-    files = {}
+    files, T = {}, len(V)
+    # Only a GIF and PNG frames need every frame at once (a palette, a folder written whole); an
+    # MP4 takes them as they come and the sheet a dozen, so a clip's frames are not held for those.
+    keep = "gif" in targets or "png" in targets
+    pick, picked, count = np.linspace(0, T - 1, min(12, T)).astype(int), {}, itertools.count()
     with (encoding_meanwhile(write_mp4, targets["mp4"], out_fps) if "mp4" in targets
           else nullcontext(None)) as feed:
+        def each(image):        # the frames in order, as they are drawn
+            t = next(count)
+            if t in pick:
+                picked[t] = image
+            if feed is not None:
+                feed(image)
+
         images = render_frames(renderer, V, orders, offset, BACKGROUND, sz, workers=workers, progress=rendered,
-                               each=feed)
+                               each=each, keep=keep)
         # ---- encode (the MP4's last frames; it was encoded as they were drawn)
         ph.start("encode", "writing " + ", ".join(sorted(targets)))
     if "mp4" in targets:
@@ -357,17 +369,16 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
     if "sheet" in targets:
         import cv2
 
-        pick = np.linspace(0, len(images) - 1, min(12, len(images))).astype(int)
-        sheet = contact_sheet(images[pick], columns=6, scale=0.5 if sz[0] > 200 else 1.0,
+        sheet = contact_sheet([picked[t] for t in pick], columns=6, scale=0.5 if sz[0] > 200 else 1.0,
                               labels=[f"t={k}" for k in pick])
         with atomic_path(targets["sheet"]) as tmp:
             if not cv2.imwrite(str(tmp), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR)):
                 raise OSError(f"could not write {targets['sheet']}")
         files["sheet"] = Path(targets["sheet"])
     if keypoints is not None:       # last, beside finished videos: a failed encode leaves no table
-        write_keypoints(keypoints, kp[:len(images)], mo.name, style)
+        write_keypoints(keypoints, kp[:T], mo.name, style)
     ph.stop()
     seconds, cpu = dict(ph.seconds), dict(ph.cpu_seconds)
     seconds["total"], cpu["total"] = time.perf_counter() - t0, time.process_time() - c0
-    return AnimateResult(files=files, seconds=seconds, cpu_seconds=cpu, frames=len(images), fps=out_fps, view=mo.view,
+    return AnimateResult(files=files, seconds=seconds, cpu_seconds=cpu, frames=T, fps=out_fps, view=mo.view,
                          style=style, character=ch.name, motion=mo.name, notes=list(ch.notes) + mo.notes)

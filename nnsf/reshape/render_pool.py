@@ -8,20 +8,17 @@ process of a ``spawn`` pool straight into one shared-memory image array:
 
 * spawn, not fork: the calling process may hold threads (OpenCV's pool,
   Prefect's and MLflow's workers) whose locks a forked child would inherit;
-* the workers start without the caller's main script: a spawn child
-  otherwise re-imports it, and a script that calls ``animate_files`` at top
-  level (no ``if __name__ == "__main__"``) would run again in each worker.
-  The workers need only this module, which they import by name;
+* the workers start without the caller's main script: a spawn child otherwise re-imports it, and
+  a script that calls ``animate_files`` at top level (no ``if __name__ == "__main__"``) would run
+  again in each worker.  The workers need only this module and the renderer's, imported by name;
 * the renderer is pickled once per worker (its texture atlas, ~4 MB for a 700 px drawing) and
   the frames cross no pipe: the workers write them into one memory-mapped file (in ``/dev/shm``
   where there is one, so in memory), whose name is removed once they are done; the array
-  returned maps it.
-  An interrupted render (Ctrl-C, SIGTERM under ``nnsf``) cancels the chunks
-  not yet started and removes the file (an interrupt waits while the
-  workers start, and the workers ignore Ctrl-C: no worker prints a traceback);
-  the workers of a caller killed outright end with it; a file left by a process that was
-  killed outright (its name holds the pid) is removed by the next pooled
-  render (:func:`remove_stale`).
+  returned maps it.  An interrupted render (Ctrl-C, SIGTERM under ``nnsf``) cancels the chunks
+  not yet started and removes the file (an interrupt waits while the workers start, and the
+  workers ignore Ctrl-C: no worker prints a traceback); the workers of a caller killed outright
+  end with it; a file left by a process that was killed outright (its name holds the pid) is
+  removed by the next pooled render (:func:`remove_stale`).
 
 A spawn worker starts in a few tenths of a second (the interpreter, numpy and OpenCV: the renderer's
 module imports no SciPy), so short clips are drawn in the calling process (:data:`MIN_FRAMES_PER_WORKER`).
@@ -174,7 +171,7 @@ def remove_stale(folder: str | None) -> list[str]:
 
 
 def render_frames(renderer, frames: np.ndarray, orders, offset, background, size,
-                  workers: int | None = None, progress=None, each=None) -> np.ndarray:
+                  workers: int | None = None, progress=None, each=None, keep=True) -> np.ndarray | None:
     """RGB frames ``(T, H, W, 3)`` uint8 of a deformed mesh, ``frames`` ``(T, n, 2)`` px.
 
     ``orders``: per frame, the part order :meth:`~nnsf.reshape.render.Renderer.render` takes;
@@ -182,18 +179,21 @@ def render_frames(renderer, frames: np.ndarray, orders, offset, background, size
     ``workers``: processes (default :func:`default_workers`; 1 draws in this process, as does a clip
     shorter than :data:`MIN_FRAMES_PER_WORKER` frames per worker).  ``progress(done, total)`` is
     called after each chunk (each frame, when serial), ``each(image)`` with every frame in order
-    once it is drawn (an encoder takes it while the rest are drawn).
+    once it is drawn (an encoder takes it while the rest are drawn).  ``keep=False``: None is
+    returned, the frames go to ``each`` only, and a serial render holds no more than a frame.
     """
     T = len(frames)
     H, W = int(size[0]), int(size[1])
     workers = default_workers() if workers is None else max(1, int(workers))
     workers = min(workers, max(1, T // MIN_FRAMES_PER_WORKER))
     if workers == 1:
-        images = np.empty((T, H, W, 3), np.uint8)
+        images = np.empty((T, H, W, 3), np.uint8) if keep else None
         for t in range(T):
-            images[t] = renderer.render(frames[t] + offset, orders[t], background=background)
+            image = renderer.render(frames[t] + offset, orders[t], background=background)
+            if keep:
+                images[t] = image
             if each is not None:
-                each(images[t])
+                each(image)
             if progress is not None:
                 progress(t + 1, T)
         return images
@@ -227,4 +227,4 @@ def render_frames(renderer, frames: np.ndarray, orders, offset, background, size
                 raise
     finally:
         os.unlink(path)  # the mapping stays valid; the file goes when the array does
-    return images
+    return images if keep else None
