@@ -207,12 +207,13 @@ def encoding_meanwhile(write, path, fps):
     thread.start()
     try:
         yield feed
-    except BaseException:
+        frames.put(end)
+        thread.join()       # the last frames, and the check that decodes the file back
+    except BaseException:   # in the caller, or an interrupt while waiting: a writer still taking frames drops its file
         stop.set()
-        raise
-    finally:
         frames.put(end)
         thread.join()
+        raise
     if failed:
         raise failed[0]
 
