@@ -19,9 +19,12 @@ import pytest
 import yaml
 
 from nnsf import cli
+from nnsf.animate.animation import encoding_meanwhile
 from nnsf.datasets import contract, synthetic
 from nnsf.errors import InputError
+from nnsf.io import WriteError
 from nnsf.factor.translate import StyleTranslator
+from nnsf.reshape.video import read_mp4, write_mp4
 from nnsf.skeleton import JOINT_INDEX, JOINTS
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -364,6 +367,73 @@ def test_frames_rendered_by_two_processes_are_the_frames_of_one(monkeypatch):
     assert np.array_equal(two, one)
     assert seen[-1] == (len(V), len(V)) and len(seen) == 8  # 4 chunks per worker
     assert not (one == one[:, :1, :1]).all()  # something was drawn
+    # Handed over one by one, in order, as they are drawn (an encoder's feed); not kept if not asked.
+    for workers in (1, 2):
+        got = []
+        assert render_pool.render_frames(r, V, orders, offset, BACKGROUND, size, workers=workers,
+                                         each=got.append, keep=False) is None
+        assert np.array_equal(np.stack(got), one)
+
+
+# --------------------------------------------------------------------------- the MP4 encoded as drawn
+
+def _video_frames(T=24, H=61, W=87):
+    imgs = np.full((T, H, W, 3), 255, np.uint8)
+    for t in range(T):
+        imgs[t, 10:50, 3 * t: 3 * t + 12] = (200, 40, 20)
+    return imgs
+
+
+def test_frames_fed_one_by_one_to_the_encoding_thread_make_the_whole_video(tmp_path):
+    imgs = _video_frames()
+    with encoding_meanwhile(write_mp4, tmp_path / "a.mp4", 12) as feed:
+        for img in imgs:
+            feed(img)
+    back = read_mp4(tmp_path / "a.mp4")   # finished on leaving the block
+    assert back.shape == (24, 62, 88, 3) and np.abs(back[:, :61, :87].astype(int) - imgs).mean() < 3.0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.mp4"]
+
+
+def test_a_write_error_on_the_encoding_thread_is_raised_in_the_drawing_caller(tmp_path, monkeypatch):
+    import av
+
+    def refuse(*a, **k):
+        raise av.error.OSError(28, "No space left on device")
+    monkeypatch.setattr(av.container.OutputContainer, "mux", refuse)
+    with pytest.raises(WriteError, match=r"a\.mp4: write: expected free space on its disk"):
+        with encoding_meanwhile(write_mp4, tmp_path / "a.mp4", 12) as feed:
+            for img in _video_frames():
+                feed(img)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("after", [0, 5])
+def test_a_drawing_that_fails_leaves_no_video(tmp_path, after):
+    with pytest.raises(KeyboardInterrupt):
+        with encoding_meanwhile(write_mp4, tmp_path / "a.mp4", 12) as feed:
+            for img in _video_frames(after):
+                feed(img)
+            raise KeyboardInterrupt
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.slow  # a fresh interpreter, as a spawn worker is
+def test_a_render_worker_starts_with_numpy_and_opencv_only(tmp_path):
+    """A worker imports the pool module and unpickles the renderer; SciPy, pandas or sklearn
+    would add a good part of a second to every worker's start (and render nothing)."""
+    import pickle
+    import subprocess
+    import sys
+
+    from nnsf.reshape.animator import Animator
+    from nnsf.reshape.character import stick_figure
+
+    (tmp_path / "r.pkl").write_bytes(pickle.dumps(Animator(stick_figure(height=120), n_vertices=150).renderer((160, 120))))
+    code = ("import pickle, sys, nnsf.reshape.render_pool; r = pickle.load(open(sys.argv[1], 'rb')); "
+            "print(type(r).__name__, sorted({m.split('.')[0] for m in sys.modules} & {'scipy', 'pandas', 'sklearn'}))")
+    out = subprocess.run([sys.executable, "-c", code, str(tmp_path / "r.pkl")], capture_output=True, text=True,
+                         timeout=120)
+    assert out.stdout.split() == ["Renderer", "[]"], out.stderr
 
 
 def test_frame_files_of_dead_processes_are_removed_and_no_other(tmp_path):

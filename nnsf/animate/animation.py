@@ -7,7 +7,8 @@ clip), translate it into a style of a saved style model
 (:func:`nnsf.factor.style_model.translate`), retarget it to the character's
 proportions (:func:`nnsf.reshape.drive.retarget`), deform the character's
 mesh and render every frame (:class:`nnsf.reshape.animator.Animator`) and encode MP4, GIF, PNG frames
-and a contact sheet.  It reports the time of each part.
+and a contact sheet.  It reports the time of each part.  The MP4 is encoded on a thread
+(:func:`encoding_meanwhile`) as the frames are drawn, so drawing and encoding share the cores.
 
 Character formats: :func:`nnsf.reshape.formats.read_character`.
 
@@ -17,8 +18,12 @@ contract (one clip), or ``synthetic:<character>/<motion>[/<frames>]``.
 """
 from __future__ import annotations
 
+import itertools
+import queue
 import sys
+import threading
 import time
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -37,7 +42,7 @@ from nnsf.reshape.drive import seen_from_side
 from nnsf.skeleton.layout import BONE_NAMES, bone_lengths
 from nnsf.params import ARM_CHOICES, HEAD_CHOICES
 from nnsf.reshape.drive import read_motion
-from nnsf.reshape.render_pool import render_frames
+from nnsf.reshape.render_pool import default_workers, render_frames
 from nnsf.reshape.video import contact_sheet, write_gif, write_mp4, write_png_frames
 from nnsf.reshape.stage import extra_arms_notes
 
@@ -160,6 +165,59 @@ def write_keypoints(path, points, motion: str, style: str) -> Path:
     return Path(path)
 
 
+class _Stopped(Exception):
+    """The frames' producer failed or was interrupted: the encoder drops its file."""
+
+
+@contextmanager
+def encoding_meanwhile(write, path, fps):
+    """Run ``write(path, frames, fps)`` (:func:`~nnsf.reshape.video.write_mp4`) on a thread
+    while the caller draws; yields ``feed(image)``, which hands it the next frame.
+
+    The x264 encoder and the renderer each hold about a core, and both
+    release the GIL in their C code, so on a thread the encoder works while
+    the next frames are drawn instead of after the last.  Leaving the block
+    waits for the file to be finished; an error of the writer is raised
+    in the caller (at the next ``feed`` or on leaving); an error or interrupt of
+    the caller stops the writer at its next frame, leaving no file.
+    """
+    frames, stop, failed = queue.SimpleQueue(), threading.Event(), []
+    end = object()
+
+    def taken():
+        while (img := frames.get()) is not end and not stop.is_set():
+            yield img
+        if stop.is_set():
+            raise _Stopped
+
+    def run():
+        try:
+            write(path, taken(), fps)
+        except _Stopped:
+            pass
+        except BaseException as exc:  # raised in the caller
+            failed.append(exc)
+
+    def feed(img):
+        if failed:
+            raise failed[0]
+        frames.put(img)
+
+    thread = threading.Thread(target=run, name="nnsf-encode", daemon=True)
+    thread.start()
+    try:
+        yield feed
+        frames.put(end)
+        thread.join()       # the last frames, and the check that decodes the file back
+    except BaseException:   # in the caller, or an interrupt while waiting: a writer still taking frames drops its file
+        stop.set()
+        frames.put(end)
+        thread.join()
+        raise
+    if failed:
+        raise failed[0]
+
+
 @phased("animate")
 def animate_files(character, motion, style="none", model=None, view="auto", out="animation.mp4",
                   fps=None, joints=None, source_style=None, n_vertices=800, max_frames=5000,
@@ -187,7 +245,8 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
     mask : ``"auto"``: a PNG without alpha gets its mask from the border colour.
     max_size : megapixels a larger drawing is downscaled to (``--max-size``).
     fps : output frame rate (default: the motion's).
-    workers : processes that render the frames (default: the CPUs this process may use, at most 8;
+    workers : processes that render the frames (default: the CPUs this process may use, at most 8,
+        less one when an MP4 is encoded meanwhile, its encoder taking about a core;
         :func:`nnsf.reshape.render_pool.render_frames`); the frames are the same for any number.
     joint_map : the skeleton family of a BVH motion (:func:`nnsf.datasets.joint_map.read_joint_map`).
     keypoints : a CSV path: the key points that drive the drawing (styled, retargeted; the
@@ -284,12 +343,28 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
             said[0] = done
             _say(progress, f"animate: rendered frame {done}/{total}")
 
-    images = render_frames(renderer, V, orders, offset, BACKGROUND, sz, workers=workers, progress=rendered)
-    # ---- encode
-    ph.start("encode", "writing " + ", ".join(sorted(targets)))
-    files = {}
+    files, T = {}, len(V)
+    if workers is None and "mp4" in targets:    # on 2 cores: drawn here, beside the encoder's thread
+        workers = max(1, default_workers() - 1)
+    # Only a GIF and PNG frames need every frame at once (a palette, a folder written whole); an
+    # MP4 takes them as they come and the sheet a dozen, so a clip's frames are not held for those.
+    keep = "gif" in targets or "png" in targets
+    pick, picked, count = np.linspace(0, T - 1, min(12, T)).astype(int), {}, itertools.count()
+    with (encoding_meanwhile(write_mp4, targets["mp4"], out_fps) if "mp4" in targets
+          else nullcontext(None)) as feed:
+        def each(image):        # the frames in order, as they are drawn
+            t = next(count)
+            if t in pick:
+                picked[t] = image
+            if feed is not None:
+                feed(image)
+
+        images = render_frames(renderer, V, orders, offset, BACKGROUND, sz, workers=workers, progress=rendered,
+                               each=each, keep=keep)
+        # ---- encode (the MP4's last frames; it was encoded as they were drawn)
+        ph.start("encode", "writing " + ", ".join(sorted(targets)))
     if "mp4" in targets:
-        files["mp4"] = write_mp4(targets["mp4"], images, out_fps)
+        files["mp4"] = Path(targets["mp4"])
     if "gif" in targets:
         files["gif"] = write_gif(targets["gif"], images, out_fps)
     if "png" in targets:
@@ -298,17 +373,16 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
     if "sheet" in targets:
         import cv2
 
-        pick = np.linspace(0, len(images) - 1, min(12, len(images))).astype(int)
-        sheet = contact_sheet(images[pick], columns=6, scale=0.5 if sz[0] > 200 else 1.0,
+        sheet = contact_sheet([picked[t] for t in pick], columns=6, scale=0.5 if sz[0] > 200 else 1.0,
                               labels=[f"t={k}" for k in pick])
         with atomic_path(targets["sheet"]) as tmp:
             if not cv2.imwrite(str(tmp), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR)):
                 raise OSError(f"could not write {targets['sheet']}")
         files["sheet"] = Path(targets["sheet"])
     if keypoints is not None:       # last, beside finished videos: a failed encode leaves no table
-        write_keypoints(keypoints, kp[:len(images)], mo.name, style)
+        write_keypoints(keypoints, kp[:T], mo.name, style)
     ph.stop()
     seconds, cpu = dict(ph.seconds), dict(ph.cpu_seconds)
     seconds["total"], cpu["total"] = time.perf_counter() - t0, time.process_time() - c0
-    return AnimateResult(files=files, seconds=seconds, cpu_seconds=cpu, frames=len(images), fps=out_fps, view=mo.view,
+    return AnimateResult(files=files, seconds=seconds, cpu_seconds=cpu, frames=T, fps=out_fps, view=mo.view,
                          style=style, character=ch.name, motion=mo.name, notes=list(ch.notes) + mo.notes)

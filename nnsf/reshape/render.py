@@ -24,8 +24,6 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from nnsf.reshape.mesh import Mesh
-
 #: Transparent columns between the drawing and the underlay in the texture atlas, pixels.
 ATLAS_GAP = 8
 #: How far outside its triangle's rest box a pixel's texel may lie, pixels: the rasteriser gives a
@@ -59,7 +57,7 @@ class Renderer:
     underlay : ``(H, W, 4)`` uint8, the texture of the underlay triangles (None: the drawing).
     """
 
-    def __init__(self, mesh: Mesh, texture: np.ndarray, mask: np.ndarray, size, underlay=None):
+    def __init__(self, mesh, texture: np.ndarray, mask: np.ndarray, size, underlay=None):
         self.size = (int(size[0]), int(size[1]))
         self.triangles = np.asarray(mesh.triangles, dtype=np.int64)
         H, W = np.asarray(mask).shape

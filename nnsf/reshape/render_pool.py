@@ -8,23 +8,20 @@ process of a ``spawn`` pool straight into one shared-memory image array:
 
 * spawn, not fork: the calling process may hold threads (OpenCV's pool,
   Prefect's and MLflow's workers) whose locks a forked child would inherit;
-* the workers start without the caller's main script: a spawn child
-  otherwise re-imports it, and a script that calls ``animate_files`` at top
-  level (no ``if __name__ == "__main__"``) would run again in each worker.
-  The workers need only this module, which they import by name;
-* the renderer is pickled once per worker (its textures, ~25 MB for a
-  700 px drawing) and the frames cross no pipe: the workers write them into
-  one memory-mapped file (in ``/dev/shm`` where there is one, so in memory),
-  whose name is removed once they are done; the array returned maps it.
-  An interrupted render (Ctrl-C, SIGTERM under ``nnsf``) cancels the chunks
-  not yet started and removes the file (an interrupt waits while the
-  workers start, and the workers ignore Ctrl-C: no worker prints a traceback);
-  the workers of a caller killed outright end with it; a file left by a process that was
-  killed outright (its name holds the pid) is removed by the next pooled
-  render (:func:`remove_stale`).
+* the workers start without the caller's main script: a spawn child otherwise re-imports it, and
+  a script that calls ``animate_files`` at top level (no ``if __name__ == "__main__"``) would run
+  again in each worker.  The workers need only this module and the renderer's, imported by name;
+* the renderer is pickled once per worker (its texture atlas, ~4 MB for a 700 px drawing) and
+  the frames cross no pipe: the workers write them into one memory-mapped file (in ``/dev/shm``
+  where there is one, so in memory), whose name is removed once they are done; the array
+  returned maps it.  An interrupted render (Ctrl-C, SIGTERM under ``nnsf``) cancels the chunks
+  not yet started and removes the file (an interrupt waits while the workers start, and the
+  workers ignore Ctrl-C: no worker prints a traceback); the workers of a caller killed outright
+  end with it; a file left by a process that was killed outright (its name holds the pid) is
+  removed by the next pooled render (:func:`remove_stale`).
 
-Starting a spawn worker costs about a second (imports), so short clips are
-drawn in the calling process (:data:`MIN_FRAMES_PER_WORKER`).
+A spawn worker starts in a few tenths of a second (the interpreter, numpy and OpenCV: the renderer's
+module imports no SciPy), so short clips are drawn in the calling process (:data:`MIN_FRAMES_PER_WORKER`).
 """
 from __future__ import annotations
 
@@ -36,7 +33,7 @@ import tempfile
 import threading
 import types
 from contextlib import contextmanager
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context, parent_process
 
 import numpy as np
@@ -106,14 +103,11 @@ def _stops_held():
             signal.raise_signal(noted[0])  # now handled as it would have been
 
 
-def _draw(path: str, shape: tuple, start: int, frames: np.ndarray, orders: list, offset, background) -> int:
-    """Draw ``frames`` ``(k, n, 2)`` into rows ``start:start + k`` of the mapped file; returns k."""
+def _draw(path: str, shape: tuple, start: int, frames: np.ndarray, orders: list, offset, background) -> None:
+    """Draw ``frames`` ``(k, n, 2)`` into rows ``start:start + k`` of the mapped file."""
     out = np.memmap(path, np.uint8, mode="r+", shape=shape)
     for i, (v, order) in enumerate(zip(frames, orders)):
         out[start + i] = _RENDERER.render(v + offset, order, background=background)
-    out.flush()
-    del out
-    return len(frames)
 
 
 @contextmanager
@@ -177,24 +171,29 @@ def remove_stale(folder: str | None) -> list[str]:
 
 
 def render_frames(renderer, frames: np.ndarray, orders, offset, background, size,
-                  workers: int | None = None, progress=None) -> np.ndarray:
+                  workers: int | None = None, progress=None, each=None, keep=True) -> np.ndarray | None:
     """RGB frames ``(T, H, W, 3)`` uint8 of a deformed mesh, ``frames`` ``(T, n, 2)`` px.
 
     ``orders``: per frame, the part order :meth:`~nnsf.reshape.render.Renderer.render` takes;
-    ``offset`` ``(2,)`` is added to every vertex; ``size`` ``(H, W)``;
-    ``background`` an RGB triple.  ``workers``: processes (default
-    :func:`default_workers`; 1 draws in this process, as does a clip shorter
-    than :data:`MIN_FRAMES_PER_WORKER` frames per worker).  ``progress(done,
-    total)`` is called after each chunk (each frame, when serial).
+    ``offset`` ``(2,)`` is added to every vertex; ``size`` ``(H, W)``; ``background`` an RGB triple.
+    ``workers``: processes (default :func:`default_workers`; 1 draws in this process, as does a clip
+    shorter than :data:`MIN_FRAMES_PER_WORKER` frames per worker).  ``progress(done, total)`` is
+    called after each chunk (each frame, when serial), ``each(image)`` with every frame in order
+    once it is drawn (an encoder takes it while the rest are drawn).  ``keep=False``: None is
+    returned, the frames go to ``each`` only, and a serial render holds no more than a frame.
     """
     T = len(frames)
     H, W = int(size[0]), int(size[1])
     workers = default_workers() if workers is None else max(1, int(workers))
     workers = min(workers, max(1, T // MIN_FRAMES_PER_WORKER))
     if workers == 1:
-        images = np.empty((T, H, W, 3), np.uint8)
+        images = np.empty((T, H, W, 3), np.uint8) if keep else None
         for t in range(T):
-            images[t] = renderer.render(frames[t] + offset, orders[t], background=background)
+            image = renderer.render(frames[t] + offset, orders[t], background=background)
+            if keep:
+                images[t] = image
+            if each is not None:
+                each(image)
             if progress is not None:
                 progress(t + 1, T)
         return images
@@ -205,20 +204,22 @@ def render_frames(renderer, frames: np.ndarray, orders, offset, background, size
     os.close(fd)
     try:
         images = np.memmap(path, np.uint8, mode="w+", shape=shape)
-        # Chunks of ~T / (4 · workers) frames: even load, progress now and then.
-        bounds = np.linspace(0, T, 4 * workers + 1).round().astype(int)
-        done = 0
+        # Chunks of ~T / (4 · workers) frames: even load, progress now and then.  The workers take
+        # them in order, so waiting for them in order hands ``each`` the frames with little delay.
+        bounds = np.linspace(0, T, 4 * workers + 1).round().astype(int).tolist()
         with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_init,
                                  initargs=(renderer,)) as pool:
             try:
                 with _main_hidden(), _stops_held():  # the workers start at the first submits
-                    jobs = [pool.submit(_draw, path, shape, int(a), np.asarray(frames[a:b]),
+                    jobs = [pool.submit(_draw, path, shape, a, np.asarray(frames[a:b]),
                                         list(orders[a:b]), offset, background)
-                            for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
-                for job in as_completed(jobs):
-                    done += job.result()
+                            for a, b in zip(bounds, bounds[1:])]
+                for job, a, b in zip(jobs, bounds, bounds[1:]):
+                    job.result()
                     if progress is not None:
-                        progress(done, T)
+                        progress(b, T)
+                    for img in images[a:b] if each is not None else ():
+                        each(img)
             except BaseException:
                 # Interrupted or failed: the chunks not started are dropped (leaving the block
                 # would otherwise wait for every one of them to be drawn).
@@ -226,4 +227,4 @@ def render_frames(renderer, frames: np.ndarray, orders, offset, background, size
                 raise
     finally:
         os.unlink(path)  # the mapping stays valid; the file goes when the array does
-    return images
+    return images if keep else None

@@ -15,6 +15,7 @@ write error.
 from __future__ import annotations
 
 import errno
+import itertools
 import re
 from fractions import Fraction
 from pathlib import Path
@@ -23,9 +24,6 @@ import cv2
 import numpy as np
 
 from nnsf.io import atomic_dir, atomic_path, check_replaceable, encode_image, write_bytes
-
-def _bgr(img: np.ndarray) -> np.ndarray:
-    return cv2.cvtColor(img, cv2.COLOR_RGBA2BGRA if img.shape[2] == 4 else cv2.COLOR_RGB2BGR)
 
 
 def check_frames_folder(folder, prefix: str = "frame", field: str = "folder") -> Path:
@@ -41,8 +39,9 @@ def write_png_frames(folder, images, prefix: str = "frame") -> list[Path]:
     names = [f"{prefix}_{t:04d}.png" for t in range(len(images))]
     check_frames_folder(folder, prefix)
     with atomic_dir(folder) as tmp:
-        for name, img in zip(names, images):
-            write_bytes(tmp / name, encode_image(_bgr(np.asarray(img)), ".png"))
+        for name, img in zip(names, map(np.asarray, images)):
+            bgr = cv2.cvtColor(img, cv2.COLOR_RGBA2BGRA if img.shape[2] == 4 else cv2.COLOR_RGB2BGR)
+            write_bytes(tmp / name, encode_image(bgr, ".png"))
     return [folder / n for n in names]
 
 
@@ -183,18 +182,20 @@ MP4_OPTIONS = {"crf": str(MP4_CRF), **({"x264-params": "asm=AVX2"} if cv2.checkH
 def write_mp4(path, images, fps: float) -> Path:
     """Write RGB(A) images ``(T, H, W, 3|4)`` as an H.264 MP4 at ``fps``, whole or not at all.
 
-    Odd sizes are padded by one white pixel (4:2:0 chroma needs even
-    dimensions); RGBA is composited over white.  The file is written under a
-    temporary name, decoded back, and renamed only when it holds ``T`` frames
-    of the padded size.  Raises :class:`~nnsf.io.WriteError` naming ``path``
-    on any write error (nothing is left behind).
+    ``images``: an array, or any iterable of frames (each is encoded as it comes).  Odd sizes are
+    padded by one white pixel (4:2:0 chroma needs even dimensions); RGBA is composited over
+    white.  The file is written under a temporary name, decoded back, and renamed only when it
+    holds the ``T`` frames given, at the padded size.  Raises :class:`~nnsf.io.WriteError` naming
+    ``path`` on any write error (nothing is left behind).
     """
     import av
 
     path = Path(path)
     if not (fps > 0 and np.isfinite(fps)):
         raise ValueError(f"fps must be > 0, got {fps!r}")
-    H, W = np.asarray(images[0]).shape[:2]
+    images = iter(images)
+    first = np.asarray(next(images))
+    H, W = first.shape[:2]
     He, We = H + H % 2, W + W % 2
     rate = Fraction(float(fps)).limit_denominator(1001)        # exact, as FFmpeg wants: 29.97 -> 30000/1001
     with atomic_path(path) as tmp:
@@ -203,14 +204,14 @@ def write_mp4(path, images, fps: float) -> Path:
             stream.width, stream.height, stream.pix_fmt = We, He, MP4_PIX_FMT
             stream.codec_context.thread_type, stream.codec_context.thread_count = "FRAME", MP4_THREADS
             frame = np.full((He, We, 3), 255, np.uint8)
-            for img in images:
+            for T, img in enumerate(itertools.chain([first], images), 1):
                 frame[:H, :W] = _over_white(img)
                 container.mux(stream.encode(av.VideoFrame.from_ndarray(frame, format="rgb24")))
             container.mux(stream.encode())                     # flush the frames x264 holds back
         n, size = _mp4_frames(tmp)
-        if (n, size) != (len(images), (We, He)):
+        if (n, size) != (T, (We, He)):
             raise OSError(errno.EIO, f"decoded back {n} frames of {size[0]}x{size[1]} px, "
-                          f"expected {len(images)} of {We}x{He}")
+                          f"expected {T} of {We}x{He}")
     return path
 
 
