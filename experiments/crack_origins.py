@@ -32,7 +32,7 @@ the far page) counts crack pixels whose texel lies more than 1 px outside its ow
 rest (the renderer keeps it within the triangle's rest box grown by a pixel): a thin or folded
 triangle's map stretched over the pixels the rasteriser gives it along its edges.
 
-    python -m experiments.crack_origins --data /work/shared/data /work/extra-drawings --out reports
+    python -m experiments.crack_origins --data /work/shared/data /work/extra-drawings /work/extra-drawings-tuning --out reports
 
 Answer (``reports/reshape_crack_origins.{csv,json}``, every frame, 5.1 min): the crack counts are
 the measure's own (per drawing × motion, equal to ``reshape_eval_frames.csv``).  Of the 6,353
