@@ -147,8 +147,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--fps", type=float, default=None, help="frames per second (default: the motion's)")
     p.add_argument("--vertices", type=int, default=800, help="mesh vertices (100..6000)")
     p.add_argument("--workers", type=int, default=None,
-                   help="processes that render the frames (default: the CPUs available, at most 8, "
-                        "less one for the MP4 encoder)")
+                   help="processes that render the frames (default: the CPUs available, at most 8)")
     p.add_argument("--joint-map", type=Path, default=None, metavar="FILE.yaml",
                    help="which joints of a BVH motion make the 17 key points (docs/formats.md §3.3)")
     p.add_argument("--keypoints", type=Path, default=None, metavar="FILE.csv",

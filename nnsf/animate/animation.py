@@ -42,7 +42,7 @@ from nnsf.reshape.drive import seen_from_side
 from nnsf.skeleton.layout import BONE_NAMES, bone_lengths
 from nnsf.params import ARM_CHOICES, HEAD_CHOICES
 from nnsf.reshape.drive import read_motion
-from nnsf.reshape.render_pool import default_workers, render_frames
+from nnsf.reshape.render_pool import render_frames
 from nnsf.reshape.video import contact_sheet, write_gif, write_mp4, write_png_frames
 from nnsf.reshape.stage import extra_arms_notes
 
@@ -245,8 +245,7 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
     mask : ``"auto"``: a PNG without alpha gets its mask from the border colour.
     max_size : megapixels a larger drawing is downscaled to (``--max-size``).
     fps : output frame rate (default: the motion's).
-    workers : processes that render the frames (default: the CPUs this process may use, at most 8,
-        less one when an MP4 is encoded meanwhile, its encoder taking about a core;
+    workers : processes that render the frames (default: the CPUs this process may use, at most 8;
         :func:`nnsf.reshape.render_pool.render_frames`); the frames are the same for any number.
     joint_map : the skeleton family of a BVH motion (:func:`nnsf.datasets.joint_map.read_joint_map`).
     keypoints : a CSV path: the key points that drive the drawing (styled, retargeted; the
@@ -344,8 +343,6 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
             _say(progress, f"animate: rendered frame {done}/{total}")
 
     files, T = {}, len(V)
-    if workers is None and "mp4" in targets:    # on 2 cores: drawn here, beside the encoder's thread
-        workers = max(1, default_workers() - 1)
     # Only a GIF and PNG frames need every frame at once (a palette, a folder written whole); an
     # MP4 takes them as they come and the sheet a dozen, so a clip's frames are not held for those.
     keep = "gif" in targets or "png" in targets
