@@ -149,6 +149,17 @@ def copy_project(dest: Path) -> Path:
     return dest
 
 
+
+def moving_box_frames(T: int = 24, H: int = 61, W: int = 87):
+    """``(T, H, W, 3)`` uint8 frames: a red box moving 3 px a frame across white (a small clip to encode)."""
+    import numpy as np
+
+    imgs = np.full((T, H, W, 3), 255, np.uint8)
+    for t in range(T):
+        imgs[t, 10:50, 3 * t: 3 * t + 12] = (200, 40, 20)
+    return imgs
+
+
 def git(cwd: Path, *args: str) -> str:
     return subprocess.run(["git", "-c", "user.name=nnsf-tests", "-c", "user.email=tests@nnsf",
                            "-c", "init.defaultBranch=main", *args], cwd=cwd, check=True,

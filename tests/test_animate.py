@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 import yaml
 
+from conftest import moving_box_frames
 from nnsf import cli
 from nnsf.animate.animation import encoding_meanwhile
 from nnsf.datasets import contract, synthetic
@@ -377,15 +378,8 @@ def test_frames_rendered_by_two_processes_are_the_frames_of_one(monkeypatch):
 
 # --------------------------------------------------------------------------- the MP4 encoded as drawn
 
-def _video_frames(T=24, H=61, W=87):
-    imgs = np.full((T, H, W, 3), 255, np.uint8)
-    for t in range(T):
-        imgs[t, 10:50, 3 * t: 3 * t + 12] = (200, 40, 20)
-    return imgs
-
-
 def test_frames_fed_one_by_one_to_the_encoding_thread_make_the_whole_video(tmp_path):
-    imgs = _video_frames()
+    imgs = moving_box_frames()
     with encoding_meanwhile(write_mp4, tmp_path / "a.mp4", 12) as feed:
         for img in imgs:
             feed(img)
@@ -402,7 +396,7 @@ def test_a_write_error_on_the_encoding_thread_is_raised_in_the_drawing_caller(tm
     monkeypatch.setattr(av.container.OutputContainer, "mux", refuse)
     with pytest.raises(WriteError, match=r"a\.mp4: write: expected free space on its disk"):
         with encoding_meanwhile(write_mp4, tmp_path / "a.mp4", 12) as feed:
-            for img in _video_frames():
+            for img in moving_box_frames():
                 feed(img)
     assert list(tmp_path.iterdir()) == []
 
@@ -411,7 +405,7 @@ def test_a_write_error_on_the_encoding_thread_is_raised_in_the_drawing_caller(tm
 def test_a_drawing_that_fails_leaves_no_video(tmp_path, after):
     with pytest.raises(KeyboardInterrupt):
         with encoding_meanwhile(write_mp4, tmp_path / "a.mp4", 12) as feed:
-            for img in _video_frames(after):
+            for img in moving_box_frames(after):
                 feed(img)
             raise KeyboardInterrupt
     assert list(tmp_path.iterdir()) == []
@@ -466,15 +460,15 @@ def _children(pid: int) -> list[int]:
 
 
 def _pooled_render(out: Path, **popen):
-    """A `nnsf animate` process drawing 600 frames on 2 workers, once its pool runs:
-    (the process, its frame files, its worker pids)."""
+    """A `nnsf animate` process drawing 1,800 frames on 2 workers, once its pool runs (seconds of
+    drawing, so a signal lands while the workers draw): (the process, its frame files, its worker pids)."""
     import subprocess
     import sys
     import tempfile
     import time
 
     proc = subprocess.Popen([sys.executable, "-m", "nnsf.cli", "animate", "--character", "pip", "--motion",
-                             "synthetic:max/walk/600", "--out", str(out), "--vertices", "300",
+                             "synthetic:max/walk/1800", "--out", str(out), "--vertices", "300",
                              "--workers", "2"], **popen)
     folders = (Path("/dev/shm"), Path(tempfile.gettempdir()))
     seen, kids = [], []

@@ -16,15 +16,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import moving_box_frames as _frames
 from nnsf.io import WriteError
 from nnsf.reshape.video import read_gif, read_mp4, write_gif, write_mp4
 
 
-def _frames(T=24, H=61, W=87):
-    imgs = np.full((T, H, W, 3), 255, np.uint8)
-    for t in range(T):
-        imgs[t, 10:50, 3 * t: 3 * t + 12] = (200, 40, 20)
-    return imgs
 
 
 def test_mp4_is_h264_yuv420p_at_even_size_and_decodes_back(tmp_path):

@@ -399,8 +399,8 @@ def split_seams(vertices: np.ndarray, triangles: np.ndarray, scores: np.ndarray,
         m01, m20 = M[two, k], M[two, (k + 2) % 3]
         # The quad (m01, c1, c2, m20): with the seam near the lone corner, the diagonal m01-c2 can leave a
         # sliver (which a deformation collapses into a needle); then the other one, if its least angle is larger.
-        A, B = np.stack([m01, c1, c2, m01, c2, m20], 1), np.stack([m01, c1, m20, c1, c2, m20], 1)
-        least = [triangle_angles(np.vstack([vertices, new]), Q.reshape(-1, 3)).min(1).reshape(-1, 2).min(1) for Q in (A, B)]
+        A, B, allv = np.stack([m01, c1, c2, m01, c2, m20], 1), np.stack([m01, c1, m20, c1, c2, m20], 1), np.vstack([vertices, new])
+        least = [triangle_angles(allv, Q.reshape(-1, 3)).min(1).reshape(-1, 2).min(1) for Q in (A, B)]
         Q = np.where(((least[0] >= min_angle) | (least[0] >= least[1]))[:, None], A, B)
         tris += [np.column_stack([c0, m01, m20]), Q[:, :3], Q[:, 3:]]
         parts += [lab[c0], lab[c1], lab[c1]]

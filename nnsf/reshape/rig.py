@@ -181,11 +181,11 @@ class Rig:
             part, tip = self.bones[k, 2], b[k] + 2.0 * seed[k] * u[k] * last[k]
             band = cv2.line(np.zeros((H, W), np.uint8), tuple(np.rint(start[k] * 16).astype(int)),
                             tuple(np.rint(tip * 16).astype(int)), 1, max(1, int(2 * seed[k])), cv2.LINE_8, 4)
-            other = (markers > 0) & (chain[np.maximum(markers - 1, 0)] != chain[part])
+            other = (markers > 0) & ((owner := chain[np.maximum(markers - 1, 0)]) != chain[part])
             markers[(band > 0) & other] = 0
             if last[k]:   # a hand on the body is wider than its arm: the body's seeds within two widths
                 cv2.circle(band, tuple(np.rint(b[k] * 16).astype(int)), int(32 * seed[k]), 1, -1, cv2.LINE_8, 4)
-                markers[(band > 0) & other & (chain[np.maximum(markers - 1, 0)] < 0)] = 0
+                markers[(band > 0) & other & (owner < 0)] = 0
         seeds = markers.copy()
         markers[~mask] = self.n_parts + 1
         cv2.watershed(np.ascontiguousarray(texture[..., 2::-1]), markers)
