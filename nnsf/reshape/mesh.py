@@ -589,6 +589,21 @@ def _lying_over(V, T, parts, pairs, candidates, cover, rig):
             hit = sel[(_lookup(covered[u], near) > 0) & ~beside]
             cut_edges[hit] = True
             under[hit] = u
+    # A limb cut from a part along most of their boundary is drawn over it: a layer of its own.
+    # The few edges left joined where it runs out from under the part's outline, and its edges
+    # with other parts it merely touches (a forearm over the chest lying along a thigh), would
+    # drag a fan of those parts after it, so it is cut from every part it shares no joint with.
+    length = np.linalg.norm(V[T[pairs[:, 0], pairs[:, 1]]] - V[T[pairs[:, 0], (pairs[:, 1] + 1) % 3]], axis=1)
+    joined = lambda u, o: u == o or rig.parent[o] == u or rig.parent[u] == o
+    between = lambda u, o: candidates & (((p == u) & (q == o)) | ((p == o) & (q == u)))
+    layered = {o for (u, o) in cover if not joined(u, o)
+               and length[between(u, o) & cut_edges].sum() >= 0.5 * length[between(u, o)].sum() > 0}
+    for o in sorted(layered):
+        for u in range(rig.n_parts):
+            if not joined(u, o):
+                hit = between(u, o) & ~cut_edges
+                cut_edges[hit] = True
+                under[hit] = u
     return cut_edges, under
 
 
