@@ -640,7 +640,7 @@ def _underlays(V, T, parts, pairs, under, cover) -> tuple[np.ndarray, np.ndarray
     for uu, oo in sorted({(int(x), int(y)) for x, y in zip(u, o)}):
         limb = parts == oo
         sel = np.flatnonzero(limb & (np.isin(T, ends[(u == uu) & (o == oo)]).any(axis=1)
-                                     | (_lookup(cover[(uu, oo)].astype(np.uint8), centre) > 0)))
+                                     | (_lookup(cover.get((uu, oo), np.zeros((1, 1), bool)).astype(np.uint8), centre) > 0)))
         tri.append(sel)
         to.append(np.full(len(sel), uu))
     both = np.unique(np.column_stack([np.concatenate(to), np.concatenate(tri)]).astype(np.int64), axis=0)

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy import ndimage
 
 from nnsf.reshape.parts import JOINS, PART_BONES, PARTS
 from nnsf.skeleton import JOINT_INDEX as J, N_JOINTS
@@ -154,6 +155,7 @@ class Rig:
         """
         mask = np.asarray(mask, dtype=bool)
         H, W = mask.shape
+        image = np.ascontiguousarray(texture[..., 2::-1])
         markers = np.zeros((H, W), np.int32)
         a, b = self.keypoints[self.bones[:, 0]], self.keypoints[self.bones[:, 1]]
         # A seed is no thicker than the lines drawn about its bone allow: a limb drawn inside the
@@ -177,20 +179,30 @@ class Rig:
         # A limb drawn over another part (an arm across the chest, a hand on the hip) owns the pixels
         # about its bones beyond its root: other limbs' and the body's seeds there (the spine's line
         # under the arm) are dropped.  Its last bone reaches past its end by two radii (the hand).
+        hand = np.full((H, W), -1, np.int32)
         for k in np.flatnonzero((chain[self.bones[:, 2]] >= 0) & shown):
             part, tip = self.bones[k, 2], b[k] + 2.0 * seed[k] * u[k] * last[k]
             band = cv2.line(np.zeros((H, W), np.uint8), tuple(np.rint(start[k] * 16).astype(int)),
                             tuple(np.rint(tip * 16).astype(int)), 1, max(1, int(2 * seed[k])), cv2.LINE_8, 4)
             other = (markers > 0) & ((owner := chain[np.maximum(markers - 1, 0)]) != chain[part])
             markers[(band > 0) & other] = 0
-            if last[k]:   # a hand on the body is wider than its arm: the body's seeds within two widths
+            # A hand on the body is wider than its arm: the body's seeds within two widths of the
+            # wrist.  And a hand is drawn in any size: the body's seeds ahead of the wrist within four
+            # widths that the arm's flood takes when they are left out (the drawing joins them to the
+            # hand by a weaker edge than to the rest of the body) lie on the hand too.
+            if last[k]:
                 cv2.circle(band, tuple(np.rint(b[k] * 16).astype(int)), int(32 * seed[k]), 1, -1, cv2.LINE_8, 4)
                 markers[(band > 0) & other & (owner < 0)] = 0
+                cv2.ellipse(hand, tuple(np.rint(b[k] * 16).astype(int)), (int(64 * seed[k]),) * 2,
+                            np.degrees(np.arctan2(u[k, 1], u[k, 0])), -90, 90, int(chain[part]), -1, cv2.LINE_8, 4)
+        doubt = (hand >= 0) & (markers > 0) & (chain[np.maximum(markers - 1, 0)] < 0)
+        trial = np.where(doubt | ~mask, np.where(mask, 0, self.n_parts + 1), markers).astype(np.int32)
+        cv2.watershed(image, trial)
+        markers[doubt & (np.append(chain, -1)[np.clip(trial - 1, 0, self.n_parts)] == hand)] = 0
         seeds = markers.copy()
         markers[~mask] = self.n_parts + 1
-        cv2.watershed(np.ascontiguousarray(texture[..., 2::-1]), markers)
-        labels = (markers - 1).astype(np.int16)
-        labels[~mask] = -1
+        cv2.watershed(image, markers)
+        labels = np.where(mask, markers - 1, -1).astype(np.int16)
         # A flood that ran far outside its part's band (through a region no other seed reached) and
         # the watershed's boundary pixels take the band's part.
         near = np.zeros((self.n_parts, H, W), np.uint8)
@@ -202,22 +214,17 @@ class Rig:
             box = np.array([a[k] - back * u[k] + (r + grow) * n, b[k] + grow * u[k] + (r + grow) * n,
                             b[k] + grow * u[k] - (r + grow) * n, a[k] - back * u[k] - (r + grow) * n])
             cv2.fillConvexPoly(near[p], np.rint(box * 16).astype(np.int32), 1, cv2.LINE_8, 4)
-        ok = (labels >= 0) & (labels < self.n_parts)
-        own = np.zeros((H, W), bool)
-        own[ok] = near[labels[ok], np.nonzero(ok)[0], np.nonzero(ok)[1]] > 0
-        bad = mask & ~own
-        if bad.any():
-            ys, xs = np.nonzero(bad)
-            labels[ys, xs] = np.argmin(self.band_scores(np.column_stack([xs, ys])), axis=1)
+            near[p] |= (hand == chain[p]) & last[k]   # and its hand
+        own = np.take_along_axis(near, np.clip(labels, 0, self.n_parts - 1)[None].astype(np.intp), 0)[0] > 0
+        ys, xs = np.nonzero(mask & ~(own & (labels >= 0) & (labels < self.n_parts)))
+        labels[ys, xs] = np.argmin(self.band_scores(np.column_stack([xs, ys])), axis=1)
         # A strip of a part thinner than 5 px more than 2 px from its bones (a stroke of outline the
         # flood ran along) would hang between seams, and a piece of a part cut off from its seeds
         # would move with a limb it does not touch: both are flooded again from the parts around
         # them, through the drawing only (a claw beside a leg stays with its hand).
         disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
-        core = np.zeros((H, W), np.uint8)
-        for i, j, _ in self.bones:
-            cv2.line(core, tuple(np.rint(self.keypoints[i] * 16).astype(int)),
-                     tuple(np.rint(self.keypoints[j] * 16).astype(int)), 1, 5, cv2.LINE_8, 4)
+        core = cv2.polylines(np.zeros((H, W), np.uint8), np.rint(self.keypoints[self.bones[:, :2]] * 16).astype(np.int32),
+                             False, 1, 5, cv2.LINE_8, 4)
         loose = np.zeros((H, W), bool)
         for p in range(self.n_parts):
             region = (labels == p).astype(np.uint8)
@@ -228,19 +235,12 @@ class Rig:
                 loose |= (comp > 0) & ~np.isin(comp, seeded)
         loose &= mask
         if loose.any() and (mask & ~loose).any():
-            flood = np.where(mask & ~loose, labels.astype(np.int32) + 1, 0).astype(np.int32)
-            flood[~mask] = self.n_parts + 1
-            cv2.watershed(np.ascontiguousarray(texture[..., 2::-1]), flood)
-            # The watershed's own boundary pixels take a neighbour's part.
-            for _ in range(4):
-                edge = mask & ((flood <= 0) | (flood > self.n_parts))
-                if not edge.any():
-                    break
-                grown = cv2.dilate(np.where((flood > 0) & (flood <= self.n_parts), flood, 0).astype(np.float32),
-                                   np.ones((3, 3), np.uint8)).astype(np.int32)
-                flood[edge] = grown[edge]
-            fixed = mask & (flood > 0) & (flood <= self.n_parts)
-            labels[fixed] = (flood[fixed] - 1).astype(np.int16)
+            flood = np.where(mask & ~loose, labels + 1, np.where(mask, 0, self.n_parts + 1)).astype(np.int32)
+            cv2.watershed(image, flood)
+            # The watershed's own boundary pixels take the nearest part's.
+            iy, ix = ndimage.distance_transform_edt((flood <= 0) | (flood > self.n_parts), return_distances=False,
+                                                    return_indices=True)
+            labels[mask] = (flood[iy, ix][mask] - 1).astype(np.int16)
         return labels
 
     @property
