@@ -229,9 +229,10 @@ def test_a_hem_through_the_hips_stays_joined_behind_them():
         assert (_shared(m, rig, "torso", leg)[:, 1] < kp[J[leg[0] + "_hip"], 1] - 2 * s).sum() >= 3
 
 
-def _figure(arm_over_body: bool, legs_touch: bool) -> Character:
-    """A body with outlines, its left arm drawn across the chest (or hanging clear of the body), its
-    legs pressed together (or apart), on a transparent page."""
+def _figure(arm_over_body: bool, legs_touch: bool, left=None) -> Character:
+    """A body with outlines, its left arm drawn across the chest (or hanging clear of the body, or
+    along ``left``: shoulder, elbow, wrist), its legs pressed together (or apart), on a transparent
+    page."""
     H, W = 320, 260
     tex = np.zeros((H, W, 4), np.uint8)
     ink, body, arm, leg, head = (30, 30, 30), (200, 120, 60), (60, 160, 90), (70, 90, 200), (240, 200, 170)
@@ -252,7 +253,7 @@ def _figure(arm_over_body: bool, legs_touch: bool) -> Character:
     cv2.circle(tex, (110, 35), 26, (*ink, 255), -1)
     cv2.circle(tex, (110, 35), 24, (*head, 255), -1)
     limb([(58, 68), (36, 126), (28, 180)], arm)                  # right arm, clear of the body
-    left = [(150, 70), (120, 120), (82, 150)] if arm_over_body else [(180, 66), (190, 126), (196, 180)]
+    left = left or ([(150, 70), (120, 120), (82, 150)] if arm_over_body else [(180, 66), (190, 126), (196, 180)])
     limb(left, arm)
     mask = tex[..., 3] > 0
     kp = np.zeros((17, 2))
@@ -316,6 +317,29 @@ def test_an_arm_lying_over_the_body_swung_out_leaves_the_body_whole():
     seen = frames[-1][ys + o[1], xs + o[0], :3].astype(int)
     # (most of it: the arm's ink outline, which the watershed leaves to the body, stays drawn there)
     assert (np.abs(seen - (200, 120, 60)).max(axis=1) < 40).mean() > 0.8
+
+
+def test_a_forearm_running_out_from_under_the_body_outline_drags_no_fan_of_the_body():
+    """The upper arm hangs clear of the body and the forearm comes back across the body's edge to a
+    hand on the chest: cut from the body along most of their boundary, the forearm is a layer of
+    its own and is cut along the rest too.  (The edges at the crossing, where the body is drawn on
+    one side of the arm only, stayed joined, and the forearm swung out dragged a fan of the body
+    after it: 185-1,607 px of the body's colour outside its rectangle.)"""
+    from nnsf.reshape.artefacts import FrameMeasures
+
+    ch = _figure(arm_over_body=False, legs_touch=False, left=[(150, 70), (192, 128), (118, 172)])
+    a, _, _ = _render(ch, [ch.keypoints])
+    assert len(_shared(a.mesh, a.rig, "torso", "l_forearm")) <= 2
+    poses = [_swing(ch.keypoints, [J["l_wrist"]], J["l_elbow"], -d) for d in (60, 120, 160)]
+    _, frames, offset = _render(ch, poses)
+    measure = FrameMeasures(ch.texture, ch.mask, ch.keypoints)
+    o = np.rint(offset).astype(int)
+    for kp, img in zip(poses, frames):
+        got = measure(img, kp + offset)
+        assert got["detached"] == 0 and got["cracks"] == 0, got
+        body = (np.abs(img[..., :3].astype(int) - (200, 120, 60)).max(axis=2) < 40) & (img[..., 3] >= 128)
+        body[o[1] + 56:o[1] + 205, o[0] + 56:o[0] + 165] = False        # the body's rectangle, grown 4 px
+        assert body.sum() < 30, body.sum()
 
 
 def test_two_legs_pressed_together_parted_show_no_crack():

@@ -555,14 +555,16 @@ def _lying_over(V, T, parts, pairs, candidates, cover, rig):
     A cut may open; what shows in the opening must never be the page.  So an edge between a limb
     and another part is cut only when it lies over: the middle of the limb beside it (the nearest
     point of its bones, ``rig`` a :class:`~nnsf.reshape.rig.Rig`; not the joint it shares with
-    that part) lies where limbs cover that part (:func:`_covered`).  The part
-    beneath gets an underlay there (:func:`_underlays`), and however far the limb moves away, the
-    opening shows its colour.  Every other boundary stays joined by shared vertices: parts side by
+    that part) lies where limbs cover that part (:func:`_covered`), or when the limb is so cut
+    from some part along most of their boundary.  The part beneath gets an underlay there
+    (:func:`_underlays`); however far the limb moves away, the opening shows its colour.
+    Every other boundary stays joined by shared vertices: parts side by
     side (two legs pressed together, an arm hanging against the body's side) stretch apart rather
     than open, the head stays on the body, and a continuous map of a joined mesh cannot open a crack.
     """
     p, q = parts[pairs[:, 0]], parts[pairs[:, 2]]
-    mid = 0.5 * (V[T[pairs[:, 0], pairs[:, 1]]] + V[T[pairs[:, 0], (pairs[:, 1] + 1) % 3]])
+    ends = V[np.stack([T[pairs[:, 0], pairs[:, 1]], T[pairs[:, 0], (pairs[:, 1] + 1) % 3]])]
+    mid, length = ends.mean(axis=0), np.linalg.norm(ends[1] - ends[0], axis=1)
     cut_edges = np.zeros(len(pairs), bool)
     under = np.full(len(pairs), -1, dtype=np.int64)
     # Where limbs cover each part.  The limb's middle beside an edge may lie in the next segment of
@@ -572,38 +574,31 @@ def _lying_over(V, T, parts, pairs, candidates, cover, rig):
     for (u, _), f in cover.items():
         covered[u] = covered.get(u, np.zeros(f.shape, np.uint8)) | f.astype(np.uint8)
     covered = {u: cv2.dilate(g, np.ones((5, 5), np.uint8)) for u, g in covered.items()}
-    for (u, o) in sorted(cover):
-        for side_u, side_o in ((p, q), (q, p)):
-            sel = np.flatnonzero(candidates & (side_u == u) & (side_o == o) & ~cut_edges)
-            if not len(sel):
-                continue
-            # Covered at the limb's middle beside the edge (the nearest point of its bones), not
-            # only in the corner where it meets the part: the limb can move away by its width and
-            # still uncover only underlay.  An edge past the joint the limb shares with the part
-            # (behind a thigh's hip, past its knee into the shin) has that joint for its nearest
-            # point, which lies on their boundary, in the corner the closing fills: there the limb
-            # lies beside the part, not over it, and a cut would tear open as the joint bends.
-            near = _nearest_on_bones(rig, o, mid[sel])
-            j = rig.joint[o] if rig.parent[o] == u else rig.joint[u] if rig.parent[u] == o else -1
-            beside = np.abs(near - rig.keypoints[j]).max(axis=1) < 1e-6 if j >= 0 else np.zeros(len(sel), bool)
-            hit = sel[(_lookup(covered[u], near) > 0) & ~beside]
-            cut_edges[hit] = True
-            under[hit] = u
-    # A limb cut from a part along most of their boundary is drawn over it: a layer of its own.
-    # The few edges left joined where it runs out from under the part's outline, and its edges
-    # with other parts it merely touches (a forearm over the chest lying along a thigh), would
-    # drag a fan of those parts after it, so it is cut from every part it shares no joint with.
-    length = np.linalg.norm(V[T[pairs[:, 0], pairs[:, 1]]] - V[T[pairs[:, 0], (pairs[:, 1] + 1) % 3]], axis=1)
     joined = lambda u, o: u == o or rig.parent[o] == u or rig.parent[u] == o
     between = lambda u, o: candidates & (((p == u) & (q == o)) | ((p == o) & (q == u)))
-    layered = {o for (u, o) in cover if not joined(u, o)
-               and length[between(u, o) & cut_edges].sum() >= 0.5 * length[between(u, o)].sum() > 0}
-    for o in sorted(layered):
-        for u in range(rig.n_parts):
-            if not joined(u, o):
-                hit = between(u, o) & ~cut_edges
-                cut_edges[hit] = True
-                under[hit] = u
+    for (u, o) in sorted(cover):
+        sel = np.flatnonzero(between(u, o) & ~cut_edges)
+        if not len(sel):
+            continue
+        # Covered at the limb's middle beside the edge (the nearest point of its bones), not
+        # only in the corner where it meets the part: the limb can move away by its width and
+        # still uncover only underlay.  An edge past the joint the limb shares with the part
+        # (behind a thigh's hip, past its knee into the shin) has that joint for its nearest
+        # point, which lies on their boundary, in the corner the closing fills: there the limb
+        # lies beside the part, not over it, and a cut would tear open as the joint bends.
+        near = _nearest_on_bones(rig, o, mid[sel])
+        j = rig.joint[o] if rig.parent[o] == u else rig.joint[u] if rig.parent[u] == o else -1
+        beside = np.abs(near - rig.keypoints[j]).max(axis=1) < 1e-6 if j >= 0 else np.zeros(len(sel), bool)
+        hit = sel[(_lookup(covered[u], near) > 0) & ~beside]
+        cut_edges[hit], under[hit] = True, u
+    # A limb cut from a part along most of their boundary lies over it, a layer of its own: it is cut
+    # from every part it shares no joint with.  The edges left joined where it runs out from under
+    # the part's outline, or along a part it only touches, dragged a fan of that part after it.
+    for o in sorted({o for u, o in cover if not joined(u, o)
+                        and length[between(u, o) & cut_edges].sum() >= 0.5 * length[between(u, o)].sum() > 0}):
+        for u in (u for u in range(rig.n_parts) if not joined(u, o)):
+            under[between(u, o) & ~cut_edges] = u
+            cut_edges |= between(u, o)
     return cut_edges, under
 
 
@@ -639,8 +634,8 @@ def _underlays(V, T, parts, pairs, under, cover) -> tuple[np.ndarray, np.ndarray
     tri, to = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
     for uu, oo in sorted({(int(x), int(y)) for x, y in zip(u, o)}):
         limb = parts == oo
-        sel = np.flatnonzero(limb & (np.isin(T, ends[(u == uu) & (o == oo)]).any(axis=1)
-                                     | (_lookup(cover[(uu, oo)].astype(np.uint8), centre) > 0)))
+        over = _lookup(cover[(uu, oo)].astype(np.uint8), centre) > 0 if (uu, oo) in cover else False
+        sel = np.flatnonzero(limb & (np.isin(T, ends[(u == uu) & (o == oo)]).any(axis=1) | over))
         tri.append(sel)
         to.append(np.full(len(sel), uu))
     both = np.unique(np.column_stack([np.concatenate(to), np.concatenate(tri)]).astype(np.int64), axis=0)
