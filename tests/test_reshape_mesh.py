@@ -394,10 +394,10 @@ def test_a_forearm_drawn_round_its_elbow_ends_at_the_elbow():
         assert along.min() > -5.0, part          # the re-flood of thin strips may cross by a few pixels
 
 
-def _fist_on_the_body(fist: int = 12) -> tuple[Character, np.ndarray]:
-    """A body with outlines, its left forearm drawn down across it to a fist wider than the arm, the
-    fist ringed by its own outline and drawn where the body's spine runs under it; and the fist's
-    inside ``(H, W)`` bool."""
+def _fist_on_the_body(fist: int = 12, elbow=(150, 130)) -> tuple[Character, np.ndarray]:
+    """A body with outlines, its left forearm drawn down across it from ``elbow`` to a fist wider than
+    the arm, the fist ringed by its own outline and drawn where the body's spine runs under it; and
+    the fist's inside ``(H, W)`` bool."""
     H, W = 320, 260
     tex = np.zeros((H, W, 4), np.uint8)
     ink, skin = (30, 30, 30, 255), (250, 210, 60, 255)
@@ -407,7 +407,7 @@ def _fist_on_the_body(fist: int = 12) -> tuple[Character, np.ndarray]:
         cv2.rectangle(tex, (x0 + 2, y0 + 2), (x1 - 2, y1 - 2), (*colour, 255), -1)
     cv2.circle(tex, (110, 35), 26, ink, -1)
     cv2.circle(tex, (110, 35), 24, (240, 200, 170, 255), -1)
-    right, left = [(58, 68), (36, 126), (28, 180)], [(160, 70), (150, 130), (110, 160)]
+    right, left = [(58, 68), (36, 126), (28, 180)], [(160, 70), elbow, (110, 160)]
     for arm in (right, left):
         cv2.polylines(tex, [np.array(arm, np.int32)], False, ink, 20)
         cv2.polylines(tex, [np.array(arm, np.int32)], False, (60, 160, 90, 255), 16)
@@ -448,6 +448,24 @@ def test_a_fist_drawn_on_the_body_leaves_with_its_forearm(fist):
         y, x = np.mgrid[:img.shape[0], :img.shape[1]]
         there = np.hypot(x - kp[J["l_wrist"], 0] - offset[0], y - kp[J["l_wrist"], 1] - offset[1]) < fist - 3
         assert (np.abs(img[there][:, :3].astype(int) - skin).max(axis=1) < 40).mean() > 0.9
+
+
+@pytest.mark.parametrize("elbow", [(184, 150), (180, 140)])
+def test_a_forearm_folded_back_over_the_body_shares_no_vertex_with_it(elbow):
+    """The upper arm hangs beside the body (joined), the forearm folds back from an elbow past the
+    body's side across it to a fist: the cut between forearm and body ends where the upper arm meets
+    both.  There the forearm's edges with the upper arm are cut too, so no vertex joins forearm and
+    body, and the forearm swung about its elbow leaves the body where it is.  (Joined at that one
+    vertex, the body and its underlay were dragged 14 px after the forearm, a wedge out to it.)"""
+    ch, _ = _fist_on_the_body(10, elbow)
+    a, _, _ = _render(ch, [ch.keypoints])
+    m = a.mesh
+    on = [np.unique(m.triangles[(m.layer == 0) & (m.parts == PART_INDEX[p])]) for p in ("l_forearm", "torso")]
+    assert len(np.intersect1d(*on)) == 0
+    body = np.unique(m.triangles[m.parts == PART_INDEX["torso"]])
+    poses = [_swing(ch.keypoints, [J["l_wrist"]], J["l_elbow"], d) for d in (-60, -120)]
+    for V in a.deformer.run(np.asarray(poses)):
+        assert np.linalg.norm(V[body] - m.vertices[body], axis=1).max() < 10.0
 
 
 TUNING = Path(__file__).resolve().parents[2] / "extra-drawings-tuning"

@@ -257,12 +257,10 @@ def _triangulate_at(m8: np.ndarray, drawn: np.ndarray, h: float, min_angle: floa
         # A sliver's widest corner sits nearly on the opposite edge: removing it removes the sliver.
         # An outline point may go too: the outline lies GROW px outside the drawing, and a drawn
         # pixel left uncovered gets a point of its own below.
-        corner = tri[bad, np.argmax(ang[bad], axis=1)]
-        drop = np.zeros(len(points), dtype=bool)
-        drop[corner] = True
-        if not drop.any():
+        if not len(bad):
             break
-        points, fixed = points[~drop], fixed[~drop]
+        keep = ~np.isin(np.arange(len(points)), tri[bad, np.argmax(ang[bad], axis=1)])
+        points, fixed = points[keep], fixed[keep]
     tri = _delaunay_inside(points, m8, loose)
     for _ in range(3):
         # Where the outline's edges are not Delaunay edges a triangle across them may be dropped and
@@ -459,6 +457,18 @@ def build_mesh(character, rig, n_vertices: int = 800) -> Mesh:
     cover, radius = _covered(V, T, parts, shape)
     candidates = rig.cuts(0.5 * (V[a] + V[b]), parts[pairs[:, 0]], parts[pairs[:, 2]], radius)
     cut_edges, under = _lying_over(V, T, parts, pairs, candidates, cover, rig)
+    # A cut ending inside the mesh where a third part meets both sides leaves limb and part beneath
+    # one vertex there, which drags the part after the limb (a forearm folded back along its upper
+    # arm over the body): the limb's edges with that part are cut too, or where a joint keeps them, the part's.
+    p, q = parts[pairs[:, 0]], parts[pairs[:, 2]]
+    t1, k1, t2, k2 = pairs.T
+    for side in (0, 1):
+        T2, _ = cut(T, cut_edges, pairs)
+        c = np.flatnonzero(cut_edges & (under >= 0))
+        pinned = np.r_[T2[t1[c], k1[c]] == T2[t2[c], (k2[c] + 1) % 3], T2[t1[c], (k1[c] + 1) % 3] == T2[t2[c], k2[c]]]
+        two = np.tile(np.column_stack([np.where(p[c] == under[c], q[c], p[c]), under[c]]), (2, 1))[pinned]
+        for v, o, u in set(zip(np.r_[a[c], b[c]][pinned], two[:, side], two[:, 1 - side])):
+            cut_edges |= candidates & ((a == v) | (b == v)) & ((p == o) != (q == o)) & (p != u) & (q != u)
     for _ in range(50):
         T2, origin = cut(T, cut_edges, pairs)
         comp = _components(T2)
@@ -470,13 +480,10 @@ def build_mesh(character, rig, n_vertices: int = 800) -> Mesh:
     copied, owner = _underlays(V, T, parts, pairs, under, cover)
     lookup = np.full((rig.n_parts, len(V)), -1, dtype=np.int64)
     lookup[np.repeat(parts, 3), origin[T2.ravel()]] = T2.ravel()
-    extra = []
-    for p in np.unique(owner):
-        for v in np.unique(T[copied[owner == p]]):
-            if lookup[p, v] < 0:
-                lookup[p, v] = len(origin) + len(extra)
-                extra.append(v)
-    origin = np.concatenate([origin, np.asarray(extra, dtype=np.int64)])
+    extra = np.unique(np.column_stack([np.repeat(owner, 3), T[copied].ravel()]), axis=0).reshape(-1, 2)
+    extra = extra[lookup[extra[:, 0], extra[:, 1]] < 0]       # an underlay's own vertices, new copies
+    lookup[extra[:, 0], extra[:, 1]] = len(origin) + np.arange(len(extra))
+    origin = np.concatenate([origin, extra[:, 1]])
     tris = np.vstack([T2, lookup[owner[:, None], T[copied]]])
     layer = np.concatenate([np.zeros(len(T2), np.int64), np.ones(len(copied), np.int64)])
     all_parts = np.concatenate([parts, owner])
