@@ -274,3 +274,36 @@ def test_char1_arm_raise():
     V = a.deformer.run(clip)
     g = a.deformer.targets(clip)
     assert np.abs(a.deformer.handles.positions(V) - g)[:, :17].max() < 2.0   # key points met within 2 px
+
+
+def test_an_underlay_rides_with_its_parts_own_vertices_not_the_seam():
+    """A body (x ≤ 20) and a limb (x ≥ 20) of a 10 px grid, joined along x = 20, with an underlay
+    copied from the limb's first column into the body (its own vertices at x = 30).  The seam and
+    the limb dragged 50 px away, the body's own vertices still: the underlay stays with the body.
+    (Riding on the nearest body triangle's affine extension, whose corners on the seam had weights
+    up to 2, it left 100 px with the limb.)  An affine motion of everything moves it affinely."""
+    from nnsf.reshape.deform import underlay_riders
+    from nnsf.reshape.mesh import Mesh
+
+    x, y = np.meshgrid(np.arange(5) * 10.0, np.arange(5) * 10.0)
+    grid = np.column_stack([x.ravel(), y.ravel()])
+    i = np.arange(20).reshape(4, 5)[:, :4].ravel()
+    quads = np.column_stack([i, i + 5, i + 6, i + 1])                          # counter-clockwise, y down
+    tris = np.vstack([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    centre_x = grid[tris].mean(axis=1)[:, 0]
+    limb = centre_x > 20
+    first = limb & (centre_x < 30)
+    copy = tris[first].copy()
+    free = np.unique(copy[grid[copy][..., 0] > 25])
+    new = {v: 25 + k for k, v in enumerate(free)}
+    copy = np.vectorize(lambda v: new.get(v, v))(copy)
+    mesh = Mesh(vertices=np.vstack([grid, grid[free]]), triangles=np.vstack([tris, copy]),
+                parts=np.r_[limb.astype(np.int64) + 2 * limb, np.zeros(first.sum(), np.int64)],
+                layer=np.r_[np.zeros(len(tris), np.int64), np.ones(first.sum(), np.int64)], spacing=10.0)
+    riders, ride = underlay_riders(mesh)
+    assert set(riders.tolist()) == set(new.values())
+    V = mesh.vertices.copy()
+    V[(mesh.vertices[:, 0] >= 20) & (np.arange(len(V)) < 25), 1] += 50.0
+    assert np.abs(ride @ V - mesh.vertices[riders]).max() < 1e-9
+    A, t = np.array([[1.2, 0.3], [-0.2, 0.9]]), np.array([5.0, -3.0])
+    assert np.allclose(ride @ (mesh.vertices @ A.T + t), mesh.vertices[riders] @ A.T + t)

@@ -229,9 +229,10 @@ def test_a_hem_through_the_hips_stays_joined_behind_them():
         assert (_shared(m, rig, "torso", leg)[:, 1] < kp[J[leg[0] + "_hip"], 1] - 2 * s).sum() >= 3
 
 
-def _figure(arm_over_body: bool, legs_touch: bool) -> Character:
-    """A body with outlines, its left arm drawn across the chest (or hanging clear of the body), its
-    legs pressed together (or apart), on a transparent page."""
+def _figure(arm_over_body: bool, legs_touch: bool, left=None) -> Character:
+    """A body with outlines, its left arm drawn across the chest (or hanging clear of the body, or
+    along ``left``: shoulder, elbow, wrist), its legs pressed together (or apart), on a transparent
+    page."""
     H, W = 320, 260
     tex = np.zeros((H, W, 4), np.uint8)
     ink, body, arm, leg, head = (30, 30, 30), (200, 120, 60), (60, 160, 90), (70, 90, 200), (240, 200, 170)
@@ -252,7 +253,7 @@ def _figure(arm_over_body: bool, legs_touch: bool) -> Character:
     cv2.circle(tex, (110, 35), 26, (*ink, 255), -1)
     cv2.circle(tex, (110, 35), 24, (*head, 255), -1)
     limb([(58, 68), (36, 126), (28, 180)], arm)                  # right arm, clear of the body
-    left = [(150, 70), (120, 120), (82, 150)] if arm_over_body else [(180, 66), (190, 126), (196, 180)]
+    left = left or ([(150, 70), (120, 120), (82, 150)] if arm_over_body else [(180, 66), (190, 126), (196, 180)])
     limb(left, arm)
     mask = tex[..., 3] > 0
     kp = np.zeros((17, 2))
@@ -318,6 +319,29 @@ def test_an_arm_lying_over_the_body_swung_out_leaves_the_body_whole():
     assert (np.abs(seen - (200, 120, 60)).max(axis=1) < 40).mean() > 0.8
 
 
+def test_a_forearm_running_out_from_under_the_body_outline_drags_no_fan_of_the_body():
+    """The upper arm hangs clear of the body and the forearm comes back across the body's edge to a
+    hand on the chest: cut from the body along most of their boundary, the forearm is a layer of
+    its own and is cut along the rest too.  (The edges at the crossing, where the body is drawn on
+    one side of the arm only, stayed joined, and the forearm swung out dragged a fan of the body
+    after it: 185-1,607 px of the body's colour outside its rectangle.)"""
+    from nnsf.reshape.artefacts import FrameMeasures
+
+    ch = _figure(arm_over_body=False, legs_touch=False, left=[(150, 70), (192, 128), (118, 172)])
+    a, _, _ = _render(ch, [ch.keypoints])
+    assert len(_shared(a.mesh, a.rig, "torso", "l_forearm")) <= 2
+    poses = [_swing(ch.keypoints, [J["l_wrist"]], J["l_elbow"], -d) for d in (60, 120, 160)]
+    _, frames, offset = _render(ch, poses)
+    measure = FrameMeasures(ch.texture, ch.mask, ch.keypoints)
+    o = np.rint(offset).astype(int)
+    for kp, img in zip(poses, frames):
+        got = measure(img, kp + offset)
+        assert got["detached"] == 0 and got["cracks"] == 0, got
+        body = (np.abs(img[..., :3].astype(int) - (200, 120, 60)).max(axis=2) < 40) & (img[..., 3] >= 128)
+        body[o[1] + 56:o[1] + 205, o[0] + 56:o[0] + 165] = False        # the body's rectangle, grown 4 px
+        assert body.sum() < 30, body.sum()
+
+
 def test_two_legs_pressed_together_parted_show_no_crack():
     """Legs drawn touching share vertices (side by side, never cut): spread apart they stretch,
     and no frame has a crack or a detached piece."""
@@ -370,10 +394,10 @@ def test_a_forearm_drawn_round_its_elbow_ends_at_the_elbow():
         assert along.min() > -5.0, part          # the re-flood of thin strips may cross by a few pixels
 
 
-def _fist_on_the_body(fist: int = 12, ahead: float = 0.0) -> tuple[Character, np.ndarray]:
-    """A body with outlines, its left forearm drawn down across it to a fist wider than the arm, the
-    fist ringed by its own outline and drawn where the body's spine runs under it, its middle
-    ``ahead`` px past the wrist along the forearm; and the fist's inside ``(H, W)`` bool."""
+def _fist_on_the_body(fist: int = 12, elbow=(150, 130), ahead: float = 0.0) -> tuple[Character, np.ndarray]:
+    """A body with outlines, its left forearm drawn down across it from ``elbow`` to a fist wider than
+    the arm, the fist ringed by its own outline and drawn where the body's spine runs under it, its
+    middle ``ahead`` px past the wrist along the forearm; and the fist's inside ``(H, W)`` bool."""
     H, W = 320, 260
     tex = np.zeros((H, W, 4), np.uint8)
     ink, skin = (30, 30, 30, 255), (250, 210, 60, 255)
@@ -383,11 +407,12 @@ def _fist_on_the_body(fist: int = 12, ahead: float = 0.0) -> tuple[Character, np
         cv2.rectangle(tex, (x0 + 2, y0 + 2), (x1 - 2, y1 - 2), (*colour, 255), -1)
     cv2.circle(tex, (110, 35), 26, ink, -1)
     cv2.circle(tex, (110, 35), 24, (240, 200, 170, 255), -1)
-    right, left = [(58, 68), (36, 126), (28, 180)], [(160, 70), (150, 130), (110, 160)]
+    right, left = [(58, 68), (36, 126), (28, 180)], [(160, 70), elbow, (110, 160)]
     for arm in (right, left):
         cv2.polylines(tex, [np.array(arm, np.int32)], False, ink, 20)
         cv2.polylines(tex, [np.array(arm, np.int32)], False, (60, 160, 90, 255), 16)
-    centre = tuple(int(round(c)) for c in np.add(left[2], ahead * np.array([-0.8, 0.6])))
+    u = np.subtract(left[2], elbow) / np.linalg.norm(np.subtract(left[2], elbow))
+    centre = tuple(int(round(c)) for c in np.add(left[2], ahead * u))
     cv2.circle(tex, centre, fist + 2, ink, -1)
     cv2.circle(tex, centre, fist, skin, -1)
     kp = np.zeros((17, 2))
@@ -439,6 +464,24 @@ def test_a_fist_reaching_past_two_arm_widths_on_the_body_is_the_forearms(fist):
     about = cv2.dilate(inside.astype(np.uint8), np.ones((25, 25), np.uint8)) > 0
     shirt = about & (np.abs(ch.texture[..., :3].astype(int) - (200, 120, 60)).max(axis=2) < 10)
     assert shirt.sum() > 100 and (labels[shirt] == PART_INDEX["torso"]).mean() > 0.97
+
+
+@pytest.mark.parametrize("elbow", [(184, 150), (180, 140)])
+def test_a_forearm_folded_back_over_the_body_shares_no_vertex_with_it(elbow):
+    """The upper arm hangs beside the body (joined), the forearm folds back from an elbow past the
+    body's side across it to a fist: the cut between forearm and body ends where the upper arm meets
+    both.  There the forearm's edges with the upper arm are cut too, so no vertex joins forearm and
+    body, and the forearm swung about its elbow leaves the body where it is.  (Joined at that one
+    vertex, the body and its underlay were dragged 14 px after the forearm, a wedge out to it.)"""
+    ch, _ = _fist_on_the_body(10, elbow)
+    a, _, _ = _render(ch, [ch.keypoints])
+    m = a.mesh
+    on = [np.unique(m.triangles[(m.layer == 0) & (m.parts == PART_INDEX[p])]) for p in ("l_forearm", "torso")]
+    assert len(np.intersect1d(*on)) == 0
+    body = np.unique(m.triangles[m.parts == PART_INDEX["torso"]])
+    poses = [_swing(ch.keypoints, [J["l_wrist"]], J["l_elbow"], d) for d in (-60, -120)]
+    for V in a.deformer.run(np.asarray(poses)):
+        assert np.linalg.norm(V[body] - m.vertices[body], axis=1).max() < 10.0
 
 
 TUNING = Path(__file__).resolve().parents[2] / "extra-drawings-tuning"

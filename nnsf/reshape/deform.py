@@ -20,6 +20,8 @@
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
+from scipy.spatial import cKDTree
 
 from nnsf.reshape.arap import Handles, TwoStepARAP, barycentric
 from nnsf.reshape.limbs import N_LIMBS, fit_omega
@@ -29,6 +31,9 @@ from nnsf.skeleton import N_JOINTS
 
 #: Deformation methods: the paper's (key points and subkeys) and the key-points-only baseline.
 METHODS = ("ours", "keypoints")
+#: An underlay's own vertex rides with the affine map fitted to this many of its part's vertices
+#: nearest it: more than a triangle's three, so no one strained triangle carries it.
+RIDE_NEIGHBOURS = 8
 
 
 def keypoint_handles(mesh: Mesh, rig, weight: float) -> Handles:
@@ -49,45 +54,48 @@ def keypoint_handles(mesh: Mesh, rig, weight: float) -> Handles:
             cand = np.flatnonzero(own)
             bary, tri = barycentric(mesh.vertices, mesh.triangles[cand], p[None])
         rows.append((mesh.triangles[cand[tri[0]]], bary[0]))
-    import scipy.sparse as sp
-
     m = sp.csr_matrix((np.concatenate([b for _, b in rows]),
                        (np.repeat(np.arange(len(rows)), 3), np.concatenate([t for t, _ in rows]))),
                       shape=(len(rows), mesh.n_vertices))
     return Handles(m, np.asarray(weights))
 
 
+def part_owner(mesh: Mesh) -> np.ndarray:
+    """The part ``(n,)`` whose drawn (layer 0) triangles alone use each vertex, −1 on none or on two
+    parts' (a seam's vertex moves with both)."""
+    own = mesh.layer == 0
+    count = np.zeros((mesh.n_vertices, int(mesh.parts.max()) + 1), dtype=np.int64)
+    np.add.at(count, (mesh.triangles[own].ravel(), np.repeat(mesh.parts[own], 3)), 1)
+    return np.where((count > 0).sum(axis=1) == 1, count.argmax(axis=1), -1)
+
+
 def underlay_riders(mesh: Mesh):
     """The underlay's own vertices ``(k,)`` (used by no triangle of the drawing) and a sparse
-    ``(k, n)`` map placing each from the vertices of the nearest triangle of its part.
+    ``(k, n)`` map placing each from its part's own vertices nearest it.
 
     An underlay is joined to its part along the cut beside it, which may be short; solved by ARAP
     with the rest, a patch could swing about that seam and show beside its part (over a leg the body
-    hides).  Instead each of its own vertices rides with the part beneath: the affine extension
-    (barycentric coordinates, outside the triangle too) of the part's nearest triangle at rest.
+    hides).  Instead each of its own vertices rides with the part beneath: the least-squares affine
+    map (rest → deformed) of the :data:`RIDE_NEIGHBOURS` vertices nearest it that the part alone
+    uses; one triangle's map would magnify its strain by the rider's distance over its size (a
+    sliver along a seam, one corner on the limb above, carried the patch off as a long wedge).
     """
-    import scipy.sparse as sp
-
-    own = mesh.layer == 0
-    drawn = np.zeros(mesh.n_vertices, bool)
-    drawn[mesh.triangles[own].ravel()] = True
-    rows, cols, vals, riders = [], [], [], []
-    for p in np.unique(mesh.parts[~own]):
-        free = np.setdiff1d(np.unique(mesh.triangles[(~own) & (mesh.parts == p)]), np.flatnonzero(drawn))
-        cand = np.flatnonzero(own & (mesh.parts == p))
-        if not len(free) or not len(cand):
-            continue
-        # The nearest triangle by centroid, then its barycentric coordinates (affine extension).
-        cen = mesh.vertices[mesh.triangles[cand]].mean(axis=1)
-        near = cand[np.argmin(((mesh.vertices[free][:, None] - cen[None]) ** 2).sum(-1), axis=1)]
-        for k, (v, t) in enumerate(zip(free, near)):
-            bary, _ = barycentric(mesh.vertices, mesh.triangles[t][None], mesh.vertices[v][None])
-            rows += [len(riders)] * 3
-            cols += list(mesh.triangles[t])
-            vals += list(bary[0])
-            riders.append(v)
-    ride = sp.csr_matrix((vals, (rows, cols)), shape=(len(riders), mesh.n_vertices))
-    return np.asarray(riders, dtype=np.int64), ride
+    owner, under = part_owner(mesh), mesh.layer == 1
+    riders = np.setdiff1d(mesh.triangles[under], mesh.triangles[~under])
+    part = np.zeros(mesh.n_vertices, np.int64)
+    part[mesh.triangles[under]] = mesh.parts[under, None]
+    near = np.zeros((len(riders), RIDE_NEIGHBOURS), np.int64)
+    for p in np.unique(part[riders]):
+        anchors = np.flatnonzero(owner == p)
+        if len(anchors) < 3:
+            anchors = np.unique(mesh.triangles[~under & (mesh.parts == p)])
+        k = cKDTree(mesh.vertices[anchors]).query(mesh.vertices[riders[part[riders] == p]], RIDE_NEIGHBOURS)[1]
+        near[part[riders] == p] = anchors[np.minimum(k, len(anchors) - 1)]
+    # Weights w (summing to 1) with w @ [x y 1] of the neighbours = the rider's [x y 1] at rest.
+    hom = lambda x: np.concatenate([x, np.ones(x.shape[:-1] + (1,))], axis=-1)
+    w = np.einsum("ri,rik->rk", hom(mesh.vertices[riders]), np.linalg.pinv(hom(mesh.vertices[near])))
+    return riders, sp.csr_matrix((w.ravel(), (np.repeat(np.arange(len(riders)), RIDE_NEIGHBOURS), near.ravel())),
+                                 shape=(len(riders), mesh.n_vertices))
 
 
 class Deformer:
@@ -118,12 +126,8 @@ class Deformer:
         self.subkeys = Subkeys(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 2)))
         if method == "ours" and subkeys_per_limb > 0:
             # A limb's subkeys are vertices of its own triangles that no other part shares.
-            own = mesh.layer == 0
-            count = np.zeros((mesh.n_vertices, rig.n_parts), dtype=np.int64)
-            np.add.at(count, (mesh.triangles[own].ravel(), np.repeat(mesh.parts[own], 3)), 1)
-            only = (count > 0).sum(axis=1) == 1
-            owner = count.argmax(axis=1)
-            candidates = [np.flatnonzero(only & (owner == 2 + i)) for i in range(N_LIMBS)]
+            owner = part_owner(mesh)
+            candidates = [np.flatnonzero(owner == 2 + i) for i in range(N_LIMBS)]
             self.subkeys = init_subkeys(mesh.vertices, kp, self.rest_omega, per_limb=subkeys_per_limb,
                                         candidates=candidates)
             handles = handles + Handles.at_vertices(mesh.n_vertices, self.subkeys.vertex, weight)
@@ -149,8 +153,5 @@ class Deformer:
         if len(kp) == 0:
             return np.zeros((0, self.mesh.n_vertices, 2))
         V = self.arap.deform(self.targets(kp, omega))
-        if len(self.riders):
-            T, n = V.shape[:2]
-            flat = V.transpose(1, 0, 2).reshape(n, 2 * T)
-            V[:, self.riders] = (self.ride @ flat).reshape(len(self.riders), T, 2).transpose(1, 0, 2)
+        V[:, self.riders] = np.stack([self.ride @ v for v in V])
         return V

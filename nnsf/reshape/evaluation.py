@@ -26,6 +26,7 @@ both is rendered and measured by :mod:`nnsf.reshape.artefacts` against the drawi
 """
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 
@@ -146,8 +147,6 @@ def _over_white(rgba: np.ndarray) -> np.ndarray:
 
 def _safe_item(item: dict) -> dict:
     """:func:`evaluate_item`, with bad input turned into an error entry (the other items go on)."""
-    import sys
-
     t0 = time.perf_counter()
     try:
         out = evaluate_item(item)

@@ -33,6 +33,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from nnsf.datasets.synthetic import CHARACTER_NAMES
@@ -319,8 +320,6 @@ def read_json_character(path: Path, max_size: float = C.MAX_SIZE) -> Character:
 def write_character(character: Character, path) -> Path:
     """Write ``character`` as ``path`` (JSON) and two PNGs beside it (``<stem>.texture.png``,
     ``<stem>.mask.png``), each atomically, the JSON last."""
-    import cv2
-
     path = Path(path)
     stem = path.name[: -len(path.suffix)] if path.suffix else path.name
     names = (f"{stem}.texture.png", f"{stem}.mask.png")

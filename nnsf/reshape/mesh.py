@@ -257,12 +257,10 @@ def _triangulate_at(m8: np.ndarray, drawn: np.ndarray, h: float, min_angle: floa
         # A sliver's widest corner sits nearly on the opposite edge: removing it removes the sliver.
         # An outline point may go too: the outline lies GROW px outside the drawing, and a drawn
         # pixel left uncovered gets a point of its own below.
-        corner = tri[bad, np.argmax(ang[bad], axis=1)]
-        drop = np.zeros(len(points), dtype=bool)
-        drop[corner] = True
-        if not drop.any():
+        if not len(bad):
             break
-        points, fixed = points[~drop], fixed[~drop]
+        keep = ~np.isin(np.arange(len(points)), tri[bad, np.argmax(ang[bad], axis=1)])
+        points, fixed = points[keep], fixed[keep]
     tri = _delaunay_inside(points, m8, loose)
     for _ in range(3):
         # Where the outline's edges are not Delaunay edges a triangle across them may be dropped and
@@ -459,6 +457,18 @@ def build_mesh(character, rig, n_vertices: int = 800) -> Mesh:
     cover, radius = _covered(V, T, parts, shape)
     candidates = rig.cuts(0.5 * (V[a] + V[b]), parts[pairs[:, 0]], parts[pairs[:, 2]], radius)
     cut_edges, under = _lying_over(V, T, parts, pairs, candidates, cover, rig)
+    # A cut ending inside the mesh where a third part meets both sides leaves limb and part beneath
+    # one vertex there, which drags the part after the limb (a forearm folded back along its upper
+    # arm over the body): the limb's edges with that part are cut too, or where a joint keeps them, the part's.
+    p, q = parts[pairs[:, 0]], parts[pairs[:, 2]]
+    t1, k1, t2, k2 = pairs.T
+    for side in (0, 1):
+        T2, _ = cut(T, cut_edges, pairs)
+        c = np.flatnonzero(cut_edges & (under >= 0))
+        pinned = np.r_[T2[t1[c], k1[c]] == T2[t2[c], (k2[c] + 1) % 3], T2[t1[c], (k1[c] + 1) % 3] == T2[t2[c], k2[c]]]
+        two = np.tile(np.column_stack([np.where(p[c] == under[c], q[c], p[c]), under[c]]), (2, 1))[pinned]
+        for v, o, u in set(zip(np.r_[a[c], b[c]][pinned], two[:, side], two[:, 1 - side])):
+            cut_edges |= candidates & ((a == v) | (b == v)) & ((p == o) != (q == o)) & (p != u) & (q != u)
     for _ in range(50):
         T2, origin = cut(T, cut_edges, pairs)
         comp = _components(T2)
@@ -470,13 +480,10 @@ def build_mesh(character, rig, n_vertices: int = 800) -> Mesh:
     copied, owner = _underlays(V, T, parts, pairs, under, cover)
     lookup = np.full((rig.n_parts, len(V)), -1, dtype=np.int64)
     lookup[np.repeat(parts, 3), origin[T2.ravel()]] = T2.ravel()
-    extra = []
-    for p in np.unique(owner):
-        for v in np.unique(T[copied[owner == p]]):
-            if lookup[p, v] < 0:
-                lookup[p, v] = len(origin) + len(extra)
-                extra.append(v)
-    origin = np.concatenate([origin, np.asarray(extra, dtype=np.int64)])
+    extra = np.unique(np.column_stack([np.repeat(owner, 3), T[copied].ravel()]), axis=0).reshape(-1, 2)
+    extra = extra[lookup[extra[:, 0], extra[:, 1]] < 0]       # an underlay's own vertices, new copies
+    lookup[extra[:, 0], extra[:, 1]] = len(origin) + np.arange(len(extra))
+    origin = np.concatenate([origin, extra[:, 1]])
     tris = np.vstack([T2, lookup[owner[:, None], T[copied]]])
     layer = np.concatenate([np.zeros(len(T2), np.int64), np.ones(len(copied), np.int64)])
     all_parts = np.concatenate([parts, owner])
@@ -555,14 +562,16 @@ def _lying_over(V, T, parts, pairs, candidates, cover, rig):
     A cut may open; what shows in the opening must never be the page.  So an edge between a limb
     and another part is cut only when it lies over: the middle of the limb beside it (the nearest
     point of its bones, ``rig`` a :class:`~nnsf.reshape.rig.Rig`; not the joint it shares with
-    that part) lies where limbs cover that part (:func:`_covered`).  The part
-    beneath gets an underlay there (:func:`_underlays`), and however far the limb moves away, the
-    opening shows its colour.  Every other boundary stays joined by shared vertices: parts side by
+    that part) lies where limbs cover that part (:func:`_covered`), or when the limb is so cut
+    from some part along most of their boundary.  The part beneath gets an underlay there
+    (:func:`_underlays`); however far the limb moves away, the opening shows its colour.
+    Every other boundary stays joined by shared vertices: parts side by
     side (two legs pressed together, an arm hanging against the body's side) stretch apart rather
     than open, the head stays on the body, and a continuous map of a joined mesh cannot open a crack.
     """
     p, q = parts[pairs[:, 0]], parts[pairs[:, 2]]
-    mid = 0.5 * (V[T[pairs[:, 0], pairs[:, 1]]] + V[T[pairs[:, 0], (pairs[:, 1] + 1) % 3]])
+    ends = V[np.stack([T[pairs[:, 0], pairs[:, 1]], T[pairs[:, 0], (pairs[:, 1] + 1) % 3]])]
+    mid, length = ends.mean(axis=0), np.linalg.norm(ends[1] - ends[0], axis=1)
     cut_edges = np.zeros(len(pairs), bool)
     under = np.full(len(pairs), -1, dtype=np.int64)
     # Where limbs cover each part.  The limb's middle beside an edge may lie in the next segment of
@@ -572,38 +581,31 @@ def _lying_over(V, T, parts, pairs, candidates, cover, rig):
     for (u, _), f in cover.items():
         covered[u] = covered.get(u, np.zeros(f.shape, np.uint8)) | f.astype(np.uint8)
     covered = {u: cv2.dilate(g, np.ones((5, 5), np.uint8)) for u, g in covered.items()}
-    for (u, o) in sorted(cover):
-        for side_u, side_o in ((p, q), (q, p)):
-            sel = np.flatnonzero(candidates & (side_u == u) & (side_o == o) & ~cut_edges)
-            if not len(sel):
-                continue
-            # Covered at the limb's middle beside the edge (the nearest point of its bones), not
-            # only in the corner where it meets the part: the limb can move away by its width and
-            # still uncover only underlay.  An edge past the joint the limb shares with the part
-            # (behind a thigh's hip, past its knee into the shin) has that joint for its nearest
-            # point, which lies on their boundary, in the corner the closing fills: there the limb
-            # lies beside the part, not over it, and a cut would tear open as the joint bends.
-            near = _nearest_on_bones(rig, o, mid[sel])
-            j = rig.joint[o] if rig.parent[o] == u else rig.joint[u] if rig.parent[u] == o else -1
-            beside = np.abs(near - rig.keypoints[j]).max(axis=1) < 1e-6 if j >= 0 else np.zeros(len(sel), bool)
-            hit = sel[(_lookup(covered[u], near) > 0) & ~beside]
-            cut_edges[hit] = True
-            under[hit] = u
-    # A limb cut from a part along most of their boundary is drawn over it: a layer of its own.
-    # The few edges left joined where it runs out from under the part's outline, and its edges
-    # with other parts it merely touches (a forearm over the chest lying along a thigh), would
-    # drag a fan of those parts after it, so it is cut from every part it shares no joint with.
-    length = np.linalg.norm(V[T[pairs[:, 0], pairs[:, 1]]] - V[T[pairs[:, 0], (pairs[:, 1] + 1) % 3]], axis=1)
     joined = lambda u, o: u == o or rig.parent[o] == u or rig.parent[u] == o
     between = lambda u, o: candidates & (((p == u) & (q == o)) | ((p == o) & (q == u)))
-    layered = {o for (u, o) in cover if not joined(u, o)
-               and length[between(u, o) & cut_edges].sum() >= 0.5 * length[between(u, o)].sum() > 0}
-    for o in sorted(layered):
-        for u in range(rig.n_parts):
-            if not joined(u, o):
-                hit = between(u, o) & ~cut_edges
-                cut_edges[hit] = True
-                under[hit] = u
+    for (u, o) in sorted(cover):
+        sel = np.flatnonzero(between(u, o) & ~cut_edges)
+        if not len(sel):
+            continue
+        # Covered at the limb's middle beside the edge (the nearest point of its bones), not
+        # only in the corner where it meets the part: the limb can move away by its width and
+        # still uncover only underlay.  An edge past the joint the limb shares with the part
+        # (behind a thigh's hip, past its knee into the shin) has that joint for its nearest
+        # point, which lies on their boundary, in the corner the closing fills: there the limb
+        # lies beside the part, not over it, and a cut would tear open as the joint bends.
+        near = _nearest_on_bones(rig, o, mid[sel])
+        j = rig.joint[o] if rig.parent[o] == u else rig.joint[u] if rig.parent[u] == o else -1
+        beside = np.abs(near - rig.keypoints[j]).max(axis=1) < 1e-6 if j >= 0 else np.zeros(len(sel), bool)
+        hit = sel[(_lookup(covered[u], near) > 0) & ~beside]
+        cut_edges[hit], under[hit] = True, u
+    # A limb cut from a part along most of their boundary lies over it, a layer of its own: it is cut
+    # from every part it shares no joint with.  The edges left joined where it runs out from under
+    # the part's outline, or along a part it only touches, dragged a fan of that part after it.
+    for o in sorted({o for u, o in cover if not joined(u, o)
+                        and length[between(u, o) & cut_edges].sum() >= 0.5 * length[between(u, o)].sum() > 0}):
+        for u in (u for u in range(rig.n_parts) if not joined(u, o)):
+            under[between(u, o) & ~cut_edges] = u
+            cut_edges |= between(u, o)
     return cut_edges, under
 
 
@@ -639,8 +641,8 @@ def _underlays(V, T, parts, pairs, under, cover) -> tuple[np.ndarray, np.ndarray
     tri, to = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
     for uu, oo in sorted({(int(x), int(y)) for x, y in zip(u, o)}):
         limb = parts == oo
-        sel = np.flatnonzero(limb & (np.isin(T, ends[(u == uu) & (o == oo)]).any(axis=1)
-                                     | (_lookup(cover.get((uu, oo), np.zeros((1, 1), bool)).astype(np.uint8), centre) > 0)))
+        over = _lookup(cover[(uu, oo)].astype(np.uint8), centre) > 0 if (uu, oo) in cover else False
+        sel = np.flatnonzero(limb & (np.isin(T, ends[(u == uu) & (o == oo)]).any(axis=1) | over))
         tri.append(sel)
         to.append(np.full(len(sel), uu))
     both = np.unique(np.column_stack([np.concatenate(to), np.concatenate(tri)]).astype(np.int64), axis=0)

@@ -126,9 +126,7 @@ def deformation_report(mesh, frames, keypoints, rest_keypoints, rest_omega) -> d
     """The §15.7 deformation numbers of a clip ``(T, n, 2)`` as one flat dict."""
     frames = np.asarray(frames, dtype=np.float64)
     rest, tris = mesh.vertices, mesh.triangles
-    s1, s2, _ = singular_values(jacobians(rest, frames, tris))
-    ratio = np.where(s2 > 0, s1 / np.where(s2 > 0, s2, 1.0), np.inf)
-    energy = (triangle_areas(rest, tris) * ((s1 - 1) ** 2 + (s2 - 1) ** 2)).sum(-1)
+    ratio, energy = stretch_ratio(rest, frames, tris), arap_energy(rest, frames, tris)
     bend = deformed_bending(mesh, rest_keypoints, rest_omega, frames, keypoints)
     rest_bend = limb_bending(rest_omega)
     fail = driving_failures(rest, frames, tris, parts=mesh.parts)

@@ -308,10 +308,6 @@ class Rig:
                 out[:, p] = score[:, sel].min(axis=1)
         return out
 
-    def label(self, points: np.ndarray) -> np.ndarray:
-        """Part id ``(k,)`` of points ``(k, 2)``: the lowest :meth:`scores`."""
-        return np.argmin(self.scores(points), axis=1)
-
     def root_distance(self, points: np.ndarray, child: int, radius=None) -> np.ndarray:
         """``(k,)`` how far points ``(k, 2)`` lie from ``child``'s root cross-section, in units of its
         radius: |(x − joint) · u| / r, with u the direction of the child's bone that leaves the joint

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from nnsf.errors import InputError
@@ -86,8 +87,6 @@ def report(animator: Animator, anim: Animation) -> dict:
 
 def write_sheet(path, images, labels, scale: float = 0.5) -> Path:
     """A contact sheet of ``images`` (6 columns) as a PNG, atomically."""
-    import cv2
-
     sheet = contact_sheet(images, columns=6, scale=scale, labels=labels)
     with atomic_path(path) as tmp:
         if not cv2.imwrite(str(tmp), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR)):

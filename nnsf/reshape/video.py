@@ -22,6 +22,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from PIL import Image
 
 from nnsf.io import atomic_dir, atomic_path, check_replaceable, encode_image, write_bytes
 
@@ -72,8 +73,6 @@ def gif_palette(images, colors: int = 256) -> np.ndarray:
     per frame rounds the same colour differently in neighbouring frames (a
     still pixel flickers) and its median cut costs several times the mapping (``benchmarks/bench_gif.py``).
     """
-    from PIL import Image
-
     n = len(images)
     idx = np.unique(np.linspace(0, n - 1, min(n, GIF_PALETTE_FRAMES)).round().astype(int))
     sample = np.concatenate([_over_white(images[i])[::4, ::4] for i in idx], axis=0)
@@ -128,8 +127,6 @@ def write_gif(path, images, fps: float) -> Path:
     name, decoded back (frame count) and renamed; a write error is a
     :class:`~nnsf.io.WriteError` naming ``path``.
     """
-    from PIL import Image
-
     path = Path(path)
     palette = gif_palette(images)
     nearest = _NearestColour(palette)
@@ -154,8 +151,6 @@ def write_gif(path, images, fps: float) -> Path:
 
 def read_gif(path) -> np.ndarray:
     """The frames of a GIF as RGB ``(T, H, W, 3)`` uint8 (Pillow), each as a viewer shows it."""
-    from PIL import Image
-
     out = []
     with Image.open(path) as im:
         for t in range(im.n_frames):
