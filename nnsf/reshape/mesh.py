@@ -326,10 +326,11 @@ def _components(triangles: np.ndarray) -> np.ndarray:
                                 directed=False)[1]
 
 
-def _clean_labels(triangles: np.ndarray, parts: np.ndarray, pairs: np.ndarray, parent=None) -> np.ndarray:
+def _clean_labels(triangles: np.ndarray, parts: np.ndarray, pairs: np.ndarray, parent=None, held=None) -> np.ndarray:
     """Each part one edge-connected region: a smaller island joins the part it borders most, among
     its own part's parent and children when it borders one (``parent`` ``(P,)``): a piece of one leg
-    cut off where the legs were drawn close does not join the other leg and leave with it."""
+    cut off where the legs were drawn close does not join the other leg and leave with it.  An
+    island with a triangle ``held`` ``(t,)`` bool (holding a key point of its part's bones) stays."""
     parts = parts.copy()
     t = len(triangles)
     for _ in range(10):
@@ -340,7 +341,8 @@ def _clean_labels(triangles: np.ndarray, parts: np.ndarray, pairs: np.ndarray, p
         biggest = {}
         for c in np.argsort(-size):
             biggest.setdefault(int(parts[np.flatnonzero(comp == c)[0]]), int(c))
-        islands = [c for c in range(len(size)) if biggest[int(parts[np.flatnonzero(comp == c)[0]])] != c]
+        islands = [c for c in range(len(size)) if biggest[int(parts[np.flatnonzero(comp == c)[0]])] != c
+                   and (held is None or not held[comp == c].any())]
         if not islands:
             break
         for c in islands:
@@ -451,9 +453,13 @@ def build_mesh(character, rig, n_vertices: int = 800) -> Mesh:
     V, T, h = triangulate(character.mask, n_vertices)
     V, T, parts, _ = split_seams(V, T, rig.scores(V), chains=rig.chains())
     pairs = shared_edges(T)
-    parts = _clean_labels(T, parts, pairs, rig.parent)
-    a, b = T[pairs[:, 0], pairs[:, 1]], T[pairs[:, 0], (pairs[:, 1] + 1) % 3]
     shape = np.asarray(character.mask).shape
+    # The triangles holding a key point of their part's bones: a piece of a part holding one (the body
+    # above and below an arm drawn across it) is that part, not an island to hand to a neighbour.
+    on = _lookup(_raster(V, T, shape, np.arange(len(T))), rig.keypoints[rig.bones[:, :2]].reshape(-1, 2))
+    on = on[(on >= 0) & (parts[on] == np.repeat(rig.bones[:, 2], 2))]
+    parts = _clean_labels(T, parts, pairs, rig.parent, np.isin(np.arange(len(T)), on))
+    a, b = T[pairs[:, 0], pairs[:, 1]], T[pairs[:, 0], (pairs[:, 1] + 1) % 3]
     cover, radius = _covered(V, T, parts, shape)
     candidates = rig.cuts(0.5 * (V[a] + V[b]), parts[pairs[:, 0]], parts[pairs[:, 2]], radius)
     cut_edges, under = _lying_over(V, T, parts, pairs, candidates, cover, rig)
@@ -496,8 +502,8 @@ def build_mesh(character, rig, n_vertices: int = 800) -> Mesh:
 
 
 def _raster(V: np.ndarray, T: np.ndarray, shape, values=None) -> np.ndarray:
-    """``(H, W)`` int16: each triangle ``(t, 3)`` filled with its value ``(t,)`` (default 0), −1 elsewhere."""
-    img = np.full(shape, -1, np.int16)
+    """``(H, W)`` int32: each triangle ``(t, 3)`` filled with its value ``(t,)`` (default 0), −1 elsewhere."""
+    img = np.full(shape, -1, np.int32)
     values = np.zeros(len(T), np.int64) if values is None else values
     for tri, v in zip(np.rint(V[T] * 16).astype(np.int32), values.tolist()):
         cv2.fillConvexPoly(img, tri, int(v), cv2.LINE_8, 4)
