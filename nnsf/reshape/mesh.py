@@ -437,19 +437,10 @@ def split_seams(vertices: np.ndarray, triangles: np.ndarray, scores: np.ndarray,
 
 
 def build_mesh(character, rig, n_vertices: int = 800) -> Mesh:
-    """The character's mesh: triangulated, labelled by ``rig``, cut where a limb lies over another
-    part, with underlays beneath every cut.
-
-    * Parts: each vertex's lowest :meth:`~nnsf.reshape.rig.Rig.scores`, the triangles split along the
-      boundaries (:func:`split_seams`), cleaned so each part is one region.
-    * Cuts (:func:`_lying_over`): only where a limb lies over another part in the drawing, and not
-      across a joint (:meth:`~nnsf.reshape.rig.Rig.cuts`); parts side by side stay joined.  A piece
-      the cuts would set apart from the rest stays joined where it touches: the mesh is one
-      connected piece.
-    * Underlays (:func:`_underlays`): beneath every cut, copies of the limb's triangles where it
-      covers the part beneath, put in that part and sharing its vertices where they meet it: when
-      the limb moves, the part beneath is there (textured by :func:`underlay_texture`).
-    """
+    """The character's mesh (docs/method.md §13): triangulated, labelled by ``rig`` (:func:`split_seams`,
+    :func:`_clean_labels`), cut where a limb lies over another part (:func:`_lying_over`, not across a
+    joint: :meth:`~nnsf.reshape.rig.Rig.cuts`) yet one connected piece, with underlays beneath every
+    cut (:func:`_underlays`, textured by :func:`underlay_texture`)."""
     V, T, h = triangulate(character.mask, n_vertices)
     V, T, parts, _ = split_seams(V, T, rig.scores(V), chains=rig.chains())
     pairs = shared_edges(T)
@@ -570,10 +561,9 @@ def _lying_over(V, T, parts, pairs, candidates, cover, rig):
     point of its bones, ``rig`` a :class:`~nnsf.reshape.rig.Rig`; not the joint it shares with
     that part) lies where limbs cover that part (:func:`_covered`), or when the limb is so cut
     from some part along most of their boundary.  The part beneath gets an underlay there
-    (:func:`_underlays`); however far the limb moves away, the opening shows its colour.
-    Every other boundary stays joined by shared vertices: parts side by
-    side (two legs pressed together, an arm hanging against the body's side) stretch apart rather
-    than open, the head stays on the body, and a continuous map of a joined mesh cannot open a crack.
+    (:func:`_underlays`); however far the limb moves away, the opening shows its colour.  Every
+    other boundary stays joined: parts side by side (legs pressed together, an arm hanging at the
+    body's side) stretch apart rather than open, as a continuous map of a joined mesh cannot crack.
     """
     p, q = parts[pairs[:, 0]], parts[pairs[:, 2]]
     ends = V[np.stack([T[pairs[:, 0], pairs[:, 1]], T[pairs[:, 0], (pairs[:, 1] + 1) % 3]])]
@@ -646,9 +636,8 @@ def _underlays(V, T, parts, pairs, under, cover) -> tuple[np.ndarray, np.ndarray
     ends = np.column_stack([T[pairs[cut, 0], pairs[cut, 1]], T[pairs[cut, 0], (pairs[cut, 1] + 1) % 3]])
     tri, to = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
     for uu, oo in sorted({(int(x), int(y)) for x, y in zip(u, o)}):
-        limb = parts == oo
         over = _lookup(cover[(uu, oo)].astype(np.uint8), centre) > 0 if (uu, oo) in cover else False
-        sel = np.flatnonzero(limb & (np.isin(T, ends[(u == uu) & (o == oo)]).any(axis=1) | over))
+        sel = np.flatnonzero((parts == oo) & (np.isin(T, ends[(u == uu) & (o == oo)]).any(axis=1) | over))
         tri.append(sel)
         to.append(np.full(len(sel), uu))
     both = np.unique(np.column_stack([np.concatenate(to), np.concatenate(tri)]).astype(np.int64), axis=0)
