@@ -342,6 +342,51 @@ def test_a_forearm_running_out_from_under_the_body_outline_drags_no_fan_of_the_b
         assert body.sum() < 30, body.sum()
 
 
+def _flat_figure() -> Character:
+    """No outlines, flat colours: a green arm drawn across an orange body, the two of one luminance
+    (grey 122 against 137), the other arm hanging clear."""
+    H, W = 320, 260
+    tex = np.zeros((H, W, 4), np.uint8)
+    cv2.rectangle(tex, (74, 195), (106, 300), (70, 90, 200, 255), -1)
+    cv2.rectangle(tex, (114, 195), (146, 300), (70, 90, 200, 255), -1)
+    cv2.rectangle(tex, (60, 60), (160, 200), (200, 120, 60, 255), -1)
+    cv2.circle(tex, (110, 35), 26, (240, 200, 170, 255), -1)
+    right, left = [(58, 68), (36, 126), (28, 180)], [(150, 70), (120, 120), (82, 150)]
+    for arm in (right, left):
+        cv2.polylines(tex, [np.array(arm, np.int32)], False, (60, 160, 90, 255), 18)
+    kp = np.zeros((17, 2))
+    for name, p in dict(pelvis=(110, 195), r_hip=(90, 198), r_knee=(90, 248), r_ankle=(90, 295), l_hip=(130, 198),
+                        l_knee=(130, 248), l_ankle=(130, 295), spine=(110, 130), thorax=(110, 70), neck=(110, 58),
+                        head_top=(110, 12), r_shoulder=right[0], r_elbow=right[1], r_wrist=right[2],
+                        l_shoulder=left[0], l_elbow=left[1], l_wrist=left[2]).items():
+        kp[J[name]] = p
+    return Character("flat", tex, tex[..., 3] > 0, kp)
+
+
+def test_a_flat_arm_across_a_flat_body_of_one_luminance_leaves_the_body_the_body():
+    """Edges are found in each colour channel: in grey the arm and the body are one, the arm's seed
+    grew as wide as the body and the arm flooded the whole belly.  And the body, split in two by the
+    arm lying across it, stays the body above and below the arm: the piece without the larger area
+    was handed to the upper arm as an island."""
+    ch = _flat_figure()
+    rig = Rig.build(ch)
+    m = build_mesh(ch, rig, 700)
+    own = m.layer == 0
+    where = _raster_ids(m.vertices, m.triangles, own, ch.shape)
+    for (x, y) in ((80, 90), (152, 110), (110, 180), (150, 175), (145, 140)):   # the body, off the arm
+        assert rig.labels[y, x] == PART_INDEX["torso"], (x, y)
+        assert m.parts[where[y, x]] == PART_INDEX["torso"], (x, y)
+    for (x, y), part in (((141, 85), "l_upper_arm"), ((101, 135), "l_forearm")):  # on the arm
+        assert rig.labels[y, x] == PART_INDEX[part] and m.parts[where[y, x]] == PART_INDEX[part], (x, y)
+
+
+def _raster_ids(V, T, which, shape) -> np.ndarray:
+    out = np.full(shape, -1, np.int32)
+    for i in np.flatnonzero(which):
+        cv2.fillConvexPoly(out, np.rint(V[T[i]] * 16).astype(np.int32), int(i), cv2.LINE_8, 4)
+    return out
+
+
 def test_two_legs_pressed_together_parted_show_no_crack():
     """Legs drawn touching share vertices (side by side, never cut): spread apart they stretch,
     and no frame has a crack or a detached piece."""
@@ -500,3 +545,4 @@ def test_drawn_hands_on_the_body_are_their_forearms(name):
     y, x = np.mgrid[:ch.shape[0], :ch.shape[1]]
     hand = np.hypot(x - ch.keypoints[J["l_wrist"], 0], y - ch.keypoints[J["l_wrist"], 1]) < 10
     assert (rig.labels[hand] == PART_INDEX["l_forearm"]).mean() > 0.97
+

@@ -326,10 +326,11 @@ def _components(triangles: np.ndarray) -> np.ndarray:
                                 directed=False)[1]
 
 
-def _clean_labels(triangles: np.ndarray, parts: np.ndarray, pairs: np.ndarray, parent=None) -> np.ndarray:
+def _clean_labels(triangles: np.ndarray, parts: np.ndarray, pairs: np.ndarray, parent=None, held=None) -> np.ndarray:
     """Each part one edge-connected region: a smaller island joins the part it borders most, among
     its own part's parent and children when it borders one (``parent`` ``(P,)``): a piece of one leg
-    cut off where the legs were drawn close does not join the other leg and leave with it."""
+    cut off where the legs were drawn close does not join the other leg and leave with it.  An
+    island with a triangle ``held`` ``(t,)`` bool (holding a key point of its part's bones) stays."""
     parts = parts.copy()
     t = len(triangles)
     for _ in range(10):
@@ -340,7 +341,8 @@ def _clean_labels(triangles: np.ndarray, parts: np.ndarray, pairs: np.ndarray, p
         biggest = {}
         for c in np.argsort(-size):
             biggest.setdefault(int(parts[np.flatnonzero(comp == c)[0]]), int(c))
-        islands = [c for c in range(len(size)) if biggest[int(parts[np.flatnonzero(comp == c)[0]])] != c]
+        islands = [c for c in range(len(size)) if biggest[int(parts[np.flatnonzero(comp == c)[0]])] != c
+                   and (held is None or not held[comp == c].any())]
         if not islands:
             break
         for c in islands:
@@ -435,25 +437,20 @@ def split_seams(vertices: np.ndarray, triangles: np.ndarray, scores: np.ndarray,
 
 
 def build_mesh(character, rig, n_vertices: int = 800) -> Mesh:
-    """The character's mesh: triangulated, labelled by ``rig``, cut where a limb lies over another
-    part, with underlays beneath every cut.
-
-    * Parts: each vertex's lowest :meth:`~nnsf.reshape.rig.Rig.scores`, the triangles split along the
-      boundaries (:func:`split_seams`), cleaned so each part is one region.
-    * Cuts (:func:`_lying_over`): only where a limb lies over another part in the drawing, and not
-      across a joint (:meth:`~nnsf.reshape.rig.Rig.cuts`); parts side by side stay joined.  A piece
-      the cuts would set apart from the rest stays joined where it touches: the mesh is one
-      connected piece.
-    * Underlays (:func:`_underlays`): beneath every cut, copies of the limb's triangles where it
-      covers the part beneath, put in that part and sharing its vertices where they meet it: when
-      the limb moves, the part beneath is there (textured by :func:`underlay_texture`).
-    """
+    """The character's mesh (docs/method.md §13): triangulated, labelled by ``rig`` (:func:`split_seams`,
+    :func:`_clean_labels`), cut where a limb lies over another part (:func:`_lying_over`, not across a
+    joint: :meth:`~nnsf.reshape.rig.Rig.cuts`) yet one connected piece, with underlays beneath every
+    cut (:func:`_underlays`, textured by :func:`underlay_texture`)."""
     V, T, h = triangulate(character.mask, n_vertices)
     V, T, parts, _ = split_seams(V, T, rig.scores(V), chains=rig.chains())
     pairs = shared_edges(T)
-    parts = _clean_labels(T, parts, pairs, rig.parent)
-    a, b = T[pairs[:, 0], pairs[:, 1]], T[pairs[:, 0], (pairs[:, 1] + 1) % 3]
     shape = np.asarray(character.mask).shape
+    # The triangles holding a key point of their part's bones: a piece of a part holding one (the body
+    # above and below an arm drawn across it) is that part, not an island to hand to a neighbour.
+    on = _lookup(_raster(V, T, shape, np.arange(len(T))), rig.keypoints[rig.bones[:, :2]].reshape(-1, 2))
+    on = on[(on >= 0) & (parts[on] == np.repeat(rig.bones[:, 2], 2))]
+    parts = _clean_labels(T, parts, pairs, rig.parent, np.isin(np.arange(len(T)), on))
+    a, b = T[pairs[:, 0], pairs[:, 1]], T[pairs[:, 0], (pairs[:, 1] + 1) % 3]
     cover, radius = _covered(V, T, parts, shape)
     candidates = rig.cuts(0.5 * (V[a] + V[b]), parts[pairs[:, 0]], parts[pairs[:, 2]], radius)
     cut_edges, under = _lying_over(V, T, parts, pairs, candidates, cover, rig)
@@ -496,8 +493,8 @@ def build_mesh(character, rig, n_vertices: int = 800) -> Mesh:
 
 
 def _raster(V: np.ndarray, T: np.ndarray, shape, values=None) -> np.ndarray:
-    """``(H, W)`` int16: each triangle ``(t, 3)`` filled with its value ``(t,)`` (default 0), −1 elsewhere."""
-    img = np.full(shape, -1, np.int16)
+    """``(H, W)`` int32: each triangle ``(t, 3)`` filled with its value ``(t,)`` (default 0), −1 elsewhere."""
+    img = np.full(shape, -1, np.int32)
     values = np.zeros(len(T), np.int64) if values is None else values
     for tri, v in zip(np.rint(V[T] * 16).astype(np.int32), values.tolist()):
         cv2.fillConvexPoly(img, tri, int(v), cv2.LINE_8, 4)
@@ -564,10 +561,9 @@ def _lying_over(V, T, parts, pairs, candidates, cover, rig):
     point of its bones, ``rig`` a :class:`~nnsf.reshape.rig.Rig`; not the joint it shares with
     that part) lies where limbs cover that part (:func:`_covered`), or when the limb is so cut
     from some part along most of their boundary.  The part beneath gets an underlay there
-    (:func:`_underlays`); however far the limb moves away, the opening shows its colour.
-    Every other boundary stays joined by shared vertices: parts side by
-    side (two legs pressed together, an arm hanging against the body's side) stretch apart rather
-    than open, the head stays on the body, and a continuous map of a joined mesh cannot open a crack.
+    (:func:`_underlays`); however far the limb moves away, the opening shows its colour.  Every
+    other boundary stays joined: parts side by side (legs pressed together, an arm hanging at the
+    body's side) stretch apart rather than open, as a continuous map of a joined mesh cannot crack.
     """
     p, q = parts[pairs[:, 0]], parts[pairs[:, 2]]
     ends = V[np.stack([T[pairs[:, 0], pairs[:, 1]], T[pairs[:, 0], (pairs[:, 1] + 1) % 3]])]
@@ -640,9 +636,8 @@ def _underlays(V, T, parts, pairs, under, cover) -> tuple[np.ndarray, np.ndarray
     ends = np.column_stack([T[pairs[cut, 0], pairs[cut, 1]], T[pairs[cut, 0], (pairs[cut, 1] + 1) % 3]])
     tri, to = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
     for uu, oo in sorted({(int(x), int(y)) for x, y in zip(u, o)}):
-        limb = parts == oo
         over = _lookup(cover[(uu, oo)].astype(np.uint8), centre) > 0 if (uu, oo) in cover else False
-        sel = np.flatnonzero(limb & (np.isin(T, ends[(u == uu) & (o == oo)]).any(axis=1) | over))
+        sel = np.flatnonzero((parts == oo) & (np.isin(T, ends[(u == uu) & (o == oo)]).any(axis=1) | over))
         tri.append(sel)
         to.append(np.full(len(sel), uu))
     both = np.unique(np.column_stack([np.concatenate(to), np.concatenate(tri)]).astype(np.int64), axis=0)

@@ -161,7 +161,9 @@ class Rig:
         # A seed is no thicker than the lines drawn about its bone allow: a limb drawn inside the
         # body's silhouette (an arm across the chest) has the silhouette's depth as its radius, and
         # a seed that wide would flood the body.
-        edges = cv2.Canny(cv2.cvtColor(np.ascontiguousarray(texture[..., :3]), cv2.COLOR_RGB2GRAY), 50, 150) > 0
+        # Edges of each colour channel: two flat colours of one luminance (a green arm on an orange
+        # shirt) have no edge in grey, and the arm's seed grew as wide as the body.
+        edges = np.any([cv2.Canny(np.ascontiguousarray(texture[..., c]), 50, 150) > 0 for c in range(3)], axis=0)
         room = distance_transform(mask & ~edges)
         lam = np.linspace(0.2, 0.8, 7)[:, None, None]
         reach = np.median(sample(room, a[None] + lam * (b - a)[None]), axis=0)
