@@ -34,16 +34,13 @@ triangle's map stretched over the pixels the rasteriser gives it along its edges
 
     python -m experiments.crack_origins --data /work/shared/data /work/extra-drawings /work/extra-drawings-tuning --out reports
 
-Answer (``reports/reshape_crack_origins.{csv,json}``, every frame, 5.1 min): the crack counts are
-the measure's own (per drawing × motion, equal to ``reshape_eval_frames.csv``).  Of the 6,353
-cracks on the tuning set, 99.2 % are the drawing's page (52.3 % a gap or concavity of the drawing,
-39.4 % the mesh's margin, 7.5 % far page, mostly texels a thin or folded triangle stretched beyond
-itself), 0.8 % thinned strokes and none an opening; of the 2,867 held-out ones 90.7 % page (27.9 %
-gap, 47.7 % margin, 15.1 % far), 7.2 % openings (all in one drawing whose forearms lie over its
-torso and thighs: a median of 14 uncovered pixels in a frame with one, up to 40) and 2.1 %
-thinned.  No opening is a cut beside a joint (a limb's boundary with the part it hangs from, past
-the joint they share: it stays joined, ``nnsf.reshape.mesh._lying_over``) or a hole in an
-underlay (every limb triangle touching a cut is copied, ``_underlays``).
+Answer (``reports/reshape_crack_origins.{csv,json}``, every frame): the crack counts are the
+measure's own (per drawing × motion, equal to ``reshape_eval_frames.csv``).  Of the 6,234 cracks
+on the tuning set (21 drawings), 99.2 % are the drawing's page (50.3 % a gap or concavity of the
+drawing, 48.2 % the mesh's margin, 0.8 % far page, mostly texels a thin or folded triangle
+stretched beyond itself), 0.7 % thinned strokes and 3 openings (0.05 %, one drawing whose forearm
+crosses its torso); of the 2,399 held-out ones 93.1 % page (33.9 % gap, 58.5 % margin, 0.7 % far),
+4.4 % openings (106, all in one drawing, 80 of them in the walk) and 2.5 % thinned.
 
 Writes ``OUT/reshape_crack_origins.csv`` (one row per drawing × motion), ``OUT/reshape_crack_origins.json``
 (totals per set, the frames with openings, how it ran) and ``OUT/figures/crack_origins.png`` (for each
