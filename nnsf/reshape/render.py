@@ -93,12 +93,12 @@ class Renderer:
         f = uv[:, 1:] - uv[:, :1]                                       # (t, 2, 2): rest edges
         self.edges = (f[:, 0, 0], f[:, 0, 1], f[:, 1, 0], f[:, 1, 1])    # u0, v0 of e0; u1, v1 of e1
         lo, hi = rest_boxes(uv)                                         # row 0: "no triangle", far outside
-        self.box = [np.ascontiguousarray(np.concatenate([[-1e4], col]).astype(np.float32))
-                    for col in (lo[:, 0], hi[:, 0], lo[:, 1], hi[:, 1])]
+        self.box = [np.concatenate([[-1e4 - 1e4j], b[:, 0] + 1j * b[:, 1]]).astype(np.complex64) for b in (lo, hi)]
 
-    def _maps(self, vertices: np.ndarray) -> np.ndarray:
-        """Per triangle the affine map ``(t + 1, 6)`` float32 from a deformed pixel to its texel: u = c0 x +
-        c1 y + c2, v = c3 x + c4 y + c5.  Row 0 is "no triangle", mapping far outside the texture."""
+    def _maps(self, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per triangle the affine map from a deformed pixel to its texel, u + iv = k0 x + k1 y + k2: three
+        ``(t + 1,)`` complex64 arrays (one gather fetches a pair of coefficients, and u + iv viewed as
+        float32 pairs is OpenCV's two-channel map).  Row 0 is "no triangle", mapping far outside the texture."""
         D = vertices[self.triangles]
         # Component arithmetic on (t,) arrays: einsum over 2 × 2 blocks costs more than the maps.
         ex0, ey0 = D[:, 1, 0] - D[:, 0, 0], D[:, 1, 1] - D[:, 0, 1]      # deformed edges e0, e1
@@ -111,12 +111,10 @@ class Renderer:
         a, bb = (fu0 * ey1 - fu1 * ey0) * inv, (fu1 * ex0 - fu0 * ex1) * inv
         c, d = (fv0 * ey1 - fv1 * ey0) * inv, (fv1 * ex0 - fv0 * ex1) * inv
         u0, v0 = self.uv[:, 0, 0], self.uv[:, 0, 1]
-        out = np.empty((len(D) + 1, 6), np.float32)
-        out[0] = (0, 0, -1e4, 0, 0, -1e4)
-        out[1:, 0], out[1:, 1], out[1:, 3], out[1:, 4] = a, bb, c, d
-        out[1:, 2] = np.where(ok, u0 - a * D[:, 0, 0] - bb * D[:, 0, 1], self.uv[:, :, 0].mean(axis=1))
-        out[1:, 5] = np.where(ok, v0 - c * D[:, 0, 0] - d * D[:, 0, 1], self.uv[:, :, 1].mean(axis=1))
-        return out
+        u2 = np.where(ok, u0 - a * D[:, 0, 0] - bb * D[:, 0, 1], self.uv[:, :, 0].mean(axis=1))
+        v2 = np.where(ok, v0 - c * D[:, 0, 0] - d * D[:, 0, 1], self.uv[:, :, 1].mean(axis=1))
+        return tuple(np.concatenate([[z], x + 1j * y]).astype(np.complex64)
+                     for z, x, y in ((0, a, c), (0, bb, d), (-1e4 - 1e4j, u2, v2)))
 
     def render(self, vertices, order=None, background=None) -> np.ndarray:
         """One frame from vertices ``(n, 2)`` (output pixels) and a back-to-front part order:
@@ -127,7 +125,8 @@ class Renderer:
         if background is not None:  # an opaque page: the parts are laid straight onto its colour
             # One 32-bit word a pixel: numpy broadcasts a 4-tuple over an image far more slowly.
             out.view(np.uint32)[:] = np.array(tuple(int(b) for b in background) + (255,), np.uint8).view(np.uint32)[0]
-        c = [np.ascontiguousarray(col) for col in self._maps(V).T]
+        k0, k1, k2 = self._maps(V)
+        lo, hi = self.box
         P = np.rint(V[self.triangles] * 16).astype(np.int32)            # (t, 3, 2), 4 fractional bits
         order = range(len(self.part_triangles)) if order is None else order
         if self._ids is None or self._ids.shape != (H, W):
@@ -148,25 +147,17 @@ class Renderer:
             local = list(pts - np.array([x0 * 16, y0 * 16], np.int32))
             for k, tri in zip((tris + 1).tolist(), local):
                 cv2.fillConvexPoly(ids, tri, k, cv2.LINE_8, 4)
-            X, Y = gx[x0:x1], gy[y0:y1]
-            u = c[0].take(ids)
-            u *= X
-            tmp = c[1].take(ids)
-            tmp *= Y
-            u += tmp
-            u += c[2].take(ids)
-            v = c[3].take(ids)
-            v *= X
-            tmp = c[4].take(ids, out=tmp)
-            tmp *= Y
-            v += tmp
-            v += c[5].take(ids)
-            b = self.box
-            cv2.max(u, b[0].take(ids), dst=u)
-            cv2.min(u, b[1].take(ids), dst=u)
-            cv2.max(v, b[2].take(ids), dst=v)
-            cv2.min(v, b[3].take(ids), dst=v)
-            src = cv2.remap(self.texture, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+            # ids are in range by construction: mode="clip" skips numpy's bounds check.
+            w = k0.take(ids, mode="clip")
+            w *= gx[x0:x1]
+            tmp = k1.take(ids, mode="clip")
+            tmp *= gy[y0:y1]
+            w += tmp
+            w += k2.take(ids, mode="clip")
+            uv = w.view(np.float32).reshape(ids.shape + (2,))           # (h, w, 2): u, v per pixel
+            cv2.max(uv, lo.take(ids, mode="clip").view(np.float32).reshape(uv.shape), dst=uv)
+            cv2.min(uv, hi.take(ids, mode="clip").view(np.float32).reshape(uv.shape), dst=uv)
+            src = cv2.remap(self.texture, uv, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                             borderValue=(0, 0, 0, 0))
             dst = out[y0:y1, x0:x1]
             keep = cv2.merge([255 - src[..., 3]] * 4)
