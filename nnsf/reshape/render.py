@@ -26,15 +26,11 @@ import numpy as np
 
 #: Transparent columns between the drawing and the underlay in the texture atlas, pixels.
 ATLAS_GAP = 8
-#: How far outside its triangle's rest box a pixel's texel may lie, pixels: the rasteriser gives a
-#: triangle the pixels its outline touches, centres up to a pixel outside it, which a thin or folded
-#: triangle's map would carry far beyond it, onto the page (at rest they keep their own texel).
+#: How far outside its rest triangle a pixel's texel may lie, pixels.
 REACH = 1.0
-
-
-def rest_boxes(uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per triangle ``uv`` ``(t, 3, 2)`` (texels) the box its pixels' texels are kept in: ``(lo, hi)``, each ``(t, 2)``."""
-    return uv.min(axis=1) - REACH, uv.max(axis=1) + REACH
+#: How far outside a triangle the centre of a pixel the fill gives it may lie, pixels: ``cv2.fillConvexPoly``
+#: gives a triangle the pixels its outline touches (half a diagonal, and its 1/16 px vertices).
+FILL_REACH = 0.75
 
 
 def premultiplied(texture: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
@@ -87,18 +83,16 @@ class Renderer:
         self._ids = None
 
     def set_texture_coordinates(self, uv: np.ndarray) -> None:
-        """Each triangle's corners in the texture, ``(t, 3, 2)`` texels, and what :meth:`_maps` and
-        :meth:`render` derive from them once: the rest edges and the boxes of :func:`rest_boxes`."""
+        """Each triangle's corners in the texture, ``(t, 3, 2)`` texels, and the rest edges :meth:`_maps` derives from them."""
         self.uv = uv
         f = uv[:, 1:] - uv[:, :1]                                       # (t, 2, 2): rest edges
         self.edges = (f[:, 0, 0], f[:, 0, 1], f[:, 1, 0], f[:, 1, 1])    # u0, v0 of e0; u1, v1 of e1
-        lo, hi = rest_boxes(uv)                                         # row 0: "no triangle", far outside
-        self.box = [np.ascontiguousarray(np.concatenate([[-1e4], col]).astype(np.float32))
-                    for col in (lo[:, 0], hi[:, 0], lo[:, 1], hi[:, 1])]
 
-    def _maps(self, vertices: np.ndarray) -> np.ndarray:
+    def _maps(self, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per triangle the affine map ``(t + 1, 6)`` float32 from a deformed pixel to its texel: u = c0 x +
-        c1 y + c2, v = c3 x + c4 y + c5.  Row 0 is "no triangle", mapping far outside the texture."""
+        c1 y + c2, v = c3 x + c4 y + c5 (row 0 is "no triangle", mapping far outside the texture); and
+        whether it is squashed ``(t + 1,)``: the map stretches some direction by more than REACH /
+        FILL_REACH, so a pixel the fill gives it from outside it would take a texel beyond REACH of it."""
         D = vertices[self.triangles]
         # Component arithmetic on (t,) arrays: einsum over 2 × 2 blocks costs more than the maps.
         ex0, ey0 = D[:, 1, 0] - D[:, 0, 0], D[:, 1, 1] - D[:, 0, 1]      # deformed edges e0, e1
@@ -116,7 +110,9 @@ class Renderer:
         out[1:, 0], out[1:, 1], out[1:, 3], out[1:, 4] = a, bb, c, d
         out[1:, 2] = np.where(ok, u0 - a * D[:, 0, 0] - bb * D[:, 0, 1], self.uv[:, :, 0].mean(axis=1))
         out[1:, 5] = np.where(ok, v0 - c * D[:, 0, 0] - d * D[:, 0, 1], self.uv[:, :, 1].mean(axis=1))
-        return out
+        s = a * a + bb * bb + c * c + d * d                             # the map's larger singular value, squared:
+        sigma2 = 0.5 * (s + np.sqrt(np.maximum(s * s - 4 * (a * d - bb * c) ** 2, 0)))
+        return out, np.r_[False, sigma2 * FILL_REACH ** 2 > REACH ** 2]
 
     def render(self, vertices, order=None, background=None) -> np.ndarray:
         """One frame from vertices ``(n, 2)`` (output pixels) and a back-to-front part order:
@@ -127,7 +123,8 @@ class Renderer:
         if background is not None:  # an opaque page: the parts are laid straight onto its colour
             # One 32-bit word a pixel: numpy broadcasts a 4-tuple over an image far more slowly.
             out.view(np.uint32)[:] = np.array(tuple(int(b) for b in background) + (255,), np.uint8).view(np.uint32)[0]
-        c = [np.ascontiguousarray(col) for col in self._maps(V).T]
+        maps, squashed = self._maps(V)
+        c = [np.ascontiguousarray(col) for col in maps.T]
         P = np.rint(V[self.triangles] * 16).astype(np.int32)            # (t, 3, 2), 4 fractional bits
         order = range(len(self.part_triangles)) if order is None else order
         if self._ids is None or self._ids.shape != (H, W):
@@ -161,11 +158,8 @@ class Renderer:
             tmp *= Y
             v += tmp
             v += c[5].take(ids)
-            b = self.box
-            cv2.max(u, b[0].take(ids), dst=u)
-            cv2.min(u, b[1].take(ids), dst=u)
-            cv2.max(v, b[2].take(ids), dst=v)
-            cv2.min(v, b[3].take(ids), dst=v)
+            if squashed[tris + 1].any():
+                self._clamp(ids, x0, y0, u, v, maps, squashed, V)
             src = cv2.remap(self.texture, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                             borderValue=(0, 0, 0, 0))
             dst = out[y0:y1, x0:x1]
@@ -174,6 +168,28 @@ class Renderer:
         if background is None:
             return to_uint8(out.astype(np.float32) / 255.0)
         return cv2.cvtColor(out, cv2.COLOR_RGBA2RGB)
+
+    def _clamp(self, ids, x0, y0, u, v, maps, squashed, V) -> None:
+        """The texels ``u``, ``v`` (``ids``' shape, a box from ``x0``, ``y0``) of the pixels of squashed
+        triangles outside them: the texel of the nearest point of the deformed triangle, moved at most
+        REACH towards the pixel's own.  A pixel beside a sliver then shows the sliver's edge, not a
+        texel its map carries many pixels off, across the triangle's corner or onto another part."""
+        ys, xs = np.nonzero(squashed[ids])
+        k = ids[ys, xs]
+        p = np.column_stack([xs + x0, ys + y0]).astype(np.float64)
+        D = V[self.triangles[k - 1]]                                    # (k, 3, 2)
+        a, e = D, np.roll(D, -1, axis=1) - D                            # each edge's start and direction
+        t = np.clip(np.einsum("kex,kex->ke", p[:, None] - a, e) / np.maximum((e * e).sum(2), 1e-12), 0, 1)
+        near = a + t[..., None] * e
+        gap = np.linalg.norm(p[:, None] - near, axis=2)                 # (k, 3)
+        side = e[..., 0] * (p[:, None, 1] - a[..., 1]) - e[..., 1] * (p[:, None, 0] - a[..., 0])
+        inside = (side >= 0).all(1) | (side <= 0).all(1)
+        q = np.where(inside[:, None], p, near[np.arange(len(k)), np.argmin(gap, axis=1)])
+        m = maps[k]
+        tq = np.column_stack([(m[:, 0:2] * q).sum(1) + m[:, 2], (m[:, 3:5] * q).sum(1) + m[:, 5]])
+        off = np.column_stack([u[ys, xs], v[ys, xs]]) - tq
+        off *= np.minimum(1.0, REACH / np.maximum(np.linalg.norm(off, axis=1), 1e-12))[:, None]
+        u[ys, xs], v[ys, xs] = (tq + off).T
 
 
 def to_uint8(premult: np.ndarray) -> np.ndarray:
