@@ -11,7 +11,7 @@ Per frame, for each part in the frame's back-to-front order:
    1/16 px vertices): OpenCV fills a polygon's boundary pixels too, so triangles that share an
    edge leave no pixel between them, flipped or not;
 2. each covered pixel's texture coordinate is its triangle's affine map (deformed → rest) of the
-   pixel centre, kept within a pixel of the triangle's rest box, and ``cv2.remap`` samples the
+   pixel centre, within :data:`REACH` of the rest triangle, and ``cv2.remap`` samples the
    premultiplied texture bilinearly;
 3. the part is laid over what is drawn so far ("over", premultiplied alpha), so a limb's
    anti-aliased edge blends with the body under it.
@@ -33,11 +33,9 @@ REACH = 1.0
 FILL_REACH = 0.75
 
 
-def premultiplied(texture: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
-    """RGBA ``(H, W, 4)`` uint8 → premultiplied float32 RGBA in [0, 1]; outside ``mask`` transparent."""
-    alpha = texture[..., 3].astype(np.float32) / 255.0
-    if mask is not None:
-        alpha = alpha * np.asarray(mask, dtype=np.float32)
+def premultiplied(texture: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """RGBA ``(H, W, 4)`` uint8 → premultiplied float32 RGBA in [0, 1]; outside ``mask`` ``(H, W)`` transparent."""
+    alpha = texture[..., 3].astype(np.float32) / 255.0 * np.asarray(mask, dtype=np.float32)
     return np.dstack([texture[..., :3].astype(np.float32) / 255.0 * alpha[..., None], alpha])
 
 
@@ -68,7 +66,9 @@ class Renderer:
         # 8 bits a channel, premultiplied: bilinear sampling and compositing run on OpenCV's
         # saturating uint8 arithmetic (a level of rounding per layer, no more).
         self.texture = np.ascontiguousarray(np.clip(tex * 255.0 + 0.5, 0, 255).astype(np.uint8))
-        self.set_texture_coordinates(uv)
+        self.uv = uv                                                    # each triangle's corners in the texture
+        f = uv[:, 1:] - uv[:, :1]                                       # (t, 2, 2): rest edges
+        self.edges = (f[:, 0, 0], f[:, 0, 1], f[:, 1, 0], f[:, 1, 1])    # u0, v0 of e0; u1, v1 of e1
         self.parts = np.asarray(mesh.parts, dtype=np.int64)
         # Within a part, the last triangle filled wins a pixel.  Where the part folds over itself
         # (a joint bent past its drawn angle), a triangle along the outline (half in the transparent
@@ -82,17 +82,10 @@ class Renderer:
                                for t in (np.flatnonzero(self.parts == p) for p in range(int(self.parts.max()) + 1))]
         self._ids = None
 
-    def set_texture_coordinates(self, uv: np.ndarray) -> None:
-        """Each triangle's corners in the texture, ``(t, 3, 2)`` texels, and the rest edges :meth:`_maps` derives from them."""
-        self.uv = uv
-        f = uv[:, 1:] - uv[:, :1]                                       # (t, 2, 2): rest edges
-        self.edges = (f[:, 0, 0], f[:, 0, 1], f[:, 1, 0], f[:, 1, 1])    # u0, v0 of e0; u1, v1 of e1
-
     def _maps(self, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per triangle the affine map ``(t + 1, 6)`` float32 from a deformed pixel to its texel: u = c0 x +
-        c1 y + c2, v = c3 x + c4 y + c5 (row 0 is "no triangle", mapping far outside the texture); and
-        whether it is squashed ``(t + 1,)``: the map stretches some direction by more than REACH /
-        FILL_REACH, so a pixel the fill gives it from outside it would take a texel beyond REACH of it."""
+        c1 y + c2, v = c3 x + c4 y + c5 (row 0 is "no triangle", mapping far outside the texture), and
+        whether it is squashed ``(t + 1,)``: the map stretches some direction by more than REACH / FILL_REACH."""
         D = vertices[self.triangles]
         # Component arithmetic on (t,) arrays: einsum over 2 × 2 blocks costs more than the maps.
         ex0, ey0 = D[:, 1, 0] - D[:, 0, 0], D[:, 1, 1] - D[:, 0, 1]      # deformed edges e0, e1
@@ -110,9 +103,8 @@ class Renderer:
         out[1:, 0], out[1:, 1], out[1:, 3], out[1:, 4] = a, bb, c, d
         out[1:, 2] = np.where(ok, u0 - a * D[:, 0, 0] - bb * D[:, 0, 1], self.uv[:, :, 0].mean(axis=1))
         out[1:, 5] = np.where(ok, v0 - c * D[:, 0, 0] - d * D[:, 0, 1], self.uv[:, :, 1].mean(axis=1))
-        s = a * a + bb * bb + c * c + d * d                             # the map's larger singular value, squared:
-        sigma2 = 0.5 * (s + np.sqrt(np.maximum(s * s - 4 * (a * d - bb * c) ** 2, 0)))
-        return out, np.r_[False, sigma2 * FILL_REACH ** 2 > REACH ** 2]
+        sigma = 0.5 * (np.hypot(a + d, c - bb) + np.hypot(a - d, bb + c))  # the map's larger singular value
+        return out, np.r_[False, sigma * FILL_REACH > REACH]
 
     def render(self, vertices, order=None, background=None) -> np.ndarray:
         """One frame from vertices ``(n, 2)`` (output pixels) and a back-to-front part order:
