@@ -11,7 +11,7 @@ Per frame, for each part in the frame's back-to-front order:
    1/16 px vertices): OpenCV fills a polygon's boundary pixels too, so triangles that share an
    edge leave no pixel between them, flipped or not;
 2. each covered pixel's texture coordinate is its triangle's affine map (deformed → rest) of the
-   pixel centre, within :data:`REACH` of the rest triangle, and ``cv2.remap`` samples the
+   pixel centre, within :data:`REACH` of the rest triangle's edges, and ``cv2.remap`` samples the
    premultiplied texture bilinearly;
 3. the part is laid over what is drawn so far ("over", premultiplied alpha), so a limb's
    anti-aliased edge blends with the body under it.
@@ -69,6 +69,12 @@ class Renderer:
         self.uv = uv                                                    # each triangle's corners in the texture
         f = uv[:, 1:] - uv[:, :1]                                       # (t, 2, 2): rest edges
         self.edges = (f[:, 0, 0], f[:, 0, 1], f[:, 1, 0], f[:, 1, 1])    # u0, v0 of e0; u1, v1 of e1
+        # Texel → barycentric coordinates of corners 1, 2 ([e0 e1]^-1 at rest), and the least coordinate
+        # of each corner a texel within REACH of the edge facing it has (−REACH over the corner's altitude).
+        twice = np.abs(f[:, 0, 0] * f[:, 1, 1] - f[:, 0, 1] * f[:, 1, 0])
+        facing = np.linalg.norm(np.roll(uv, -1, axis=1) - np.roll(uv, 1, axis=1), axis=2)
+        self.bary = np.vstack([np.zeros(7), np.column_stack([np.linalg.pinv(f.transpose(0, 2, 1)).reshape(-1, 4),
+                                                               -REACH * facing / np.maximum(twice, 1e-12)[:, None]])])
         self.parts = np.asarray(mesh.parts, dtype=np.int64)
         # Within a part, the last triangle filled wins a pixel.  Where the part folds over itself
         # (a joint bent past its drawn angle), a triangle along the outline (half in the transparent
@@ -80,7 +86,6 @@ class Renderer:
         key = np.where(np.asarray(mesh.layer) == 1, -1.0, inside)
         self.part_triangles = [t[np.argsort(key[t], kind="stable")]
                                for t in (np.flatnonzero(self.parts == p) for p in range(int(self.parts.max()) + 1))]
-        self._ids = None
 
     def _maps(self, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per triangle the affine map ``(t + 1, 6)`` float32 from a deformed pixel to its texel: u = c0 x +
@@ -119,9 +124,8 @@ class Renderer:
         c = [np.ascontiguousarray(col) for col in maps.T]
         P = np.rint(V[self.triangles] * 16).astype(np.int32)            # (t, 3, 2), 4 fractional bits
         order = range(len(self.part_triangles)) if order is None else order
-        if self._ids is None or self._ids.shape != (H, W):
-            self._ids = np.zeros((H, W), np.int32)
         gx, gy = np.arange(W, dtype=np.float32), np.arange(H, dtype=np.float32)[:, None]
+        boxes = []                                                      # per part: its box's corner, ids and texels
         for part in order:
             tris = self.part_triangles[part] if part < len(self.part_triangles) else ()
             if not len(tris):
@@ -132,56 +136,51 @@ class Renderer:
             x1, y1 = np.minimum((flat.max(axis=0) >> 4) + 2, (W, H)).tolist()
             if x1 <= x0 or y1 <= y0:
                 continue
-            ids = self._ids[y0:y1, x0:x1]
-            ids[:] = 0
+            ids = np.zeros((y1 - y0, x1 - x0), np.int32)
             local = list(pts - np.array([x0 * 16, y0 * 16], np.int32))
             for k, tri in zip((tris + 1).tolist(), local):
                 cv2.fillConvexPoly(ids, tri, k, cv2.LINE_8, 4)
             X, Y = gx[x0:x1], gy[y0:y1]
-            u = c[0].take(ids)
-            u *= X
-            tmp = c[1].take(ids)
-            tmp *= Y
-            u += tmp
-            u += c[2].take(ids)
-            v = c[3].take(ids)
-            v *= X
-            tmp = c[4].take(ids, out=tmp)
-            tmp *= Y
-            v += tmp
-            v += c[5].take(ids)
-            if squashed[tris + 1].any():
-                self._clamp(ids, x0, y0, u, v, maps, squashed, V)
+            u = c[0].take(ids) * X + c[1].take(ids) * Y + c[2].take(ids)
+            v = c[3].take(ids) * X + c[4].take(ids) * Y + c[5].take(ids)
+            boxes.append((x0, y0, ids, u, v))
+        self._clamp(boxes, maps, squashed, V)
+        for x0, y0, ids, u, v in boxes:
             src = cv2.remap(self.texture, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                             borderValue=(0, 0, 0, 0))
-            dst = out[y0:y1, x0:x1]
+            dst = out[y0:y0 + ids.shape[0], x0:x0 + ids.shape[1]]
             keep = cv2.merge([255 - src[..., 3]] * 4)
             cv2.add(cv2.multiply(dst, keep, scale=1.0 / 255.0), src, dst=dst)
         if background is None:
             return to_uint8(out.astype(np.float32) / 255.0)
         return cv2.cvtColor(out, cv2.COLOR_RGBA2RGB)
 
-    def _clamp(self, ids, x0, y0, u, v, maps, squashed, V) -> None:
-        """The texels ``u``, ``v`` (``ids``' shape, a box from ``x0``, ``y0``) of the pixels of squashed
-        triangles outside them: the texel of the nearest point of the deformed triangle, moved at most
-        REACH towards the pixel's own.  A pixel beside a sliver then shows the sliver's edge, not a
-        texel its map carries many pixels off, across the triangle's corner or onto another part."""
-        ys, xs = np.nonzero(squashed[ids])
-        k = ids[ys, xs]
-        p = np.column_stack([xs + x0, ys + y0]).astype(np.float64)
-        D = V[self.triangles[k - 1]]                                    # (k, 3, 2)
-        a, e = D, np.roll(D, -1, axis=1) - D                            # each edge's start and direction
-        t = np.clip(np.einsum("kex,kex->ke", p[:, None] - a, e) / np.maximum((e * e).sum(2), 1e-12), 0, 1)
-        near = a + t[..., None] * e
-        gap = np.linalg.norm(p[:, None] - near, axis=2)                 # (k, 3)
-        side = e[..., 0] * (p[:, None, 1] - a[..., 1]) - e[..., 1] * (p[:, None, 0] - a[..., 0])
-        inside = (side >= 0).all(1) | (side <= 0).all(1)
-        q = np.where(inside[:, None], p, near[np.arange(len(k)), np.argmin(gap, axis=1)])
-        m = maps[k]
+    def _clamp(self, boxes, maps, squashed, V) -> None:
+        """The texels ``u``, ``v`` of each part's ``boxes`` (``(x0, y0, ids, u, v)``) at the pixels of squashed
+        triangles whose texel lies beyond REACH of an edge of the rest triangle: the texel of the nearest
+        point of the deformed triangle, moved at most REACH towards the pixel's own, so a pixel beside a
+        sliver shows its edge, not a texel its map carries far off (all parts at once: numpy's cost is per call)."""
+        hits = [np.nonzero(squashed[ids]) for _, _, ids, _, _ in boxes]
+        k = np.concatenate([b[2][h] for b, h in zip(boxes, hits)] + [np.zeros(0, np.int32)])
+        own = np.concatenate([np.column_stack([b[3][h], b[4][h]]) for b, h in zip(boxes, hits)] + [np.zeros((0, 2))])
+        r = self.bary[k]
+        lam = np.einsum("kij,kj->ki", r[:, :4].reshape(-1, 2, 2), own - self.uv[k - 1, 0])
+        bad = np.flatnonzero((lam < r[:, 5:]).any(axis=1) | (1 - lam.sum(axis=1) < r[:, 4]))
+        if not len(bad):
+            return
+        p = np.concatenate([np.column_stack([h[1] + b[0], h[0] + b[1]]) for b, h in zip(boxes, hits)])[bad]
+        D = V[self.triangles[k[bad] - 1]]                               # (k, 3, 2)
+        e = np.roll(D, -1, axis=1) - D                                  # each edge's direction from its start
+        t = np.clip(np.einsum("kex,kex->ke", p[:, None] - D, e) / np.maximum((e * e).sum(2), 1e-12), 0, 1)
+        near = D + t[..., None] * e
+        q = near[np.arange(len(bad)), np.argmin(np.linalg.norm(p[:, None] - near, axis=2), axis=1)]
+        m = maps[k[bad]]
         tq = np.column_stack([(m[:, 0:2] * q).sum(1) + m[:, 2], (m[:, 3:5] * q).sum(1) + m[:, 5]])
-        off = np.column_stack([u[ys, xs], v[ys, xs]]) - tq
-        off *= np.minimum(1.0, REACH / np.maximum(np.linalg.norm(off, axis=1), 1e-12))[:, None]
-        u[ys, xs], v[ys, xs] = (tq + off).T
+        off = own[bad] - tq
+        own[bad] = tq + off * np.minimum(1.0, REACH / np.maximum(np.linalg.norm(off, axis=1), 1e-12))[:, None]
+        n = np.cumsum([0] + [len(h[0]) for h in hits])
+        for b, h, i, j in zip(boxes, hits, n[:-1], n[1:]):
+            b[3][h], b[4][h] = own[i:j].T
 
 
 def to_uint8(premult: np.ndarray) -> np.ndarray:
