@@ -47,7 +47,7 @@ from nnsf.reshape.formats import read_character
 from nnsf.safe_yaml import read_yaml
 from nnsf.names import safe_name
 from nnsf.reshape.stage import report, write_sheet
-from nnsf.reshape.video import _over_white
+from nnsf.reshape.video import over_white as _over_white
 
 #: Per-frame measures whose worst frame and mean a row keeps.
 MEASURES = ("detached", "cracks", "crack_px", "joint_cracks", "specks", "notch_px", "notch_beyond_rest",

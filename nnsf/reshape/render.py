@@ -66,15 +66,7 @@ class Renderer:
         # 8 bits a channel, premultiplied: bilinear sampling and compositing run on OpenCV's
         # saturating uint8 arithmetic (a level of rounding per layer, no more).
         self.texture = np.ascontiguousarray(np.clip(tex * 255.0 + 0.5, 0, 255).astype(np.uint8))
-        self.uv = uv                                                    # each triangle's corners in the texture
-        f = uv[:, 1:] - uv[:, :1]                                       # (t, 2, 2): rest edges
-        self.edges = (f[:, 0, 0], f[:, 0, 1], f[:, 1, 0], f[:, 1, 1])    # u0, v0 of e0; u1, v1 of e1
-        # Texel → barycentric coordinates of corners 1, 2 ([e0 e1]^-1 at rest), and the least coordinate
-        # of each corner a texel within REACH of the edge facing it has (−REACH over the corner's altitude).
-        twice = np.abs(f[:, 0, 0] * f[:, 1, 1] - f[:, 0, 1] * f[:, 1, 0])
-        facing = np.linalg.norm(np.roll(uv, -1, axis=1) - np.roll(uv, 1, axis=1), axis=2)
-        self.bary = np.vstack([np.zeros(7), np.column_stack([np.linalg.pinv(f.transpose(0, 2, 1)).reshape(-1, 4),
-                                                               -REACH * facing / np.maximum(twice, 1e-12)[:, None]])])
+        self.set_texture_coordinates(uv)
         self.parts = np.asarray(mesh.parts, dtype=np.int64)
         # Within a part, the last triangle filled wins a pixel.  Where the part folds over itself
         # (a joint bent past its drawn angle), a triangle along the outline (half in the transparent
@@ -86,6 +78,17 @@ class Renderer:
         key = np.where(np.asarray(mesh.layer) == 1, -1.0, inside)
         self.part_triangles = [t[np.argsort(key[t], kind="stable")]
                                for t in (np.flatnonzero(self.parts == p) for p in range(int(self.parts.max()) + 1))]
+
+    def set_texture_coordinates(self, uv: np.ndarray) -> None:
+        """Each triangle's corners in the texture ``(t, 3, 2)`` texels, and what :meth:`_maps` and :meth:`_clamp` take from them."""
+        self.uv = uv
+        f = uv[:, 1:] - uv[:, :1]                                       # (t, 2, 2): rest edges
+        self.edges = (f[:, 0, 0], f[:, 0, 1], f[:, 1, 0], f[:, 1, 1])    # u0, v0 of e0; u1, v1 of e1
+        # Texel → barycentric of corners 1, 2; per corner the least one REACH beyond the edge facing it.
+        twice = np.abs(f[:, 0, 0] * f[:, 1, 1] - f[:, 0, 1] * f[:, 1, 0])
+        facing = np.linalg.norm(np.roll(uv, -1, axis=1) - np.roll(uv, 1, axis=1), axis=2)
+        self.bary = np.vstack([np.zeros(7), np.column_stack([np.linalg.pinv(f.transpose(0, 2, 1)).reshape(-1, 4),
+                                                               -REACH * facing / np.maximum(twice, 1e-12)[:, None]])])
 
     def _maps(self, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per triangle the affine map ``(t + 1, 6)`` float32 from a deformed pixel to its texel: u = c0 x +
@@ -166,9 +169,7 @@ class Renderer:
         r = self.bary[k]
         lam = np.einsum("kij,kj->ki", r[:, :4].reshape(-1, 2, 2), own - self.uv[k - 1, 0])
         bad = np.flatnonzero((lam < r[:, 5:]).any(axis=1) | (1 - lam.sum(axis=1) < r[:, 4]))
-        if not len(bad):
-            return
-        p = np.concatenate([np.column_stack([h[1] + b[0], h[0] + b[1]]) for b, h in zip(boxes, hits)])[bad]
+        p = np.concatenate([np.column_stack([h[1] + b[0], h[0] + b[1]]) for b, h in zip(boxes, hits)] + [own[:0]])[bad]
         D = V[self.triangles[k[bad] - 1]]                               # (k, 3, 2)
         e = np.roll(D, -1, axis=1) - D                                  # each edge's direction from its start
         t = np.clip(np.einsum("kex,kex->ke", p[:, None] - D, e) / np.maximum((e * e).sum(2), 1e-12), 0, 1)
