@@ -29,7 +29,7 @@ with cracks the frame's renderer draws it once more with every triangle showing 
 names it (:class:`Footprint`), which gives each pixel's topmost triangle; that triangle's affine
 map gives the pixel's texel, read off the drawing.  ``beyond_px`` (``page_far_beyond_px``: of
 the far page) counts crack pixels whose texel lies more than 1 px outside its own triangle at
-rest (the renderer keeps it within the triangle's rest box grown by a pixel): a thin or folded
+rest (the renderer keeps it within a pixel of the triangle's rest edges): a thin or folded
 triangle's map stretched over the pixels the rasteriser gives it along its edges.
 
     python -m experiments.crack_origins --data /work/shared/data /work/extra-drawings /work/extra-drawings-tuning --out reports
@@ -66,7 +66,7 @@ from nnsf.io import atomic_path, write_csv, write_json
 from nnsf.params import checked
 from nnsf.reshape.artefacts import FrameMeasures, coverage, cracks
 from nnsf.reshape.evaluation import _over_white, drive_item
-from nnsf.reshape.render import Renderer, rest_boxes
+from nnsf.reshape.render import REACH, Renderer
 
 #: Origins of a crack component, in the order they are decided.
 ORIGINS = ("opening", "page", "thinned")
@@ -91,8 +91,8 @@ class Footprint:
     ``underlay`` (or None) are what it was built from.  A shallow copy of the renderer keeps its
     triangles, their fill order and its compositing, but each triangle's texture coordinates all
     point at one texel of an opaque texture that names it: drawn, a frame holds each pixel's
-    topmost triangle.  That triangle's affine map (deformed → rest) clamped to its rest box grown by
-    a pixel, as the renderer's, gives the pixel's texel, which is read off the drawing.
+    topmost triangle.  That triangle's affine map (deformed → rest), kept within a pixel of its rest
+    edges as the renderer's, gives the pixel's texel, which is read off the drawing.
     :meth:`__call__` returns ``(H, W)`` bool maps, filled at the pixels of ``where``: ``covered``
     (some triangle), ``in_mask`` (the texel lies in the mask: bilinear mask ≥ ½), ``drawn`` (the
     drawing's alpha there, the underlay's for underlay triangles, ≥ 128), ``gap``, ``margin`` (page
@@ -149,7 +149,7 @@ class Footprint:
         lam[ok] = np.linalg.solve(e[ok], rhs[ok][..., None])[..., 0]
         uv = R[:, 0] + lam[:, :1] * (R[:, 1] - R[:, 0]) + lam[:, 1:] * (R[:, 2] - R[:, 0])
         uv[~ok] = R[~ok].mean(axis=1)                        # a collapsed triangle shows one texel
-        uv = np.clip(uv, *rest_boxes(R))                     # as the renderer
+        uv = _as_renderer(uv, lam, e, D, R, rhs + D[:, 0])
         out["beyond"][ys, xs] = ok & (_outside(uv, R) > BEYOND)
         layer = np.asarray(self.mesh.layer)[k]
         u, v = uv[:, 0].astype(np.float32), uv[:, 1].astype(np.float32)
@@ -175,6 +175,28 @@ def _sample(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     u, v = (np.pad(np.asarray(a, np.float32), (0, 512 * rows - n)).reshape(rows, 512) for a in (u, v))
     got = cv2.remap(img, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     return got.reshape(-1, img.shape[2])[:n]
+
+
+def _as_renderer(uv, lam, e, D, R, p) -> np.ndarray:
+    """Texels ``uv`` ``(N, 2)`` as the renderer keeps them (``Renderer._clamp``): one beyond REACH of an
+    edge of its rest triangle ``R`` ``(N, 3, 2)`` (barycentric ``lam`` ``(N, 2)`` of corners 1, 2) becomes
+    the texel of the nearest point of the deformed triangle ``D`` (edge columns ``e`` ``(N, 2, 2)``) to
+    its pixel ``p``, moved at most REACH towards its own."""
+    f = R[:, 1:] - R[:, :1]
+    twice = np.abs(f[:, 0, 0] * f[:, 1, 1] - f[:, 0, 1] * f[:, 1, 0])
+    facing = np.linalg.norm(np.roll(R, -1, axis=1) - np.roll(R, 1, axis=1), axis=2)
+    bary = np.column_stack([1 - lam.sum(axis=1), lam])
+    far = np.flatnonzero((bary * twice[:, None] / np.maximum(facing, 1e-12) < -REACH).any(axis=1))
+    a, ed = D[far], np.roll(D[far], -1, axis=1) - D[far]
+    t = np.clip(np.einsum("kex,kex->ke", p[far][:, None] - a, ed) / np.maximum((ed * ed).sum(2), 1e-12), 0, 1)
+    near = a + t[..., None] * ed
+    q = near[np.arange(len(far)), np.argmin(np.linalg.norm(p[far][:, None] - near, axis=2), axis=1)]
+    lq = np.linalg.solve(e[far], (q - D[far, 0])[..., None])[..., 0]
+    tq = R[far, 0] + lq[:, :1] * f[far, 0] + lq[:, 1:] * f[far, 1]
+    off = uv[far] - tq
+    out = uv.copy()
+    out[far] = tq + off * np.minimum(1.0, REACH / np.maximum(np.linalg.norm(off, axis=1), 1e-12))[:, None]
+    return out
 
 
 def _outside(p: np.ndarray, tri: np.ndarray) -> np.ndarray:

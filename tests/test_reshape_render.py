@@ -154,6 +154,23 @@ def test_a_sliver_triangle_shows_only_its_own_texels(corner):
     assert u.min() >= 79 and u.max() <= 121 and v.min() >= 79 and v.max() <= 121
 
 
+@pytest.mark.parametrize("C", [(101.5, 80.0), (100.8, 81.0), (98.5, 80.0)])
+def test_a_squashed_triangle_shows_texels_within_a_pixel_of_itself_not_of_its_box(C):
+    """The rest triangle (80, 80), (120, 120), (120, 80) fills half its box.  Squashed to a needle a
+    pixel or two wide (folded when C passes the long edge), the pixels the fill gives it beside the
+    needle must show the triangle's own texels (u ≥ v, within a pixel), not the empty half of its
+    box (u < v), where the colour of a limb lying beside it may be."""
+    yy, xx = np.mgrid[:200, :200]
+    tex = np.dstack([xx, yy, np.zeros_like(xx), np.full_like(xx, 255)]).astype(np.uint8)  # texel = (x, y)
+    uv = np.array([[80, 80], [120, 120], [120, 80]], float)
+    V = np.array([[100.0, 80.0], [100.5, 120.0], C])
+    img = _renderer(uv, [[0, 1, 2]], [0], tex).render(V)
+    cov = img[..., 3] >= 128
+    u, v = img[..., 0][cov].astype(float), img[..., 1][cov].astype(float)
+    assert cov.sum() >= 40
+    assert ((v - u) / np.sqrt(2)).max() <= 1.0 + 1.0     # REACH, and a pixel of texel rounding
+
+
 def test_depth_order_decides_which_part_is_seen():
     # two overlapping squares, parts torso (red) and l_forearm (blue)
     V = np.array([[0, 0], [40, 0], [40, 40], [0, 40], [20, 20], [60, 20], [60, 60], [20, 60]], float)

@@ -47,6 +47,7 @@ from nnsf.reshape.formats import read_character
 from nnsf.safe_yaml import read_yaml
 from nnsf.names import safe_name
 from nnsf.reshape.stage import report, write_sheet
+from nnsf.reshape.video import over_white as _over_white
 
 #: Per-frame measures whose worst frame and mean a row keeps.
 MEASURES = ("detached", "cracks", "crack_px", "joint_cracks", "specks", "notch_px", "notch_beyond_rest",
@@ -138,11 +139,6 @@ def evaluate_item(item: dict) -> dict:
             sheet = (safe_name(ch.name, ch.source, "name") + "_" + safe_name(name, item["motion"], "motion"),
                      np.stack(white), labels)
     return {"rows": rows, "frames": per_frame, "sheet": sheet, "notes": ch.notes}
-
-
-def _over_white(rgba: np.ndarray) -> np.ndarray:
-    a = rgba[..., 3:4].astype(np.float32) / 255.0
-    return np.clip(rgba[..., :3] * a + 255.0 * (1 - a) + 0.5, 0, 255).astype(np.uint8)
 
 
 def _safe_item(item: dict) -> dict:

@@ -11,7 +11,7 @@ Per frame, for each part in the frame's back-to-front order:
    1/16 px vertices): OpenCV fills a polygon's boundary pixels too, so triangles that share an
    edge leave no pixel between them, flipped or not;
 2. each covered pixel's texture coordinate is its triangle's affine map (deformed → rest) of the
-   pixel centre, kept within a pixel of the triangle's rest box, and ``cv2.remap`` samples the
+   pixel centre, within :data:`REACH` of the rest triangle's edges, and ``cv2.remap`` samples the
    premultiplied texture bilinearly;
 3. the part is laid over what is drawn so far ("over", premultiplied alpha), so a limb's
    anti-aliased edge blends with the body under it.
@@ -26,22 +26,16 @@ import numpy as np
 
 #: Transparent columns between the drawing and the underlay in the texture atlas, pixels.
 ATLAS_GAP = 8
-#: How far outside its triangle's rest box a pixel's texel may lie, pixels: the rasteriser gives a
-#: triangle the pixels its outline touches, centres up to a pixel outside it, which a thin or folded
-#: triangle's map would carry far beyond it, onto the page (at rest they keep their own texel).
+#: How far outside its rest triangle a pixel's texel may lie, pixels.
 REACH = 1.0
+#: How far outside a triangle the centre of a pixel the fill gives it may lie, pixels: ``cv2.fillConvexPoly``
+#: gives a triangle the pixels its outline touches (half a diagonal, and its 1/16 px vertices).
+FILL_REACH = 0.75
 
 
-def rest_boxes(uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per triangle ``uv`` ``(t, 3, 2)`` (texels) the box its pixels' texels are kept in: ``(lo, hi)``, each ``(t, 2)``."""
-    return uv.min(axis=1) - REACH, uv.max(axis=1) + REACH
-
-
-def premultiplied(texture: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
-    """RGBA ``(H, W, 4)`` uint8 → premultiplied float32 RGBA in [0, 1]; outside ``mask`` transparent."""
-    alpha = texture[..., 3].astype(np.float32) / 255.0
-    if mask is not None:
-        alpha = alpha * np.asarray(mask, dtype=np.float32)
+def premultiplied(texture: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """RGBA ``(H, W, 4)`` uint8 → premultiplied float32 RGBA in [0, 1]; outside ``mask`` ``(H, W)`` transparent."""
+    alpha = texture[..., 3].astype(np.float32) / 255.0 * np.asarray(mask, dtype=np.float32)
     return np.dstack([texture[..., :3].astype(np.float32) / 255.0 * alpha[..., None], alpha])
 
 
@@ -66,39 +60,37 @@ class Renderer:
         if underlay is not None and (mesh.layer == 1).any():
             # A transparent gap between the halves: a triangle reaching past the drawing's edge
             # (the mesh covers the mask grown by a few pixels) samples the page, not the other half.
-            gap = np.zeros((H, ATLAS_GAP, 4), tex.dtype)
-            tex = np.hstack([tex, gap, premultiplied(underlay, mask)])
+            tex = np.hstack([tex, np.zeros((H, ATLAS_GAP, 4), tex.dtype), premultiplied(underlay, mask)])
             uv[mesh.layer == 1, :, 0] += W + ATLAS_GAP
-        # 8 bits a channel, premultiplied: bilinear sampling and compositing run on OpenCV's
-        # saturating uint8 arithmetic (a level of rounding per layer, no more).
+        # 8 bits a channel, premultiplied: sampling and compositing run on OpenCV's saturating uint8 arithmetic.
         self.texture = np.ascontiguousarray(np.clip(tex * 255.0 + 0.5, 0, 255).astype(np.uint8))
         self.set_texture_coordinates(uv)
         self.parts = np.asarray(mesh.parts, dtype=np.int64)
-        # Within a part, the last triangle filled wins a pixel.  Where the part folds over itself
-        # (a joint bent past its drawn angle), a triangle along the outline (half in the transparent
-        # margin around the drawing) must not cover the drawn inside: the part's underlay is filled
-        # first, then its triangles from the outline inwards (by their rest depth in the drawing).
+        # Within a part, the last triangle filled wins a pixel.  Where the part folds over itself (a joint bent
+        # past its drawn angle), a triangle along the outline (half in the transparent margin around the drawing)
+        # must not cover the drawn inside: the underlay is filled first, then the triangles from the outline inwards.
         depth = cv2.distanceTransform(np.pad(np.asarray(mask, np.uint8), 1), cv2.DIST_L2, 3)[1:-1, 1:-1]
         c = np.rint(mesh.vertices[self.triangles].mean(axis=1)).astype(np.int64)
         inside = depth[np.clip(c[:, 1], 0, H - 1), np.clip(c[:, 0], 0, W - 1)]
         key = np.where(np.asarray(mesh.layer) == 1, -1.0, inside)
         self.part_triangles = [t[np.argsort(key[t], kind="stable")]
                                for t in (np.flatnonzero(self.parts == p) for p in range(int(self.parts.max()) + 1))]
-        self._ids = None
 
     def set_texture_coordinates(self, uv: np.ndarray) -> None:
-        """Each triangle's corners in the texture, ``(t, 3, 2)`` texels, and what :meth:`_maps` and
-        :meth:`render` derive from them once: the rest edges and the boxes of :func:`rest_boxes`."""
+        """Each triangle's corners in the texture ``(t, 3, 2)`` texels, and what :meth:`_maps` and :meth:`_clamp` take from them."""
         self.uv = uv
         f = uv[:, 1:] - uv[:, :1]                                       # (t, 2, 2): rest edges
         self.edges = (f[:, 0, 0], f[:, 0, 1], f[:, 1, 0], f[:, 1, 1])    # u0, v0 of e0; u1, v1 of e1
-        lo, hi = rest_boxes(uv)                                         # row 0: "no triangle", far outside
-        self.box = [np.concatenate([[-1e4 - 1e4j], b[:, 0] + 1j * b[:, 1]]).astype(np.complex64) for b in (lo, hi)]
+        # Texel → barycentric of corners 1, 2; per corner the least one REACH beyond the edge facing it.
+        twice = np.abs(f[:, 0, 0] * f[:, 1, 1] - f[:, 0, 1] * f[:, 1, 0])
+        facing = np.linalg.norm(np.roll(uv, -1, axis=1) - np.roll(uv, 1, axis=1), axis=2)
+        self.bary = np.vstack([np.zeros(7), np.column_stack([np.linalg.pinv(f.transpose(0, 2, 1)).reshape(-1, 4),
+                                                               -REACH * facing / np.maximum(twice, 1e-12)[:, None]])])
 
-    def _maps(self, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Per triangle the affine map from a deformed pixel to its texel, u + iv = k0 x + k1 y + k2: three
-        ``(t + 1,)`` complex64 arrays (one gather fetches a pair of coefficients, and u + iv viewed as
-        float32 pairs is OpenCV's two-channel map).  Row 0 is "no triangle", mapping far outside the texture."""
+    def _maps(self, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per triangle the affine map from a deformed pixel to its texel, u + iv = k0 x + k1 y + k2, ``(3, t + 1)``
+        complex64 (a gather fetches a pair; u + iv as float32 pairs is OpenCV's two-channel map; row 0, "no triangle",
+        maps far off the texture), and whether it is squashed ``(t + 1,)``: stretched by more than REACH / FILL_REACH."""
         D = vertices[self.triangles]
         # Component arithmetic on (t,) arrays: einsum over 2 × 2 blocks costs more than the maps.
         ex0, ey0 = D[:, 1, 0] - D[:, 0, 0], D[:, 1, 1] - D[:, 0, 1]      # deformed edges e0, e1
@@ -111,10 +103,13 @@ class Renderer:
         a, bb = (fu0 * ey1 - fu1 * ey0) * inv, (fu1 * ex0 - fu0 * ex1) * inv
         c, d = (fv0 * ey1 - fv1 * ey0) * inv, (fv1 * ex0 - fv0 * ex1) * inv
         u0, v0 = self.uv[:, 0, 0], self.uv[:, 0, 1]
-        u2 = np.where(ok, u0 - a * D[:, 0, 0] - bb * D[:, 0, 1], self.uv[:, :, 0].mean(axis=1))
-        v2 = np.where(ok, v0 - c * D[:, 0, 0] - d * D[:, 0, 1], self.uv[:, :, 1].mean(axis=1))
-        return tuple(np.concatenate([[z], x + 1j * y]).astype(np.complex64)
-                     for z, x, y in ((0, a, c), (0, bb, d), (-1e4 - 1e4j, u2, v2)))
+        out = np.empty((3, len(D) + 1), np.complex64)
+        out[:, 0] = (0, 0, -1e4 - 1e4j)
+        out[0, 1:], out[1, 1:] = a + 1j * c, bb + 1j * d
+        out[2, 1:] = np.where(ok, u0 - a * D[:, 0, 0] - bb * D[:, 0, 1], self.uv[:, :, 0].mean(axis=1)) + 1j * \
+            np.where(ok, v0 - c * D[:, 0, 0] - d * D[:, 0, 1], self.uv[:, :, 1].mean(axis=1))
+        sigma = 0.5 * (np.hypot(a + d, c - bb) + np.hypot(a - d, bb + c))  # the map's larger singular value
+        return out, np.r_[False, sigma * FILL_REACH > REACH]
 
     def render(self, vertices, order=None, background=None) -> np.ndarray:
         """One frame from vertices ``(n, 2)`` (output pixels) and a back-to-front part order:
@@ -125,13 +120,11 @@ class Renderer:
         if background is not None:  # an opaque page: the parts are laid straight onto its colour
             # One 32-bit word a pixel: numpy broadcasts a 4-tuple over an image far more slowly.
             out.view(np.uint32)[:] = np.array(tuple(int(b) for b in background) + (255,), np.uint8).view(np.uint32)[0]
-        k0, k1, k2 = self._maps(V)
-        lo, hi = self.box
+        maps, squashed = self._maps(V)
         P = np.rint(V[self.triangles] * 16).astype(np.int32)            # (t, 3, 2), 4 fractional bits
         order = range(len(self.part_triangles)) if order is None else order
-        if self._ids is None or self._ids.shape != (H, W):
-            self._ids = np.zeros((H, W), np.int32)
         gx, gy = np.arange(W, dtype=np.float32), np.arange(H, dtype=np.float32)[:, None]
+        boxes = []                                                      # per part: its box's corner, ids and texels
         for part in order:
             tris = self.part_triangles[part] if part < len(self.part_triangles) else ()
             if not len(tris):
@@ -142,29 +135,53 @@ class Renderer:
             x1, y1 = np.minimum((flat.max(axis=0) >> 4) + 2, (W, H)).tolist()
             if x1 <= x0 or y1 <= y0:
                 continue
-            ids = self._ids[y0:y1, x0:x1]
-            ids[:] = 0
+            ids = np.zeros((y1 - y0, x1 - x0), np.int32)
             local = list(pts - np.array([x0 * 16, y0 * 16], np.int32))
             for k, tri in zip((tris + 1).tolist(), local):
                 cv2.fillConvexPoly(ids, tri, k, cv2.LINE_8, 4)
             # ids are in range by construction: mode="clip" skips numpy's bounds check.
-            w = k0.take(ids, mode="clip")
-            w *= gx[x0:x1]
-            tmp = k1.take(ids, mode="clip")
-            tmp *= gy[y0:y1]
-            w += tmp
-            w += k2.take(ids, mode="clip")
-            uv = w.view(np.float32).reshape(ids.shape + (2,))           # (h, w, 2): u, v per pixel
-            cv2.max(uv, lo.take(ids, mode="clip").view(np.float32).reshape(uv.shape), dst=uv)
-            cv2.min(uv, hi.take(ids, mode="clip").view(np.float32).reshape(uv.shape), dst=uv)
-            src = cv2.remap(self.texture, uv, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                            borderValue=(0, 0, 0, 0))
-            dst = out[y0:y1, x0:x1]
+            w = maps[0].take(ids, mode="clip") * gx[x0:x1] + maps[1].take(ids, mode="clip") * gy[y0:y1]
+            w += maps[2].take(ids, mode="clip")
+            boxes.append((x0, y0, ids, w))
+        self._clamp(boxes, maps, squashed, V)
+        for x0, y0, ids, w in boxes:
+            src = cv2.remap(self.texture, w.view(np.float32).reshape(ids.shape + (2,)), None, cv2.INTER_LINEAR,
+                            borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0, 0))
+            dst = out[y0:y0 + ids.shape[0], x0:x0 + ids.shape[1]]
             keep = cv2.merge([255 - src[..., 3]] * 4)
             cv2.add(cv2.multiply(dst, keep, scale=1.0 / 255.0), src, dst=dst)
         if background is None:
             return to_uint8(out.astype(np.float32) / 255.0)
         return cv2.cvtColor(out, cv2.COLOR_RGBA2RGB)
+
+    def _clamp(self, boxes, maps, squashed, V) -> None:
+        """The texels ``u + iv`` of each part's ``boxes`` (``(x0, y0, ids, texels)``) at the pixels of squashed
+        triangles whose texel lies beyond REACH of an edge of the rest triangle: the texel of the nearest
+        point of the deformed triangle, moved at most REACH towards the pixel's own, so a pixel beside a
+        sliver shows its edge, not a texel its map carries far off (all parts at once: numpy's cost is per call)."""
+        flag = squashed.view(np.uint8)
+        hits = [np.flatnonzero(flag.take(ids, mode="clip")) for _, _, ids, _ in boxes]   # flat, per box
+        k = np.concatenate([b[2].take(h) for b, h in zip(boxes, hits)] + [np.zeros(0, np.int32)])
+        c = np.concatenate([b[3].take(h) for b, h in zip(boxes, hits)] + [np.zeros(0, np.complex64)])
+        own = c.view(np.float32).reshape(-1, 2).astype(np.float64)     # (k, 2): u, v
+        r = self.bary[k]
+        lam = np.einsum("kij,kj->ki", r[:, :4].reshape(-1, 2, 2), own - self.uv[k - 1, 0])
+        bad = np.flatnonzero((lam < r[:, 5:]).any(axis=1) | (1 - lam.sum(axis=1) < r[:, 4]))
+        box = np.repeat(np.arange(len(boxes)), [len(h) for h in hits])[bad]
+        flat = np.concatenate(hits + [np.zeros(0, np.int64)])[bad]
+        x0, y0, width = np.array([(b[0], b[1], b[2].shape[1]) for b in boxes] + [(0, 0, 1)])[box].T
+        y, x = np.divmod(flat, width)
+        p = np.column_stack([x + x0, y + y0]).astype(np.float64)
+        D = V[self.triangles[k[bad] - 1]]                               # (k, 3, 2)
+        e = np.roll(D, -1, axis=1) - D                                  # each edge's direction from its start
+        t = np.clip(np.einsum("kex,kex->ke", p[:, None] - D, e) / np.maximum((e * e).sum(2), 1e-12), 0, 1)
+        near = D + t[..., None] * e
+        q = near[np.arange(len(bad)), np.argmin(np.linalg.norm(p[:, None] - near, axis=2), axis=1)]
+        z = maps[0, k[bad]] * q[:, 0] + maps[1, k[bad]] * q[:, 1] + maps[2, k[bad]]
+        off = c[bad] - z
+        z += off * np.minimum(1.0, REACH / np.maximum(np.abs(off), 1e-12))
+        for j in np.unique(box):
+            np.put(boxes[j][3], flat[box == j], z[box == j])
 
 
 def to_uint8(premult: np.ndarray) -> np.ndarray:

@@ -7,15 +7,11 @@ hangs from, and each bone's radius.
 
 * **Labels** (:meth:`Rig.segment`): a watershed of the drawing seeded along the bones, so parts end
   at the drawing's own lines; :meth:`Rig.scores` is the signed distance to each part's region.
-  Before it, and where it leaves a pixel, (:meth:`Rig.band_scores`) a bone stands for a band of its radius along its segment,
-  with flat ends; a point belongs to the part whose band it lies relatively deepest in (depth over
-  radius), or, inside none, to the nearest band.  A thin arm lying against a wide body then keeps
-  its own pixels up to the body's side, where a nearest-bone rule gives the arm a strip of the
-  body or the body a strip of the arm; flat ends make the cut between a limb and its parent a
-  line across the limb at the joint, and keep a wide body out of the head above it.  A bone's
-  radius is the median distance to the silhouette's edge along its middle (the drawing's distance
-  transform); an upper limb segment's is at most 1.5 times its lower segment's, so an upper arm
-  drawn inside the body does not claim the body.
+  Before it, and where it leaves a pixel, a point belongs to the part whose band (:meth:`Rig.band_scores`:
+  a bone's radius along its segment, flat ends) it lies relatively deepest in, so a thin arm against a
+  wide body keeps its own pixels and the cut between a limb and its parent is a line across the limb.
+  A bone's radius is the median distance to the silhouette's edge along its middle; an upper limb
+  segment's is at most 1.5 times its lower one's, so an upper arm drawn inside the body does not claim it.
 * **Joints** (:meth:`Rig.cuts`): a part and the part it hangs from are never cut apart along
   their root cross-section (within :data:`ROOT_DEPTH` child radii of the line through the joint
   across the child's bone); there the two share vertices, so the joint bends as one piece of paper

@@ -50,7 +50,7 @@ def write_png_frames(folder, images, prefix: str = "frame") -> list[Path]:
 GIF_PALETTE_FRAMES = 16
 
 
-def _over_white(img: np.ndarray) -> np.ndarray:
+def over_white(img: np.ndarray) -> np.ndarray:
     """RGB ``(H, W, 3)`` uint8 of an RGB(A) image, RGBA composited over white (GIF has 1-bit transparency)."""
     img = np.asarray(img)
     if img.shape[2] == 4:
@@ -75,7 +75,7 @@ def gif_palette(images, colors: int = 256) -> np.ndarray:
     """
     n = len(images)
     idx = np.unique(np.linspace(0, n - 1, min(n, GIF_PALETTE_FRAMES)).round().astype(int))
-    sample = np.concatenate([_over_white(images[i])[::4, ::4] for i in idx], axis=0)
+    sample = np.concatenate([over_white(images[i])[::4, ::4] for i in idx], axis=0)
     codes, counts = np.unique(_rgb_codes(sample), return_counts=True)
     page = int(codes[np.argmax(counts)])
     q = Image.fromarray(sample, "RGB").quantize(colors=max(1, colors - 1), method=Image.Quantize.MEDIANCUT,
@@ -133,7 +133,7 @@ def write_gif(path, images, fps: float) -> Path:
     entries = palette.ravel().tolist()
     frames, indexed = [], []
     for img in images:
-        indexed.append(nearest(_over_white(img)))
+        indexed.append(nearest(over_white(img)))
         f = Image.fromarray(indexed[-1], "P")
         f.putpalette(entries)
         frames.append(f)
@@ -200,7 +200,7 @@ def write_mp4(path, images, fps: float) -> Path:
             stream.codec_context.thread_type, stream.codec_context.thread_count = "FRAME", MP4_THREADS
             frame = np.full((He, We, 3), 255, np.uint8)
             for T, img in enumerate(itertools.chain([first], images), 1):
-                frame[:H, :W] = _over_white(img)
+                frame[:H, :W] = over_white(img)
                 container.mux(stream.encode(av.VideoFrame.from_ndarray(frame, format="rgb24")))
             container.mux(stream.encode())                     # flush the frames x264 holds back
         n, size = _mp4_frames(tmp)
