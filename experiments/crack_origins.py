@@ -35,12 +35,12 @@ triangle's map stretched over the pixels the rasteriser gives it along its edges
     python -m experiments.crack_origins --data /work/shared/data /work/extra-drawings /work/extra-drawings-tuning --out reports
 
 Answer (``reports/reshape_crack_origins.{csv,json}``, every frame): the crack counts are the
-measure's own (per drawing × motion, equal to ``reshape_eval_frames.csv``).  Of the 6,234 cracks
-on the tuning set (21 drawings), 99.2 % are the drawing's page (50.3 % a gap or concavity of the
-drawing, 48.2 % the mesh's margin, 0.8 % far page, mostly texels a thin or folded triangle
-stretched beyond itself), 0.7 % thinned strokes and 3 openings (0.05 %, one drawing whose forearm
-crosses its torso); of the 2,399 held-out ones 93.1 % page (33.9 % gap, 58.5 % margin, 0.7 % far),
-4.4 % openings (106, all in one drawing, 80 of them in the walk) and 2.5 % thinned.
+measure's own (per drawing × motion, equal to ``reshape_eval_frames.csv``).  Of the 6,164 cracks
+on the tuning set (21 drawings), 99.2 % are the drawing's page (50.9 % a gap or concavity of the
+drawing, 47.6 % the mesh's margin, 0.7 % far page, mostly texels a thin or folded triangle
+stretched beyond itself), 0.8 % thinned strokes and 3 openings (0.05 %, one drawing whose forearm
+crosses its torso); of the 2,371 held-out ones 93.2 % page (34.1 % gap, 58.4 % margin, 0.7 % far),
+4.5 % openings (106, all in one drawing, 80 of them in the walk) and 2.4 % thinned.
 
 Writes ``OUT/reshape_crack_origins.csv`` (one row per drawing × motion), ``OUT/reshape_crack_origins.json``
 (totals per set, the frames with openings, how it ran) and ``OUT/figures/crack_origins.png`` (for each
