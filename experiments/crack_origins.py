@@ -65,8 +65,9 @@ from nnsf.errors import InputError
 from nnsf.io import atomic_path, write_csv, write_json
 from nnsf.params import checked
 from nnsf.reshape.artefacts import FrameMeasures, coverage, cracks
-from nnsf.reshape.evaluation import _over_white, drive_item
-from nnsf.reshape.render import REACH, Renderer
+from nnsf.reshape.evaluation import drive_item
+from nnsf.reshape.render import Renderer
+from nnsf.reshape.video import over_white
 
 #: Origins of a crack component, in the order they are decided.
 ORIGINS = ("opening", "page", "thinned")
@@ -91,8 +92,8 @@ class Footprint:
     ``underlay`` (or None) are what it was built from.  A shallow copy of the renderer keeps its
     triangles, their fill order and its compositing, but each triangle's texture coordinates all
     point at one texel of an opaque texture that names it: drawn, a frame holds each pixel's
-    topmost triangle.  That triangle's affine map (deformed → rest), kept within a pixel of its rest
-    edges as the renderer's, gives the pixel's texel, which is read off the drawing.
+    topmost triangle.  The renderer's own texel for that triangle at the pixel (its affine map, kept
+    within a pixel of the rest triangle: ``Renderer._maps``, ``Renderer._clamp``) is read off the drawing.
     :meth:`__call__` returns ``(H, W)`` bool maps, filled at the pixels of ``where``: ``covered``
     (some triangle), ``in_mask`` (the texel lies in the mask: bilinear mask ≥ ½), ``drawn`` (the
     drawing's alpha there, the underlay's for underlay triangles, ≥ 128), ``gap``, ``margin`` (page
@@ -101,7 +102,7 @@ class Footprint:
     """
 
     def __init__(self, renderer: Renderer, mesh, texture: np.ndarray, mask: np.ndarray, underlay):
-        self.mesh = mesh
+        self.mesh, self.renderer = mesh, renderer
         t = len(mesh.triangles)
         side = int(np.ceil(np.sqrt(t + 1)))
         ids = np.arange(side * side)
@@ -139,18 +140,16 @@ class Footprint:
         if not len(ys):
             return out
         k = top[ys, xs]
-        tri = self.mesh.triangles[k]
-        D, R = np.asarray(vertices, np.float64)[tri], self.mesh.vertices[tri]           # (N, 3, 2)
-        e = np.stack([D[:, 1] - D[:, 0], D[:, 2] - D[:, 0]], axis=-1)                  # (N, 2, 2) columns
-        det = np.linalg.det(e)
-        ok = np.abs(det) > 1e-9
-        lam = np.zeros((len(k), 2))
-        rhs = np.stack([xs, ys], axis=-1) - D[:, 0]
-        lam[ok] = np.linalg.solve(e[ok], rhs[ok][..., None])[..., 0]
-        uv = R[:, 0] + lam[:, :1] * (R[:, 1] - R[:, 0]) + lam[:, 1:] * (R[:, 2] - R[:, 0])
-        uv[~ok] = R[~ok].mean(axis=1)                        # a collapsed triangle shows one texel
-        uv = _as_renderer(uv, lam, e, D, R, rhs + D[:, 0])
-        out["beyond"][ys, xs] = ok & (_outside(uv, R) > BEYOND)
+        ids = np.zeros(shape, np.int32)
+        ids[ys, xs] = k + 1
+        V, R = np.asarray(vertices, np.float64), self.mesh.vertices[self.mesh.triangles[k]]       # (N, 3, 2) rest
+        maps, squashed = self.renderer._maps(V)
+        gx, gy = np.arange(shape[1], dtype=np.float32), np.arange(shape[0], dtype=np.float32)[:, None]
+        w = maps[0].take(ids) * gx + maps[1].take(ids) * gy + maps[2].take(ids)   # as Renderer.render
+        self.renderer._clamp([(0, 0, ids, w)], maps, squashed, V)
+        # The renderer's texels of an underlay triangle lie in the atlas's second half: back to the drawing's.
+        uv = np.column_stack([w.real[ys, xs], w.imag[ys, xs]]) - (self.renderer.uv[k, 0] - R[:, 0])
+        out["beyond"][ys, xs] = _outside(uv, R) > BEYOND
         layer = np.asarray(self.mesh.layer)[k]
         u, v = uv[:, 0].astype(np.float32), uv[:, 1].astype(np.float32)
         read = np.zeros((len(k), 2), np.float32)
@@ -175,28 +174,6 @@ def _sample(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     u, v = (np.pad(np.asarray(a, np.float32), (0, 512 * rows - n)).reshape(rows, 512) for a in (u, v))
     got = cv2.remap(img, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     return got.reshape(-1, img.shape[2])[:n]
-
-
-def _as_renderer(uv, lam, e, D, R, p) -> np.ndarray:
-    """Texels ``uv`` ``(N, 2)`` as the renderer keeps them (``Renderer._clamp``): one beyond REACH of an
-    edge of its rest triangle ``R`` ``(N, 3, 2)`` (barycentric ``lam`` ``(N, 2)`` of corners 1, 2) becomes
-    the texel of the nearest point of the deformed triangle ``D`` (edge columns ``e`` ``(N, 2, 2)``) to
-    its pixel ``p``, moved at most REACH towards its own."""
-    f = R[:, 1:] - R[:, :1]
-    twice = np.abs(f[:, 0, 0] * f[:, 1, 1] - f[:, 0, 1] * f[:, 1, 0])
-    facing = np.linalg.norm(np.roll(R, -1, axis=1) - np.roll(R, 1, axis=1), axis=2)
-    bary = np.column_stack([1 - lam.sum(axis=1), lam])
-    far = np.flatnonzero((bary * twice[:, None] / np.maximum(facing, 1e-12) < -REACH).any(axis=1))
-    a, ed = D[far], np.roll(D[far], -1, axis=1) - D[far]
-    t = np.clip(np.einsum("kex,kex->ke", p[far][:, None] - a, ed) / np.maximum((ed * ed).sum(2), 1e-12), 0, 1)
-    near = a + t[..., None] * ed
-    q = near[np.arange(len(far)), np.argmin(np.linalg.norm(p[far][:, None] - near, axis=2), axis=1)]
-    lq = np.linalg.solve(e[far], (q - D[far, 0])[..., None])[..., 0]
-    tq = R[far, 0] + lq[:, :1] * f[far, 0] + lq[:, 1:] * f[far, 1]
-    off = uv[far] - tq
-    out = uv.copy()
-    out[far] = tq + off * np.minimum(1.0, REACH / np.maximum(np.linalg.norm(off, axis=1), 1e-12))[:, None]
-    return out
 
 
 def _outside(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
@@ -328,7 +305,7 @@ def run_item(item: dict) -> dict:
             cy, cx = int(round(ys.mean())), int(round(xs.mean()))
             box = np.zeros(labels.shape, bool)
             box[max(cy - CROP, 0):cy + CROP + 1, max(cx - CROP, 0):cx + CROP + 1] = True
-            white = _over_white(img) if white is None else white
+            white = over_white(img) if white is None else white
             best[key] = {"kind": key, "px": int(size_px[k]), "t": t, "character": ch.name, "motion": name,
                          "set": item["set"], "frame": _crop(white, cy, cx, 255),
                          "crack": _crop(labels == k + 1, cy, cx, False),

@@ -47,7 +47,7 @@ from nnsf.reshape.formats import read_character
 from nnsf.safe_yaml import read_yaml
 from nnsf.names import safe_name
 from nnsf.reshape.stage import report, write_sheet
-from nnsf.reshape.video import over_white as _over_white
+from nnsf.reshape.video import over_white
 
 #: Per-frame measures whose worst frame and mean a row keeps.
 MEASURES = ("detached", "cracks", "crack_px", "joint_cracks", "specks", "notch_px", "notch_beyond_rest",
@@ -134,7 +134,7 @@ def evaluate_item(item: dict) -> dict:
                      + 10 * table["spikes"]).to_numpy()
             pick = list(np.linspace(0, T - 1, 10).round().astype(int))
             worst = [int(t) for t in np.argsort(-score, kind="stable") if t not in pick][:2]
-            white = [_over_white(images[t]) for t in pick + worst]
+            white = [over_white(images[t]) for t in pick + worst]
             labels = [f"t={t}" for t in pick] + [f"worst t={t}" for t in worst]
             sheet = (safe_name(ch.name, ch.source, "name") + "_" + safe_name(name, item["motion"], "motion"),
                      np.stack(white), labels)
