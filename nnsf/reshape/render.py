@@ -81,11 +81,13 @@ class Renderer:
         self.uv = uv
         f = uv[:, 1:] - uv[:, :1]                                       # (t, 2, 2): rest edges
         self.edges = (f[:, 0, 0], f[:, 0, 1], f[:, 1, 0], f[:, 1, 1])    # u0, v0 of e0; u1, v1 of e1
-        # Texel → barycentric of corners 1, 2; per corner the least one REACH beyond the edge facing it.
+        # Texel → λ1 + iλ2 = L0 u + L1 v + L2, barycentric of corners 1, 2 (one gather for both; row 0: none),
+        L0, L1 = (np.linalg.pinv(f.transpose(0, 2, 1)) * [[1], [1j]]).sum(axis=1).T    # [e0 e1]^-1, rows as λ1 + iλ2
+        self.bary = np.vstack([np.zeros(3), np.column_stack([L0, L1, -(L0 * uv[:, 0, 0] + L1 * uv[:, 0, 1])])]).T.copy()
+        # and per corner, the least λ of a texel REACH beyond the edge facing it.
         twice = np.abs(f[:, 0, 0] * f[:, 1, 1] - f[:, 0, 1] * f[:, 1, 0])
         facing = np.linalg.norm(np.roll(uv, -1, axis=1) - np.roll(uv, 1, axis=1), axis=2)
-        self.bary = np.vstack([np.zeros(7), np.column_stack([np.linalg.pinv(f.transpose(0, 2, 1)).reshape(-1, 4),
-                                                               -REACH * facing / np.maximum(twice, 1e-12)[:, None]])])
+        self.least = np.vstack([np.zeros(3), -REACH * facing / np.maximum(twice, 1e-12)[:, None]]).T.copy()
 
     def _maps(self, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per triangle the affine map from a deformed pixel to its texel, u + iv = k0 x + k1 y + k2, ``(3, t + 1)``
@@ -159,24 +161,22 @@ class Renderer:
         triangles whose texel lies beyond REACH of an edge of the rest triangle: the texel of the nearest
         point of the deformed triangle, moved at most REACH towards the pixel's own, so a pixel beside a
         sliver shows its edge, not a texel its map carries far off (all parts at once: numpy's cost is per call)."""
-        flag = squashed.view(np.uint8)
-        hits = [np.flatnonzero(flag.take(ids, mode="clip")) for _, _, ids, _ in boxes]   # flat, per box
+        hits = [np.flatnonzero(squashed.take(ids, mode="clip")) for _, _, ids, _ in boxes]   # flat, per box
         k = np.concatenate([b[2].take(h) for b, h in zip(boxes, hits)] + [np.zeros(0, np.int32)])
         c = np.concatenate([b[3].take(h) for b, h in zip(boxes, hits)] + [np.zeros(0, np.complex64)])
-        own = c.view(np.float32).reshape(-1, 2).astype(np.float64)     # (k, 2): u, v
-        r = self.bary[k]
-        lam = np.einsum("kij,kj->ki", r[:, :4].reshape(-1, 2, 2), own - self.uv[k - 1, 0])
-        bad = np.flatnonzero((lam < r[:, 5:]).any(axis=1) | (1 - lam.sum(axis=1) < r[:, 4]))
+        lam = self.bary[0].take(k) * c.real + self.bary[1].take(k) * c.imag + self.bary[2].take(k)   # float64
+        bad = np.flatnonzero((lam.real < self.least[1].take(k)) | (lam.imag < self.least[2].take(k))
+                             | (1 - lam.real - lam.imag < self.least[0].take(k)))
         box = np.repeat(np.arange(len(boxes)), [len(h) for h in hits])[bad]
         flat = np.concatenate(hits + [np.zeros(0, np.int64)])[bad]
         x0, y0, width = np.array([(b[0], b[1], b[2].shape[1]) for b in boxes] + [(0, 0, 1)])[box].T
         y, x = np.divmod(flat, width)
         p = np.column_stack([x + x0, y + y0]).astype(np.float64)
         D = V[self.triangles[k[bad] - 1]]                               # (k, 3, 2)
-        e = np.roll(D, -1, axis=1) - D                                  # each edge's direction from its start
+        e = D[:, [1, 2, 0]] - D                                         # each edge's direction from its start
         t = np.clip(np.einsum("kex,kex->ke", p[:, None] - D, e) / np.maximum((e * e).sum(2), 1e-12), 0, 1)
         near = D + t[..., None] * e
-        q = near[np.arange(len(bad)), np.argmin(np.linalg.norm(p[:, None] - near, axis=2), axis=1)]
+        q = near[np.arange(len(bad)), np.argmin(((p[:, None] - near) ** 2).sum(2), axis=1)]
         z = maps[0, k[bad]] * q[:, 0] + maps[1, k[bad]] * q[:, 1] + maps[2, k[bad]]
         off = c[bad] - z
         z += off * np.minimum(1.0, REACH / np.maximum(np.abs(off), 1e-12))
