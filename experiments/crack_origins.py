@@ -39,8 +39,10 @@ measure's own (per drawing × motion, equal to ``reshape_eval_frames.csv``).  Of
 on the tuning set (21 drawings), 99.2 % are the drawing's page (50.9 % a gap or concavity of the
 drawing, 47.6 % the mesh's margin, 0.7 % far page, mostly texels a thin or folded triangle
 stretched beyond itself), 0.8 % thinned strokes and 3 openings (0.05 %, one drawing whose forearm
-crosses its torso); of the 2,371 held-out ones 93.2 % page (34.1 % gap, 58.4 % margin, 0.7 % far),
-4.5 % openings (106, all in one drawing, 80 of them in the walk) and 2.4 % thinned.
+crosses its torso); of the 2,905 held-out ones 76.6 % page (27.7 % gap, 48.3 % margin, 0.6 % far),
+21.5 % openings (624, all in noto_person_walking: the slit round its hand's place at the hips, which
+its mesh cut open once the hand no longer took the hips from the body; docs/method.md §13) and
+1.9 % thinned.
 
 Writes ``OUT/reshape_crack_origins.csv`` (one row per drawing × motion), ``OUT/reshape_crack_origins.json``
 (totals per set, the frames with openings, how it ran) and ``OUT/figures/crack_origins.png`` (for each

@@ -525,3 +525,19 @@ def test_drawn_hands_on_the_body_are_their_forearms(name):
     hand = np.hypot(x - ch.keypoints[J["l_wrist"], 0], y - ch.keypoints[J["l_wrist"], 1]) < 10
     assert (rig.labels[hand] == PART_INDEX["l_forearm"]).mean() > 0.97
 
+
+@pytest.mark.parametrize("outlined", [True, False])
+def test_a_hand_hanging_over_the_hips_leaves_each_thigh_bordering_the_body(outlined):
+    """The left arm hangs down the middle of the body, over the spine, its wrist just above the
+    pelvis.  Each thigh hangs from the body at its hip, so its region must border the body's: a thigh
+    that borders only the hand was held by the hand once the hand was cut from the body, and the
+    mesh shares no vertex between the hand and the legs."""
+    ch = _figure(arm_over_body=True, legs_touch=False, left=[(110, 70), (114, 135), (108, 185)], outlined=outlined)
+    rig = Rig.build(ch)
+    body = rig.labels == PART_INDEX["torso"]
+    for thigh in ("l_thigh", "r_thigh"):
+        grown = cv2.dilate((rig.labels == PART_INDEX[thigh]).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+        assert (grown & body).any(), thigh
+    m = build_mesh(ch, rig, 800)
+    of = lambda *names: np.unique(m.triangles[(m.layer == 0) & np.isin(m.parts, [PART_INDEX[n] for n in names])])
+    assert not np.intersect1d(of("l_forearm"), of("l_thigh", "r_thigh", "l_shin", "r_shin")).size

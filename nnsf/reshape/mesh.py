@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
+from scipy.sparse.csgraph import connected_components, shortest_path
 from scipy.spatial import Delaunay, cKDTree
 
 from nnsf.errors import InputError
@@ -466,30 +466,38 @@ def build_mesh(character, rig, n_vertices: int = 800) -> Mesh:
         two = np.tile(np.column_stack([np.where(p[c] == under[c], q[c], p[c]), under[c]]), (2, 1))[pinned]
         for v, o, u in set(zip(np.r_[a[c], b[c]][pinned], two[:, side], two[:, 1 - side])):
             cut_edges |= candidates & ((a == v) | (b == v)) & ((p == o) != (q == o)) & (p != u) & (q != u)
+    tree = np.flatnonzero(rig.parent >= 0)
+    hops = shortest_path(coo_matrix((np.ones(len(tree)), (tree, rig.parent[tree])), (rig.n_parts,) * 2),
+                         unweighted=True, directed=False)       # between two parts in the rig's tree
     for _ in range(50):
+        # A piece the cuts set apart, and no underlay joins to the rest (the body's, beneath an arm
+        # over the hips, joins the body above and below it), is joined back where it touches its
+        # nearest kin (a leg to the other leg, not to a hand lying over it).
         T2, origin = cut(T, cut_edges, pairs)
-        comp = _components(T2)
-        loose = comp != np.bincount(comp).argmax()
+        tris, layer, all_parts, origin = _assemble(T, T2, origin, parts, *_underlays(V, T, parts, pairs,
+                                                   np.where(cut_edges, under, -1), cover), rig.n_parts, len(V))
+        comp = _components(tris)
+        loose = (comp != np.bincount(comp[layer == 0]).argmax())[layer == 0]
         if not loose.any():
             break
-        cut_edges = cut_edges & ~(loose[pairs[:, 0]] | loose[pairs[:, 2]])
-    under[~cut_edges] = -1
-    copied, owner = _underlays(V, T, parts, pairs, under, cover)
-    lookup = np.full((rig.n_parts, len(V)), -1, dtype=np.int64)
-    lookup[np.repeat(parts, 3), origin[T2.ravel()]] = T2.ravel()
-    extra = np.unique(np.column_stack([np.repeat(owner, 3), T[copied].ravel()]), axis=0).reshape(-1, 2)
-    extra = extra[lookup[extra[:, 0], extra[:, 1]] < 0]       # an underlay's own vertices, new copies
-    lookup[extra[:, 0], extra[:, 1]] = len(origin) + np.arange(len(extra))
-    origin = np.concatenate([origin, extra[:, 1]])
-    tris = np.vstack([T2, lookup[owner[:, None], T[copied]]])
-    layer = np.concatenate([np.zeros(len(T2), np.int64), np.ones(len(copied), np.int64)])
-    all_parts = np.concatenate([parts, owner])
+        edge = cut_edges & (loose[pairs[:, 0]] | loose[pairs[:, 2]])
+        cut_edges &= ~(edge & (hops[p, q] == hops[p, q][edge].min()))
     # An underlay patch that shares no edge with its part would float: it is left out.
-    comp = _components(tris)
     keep = np.isin(comp, comp[layer == 0])
     tris, layer, all_parts = tris[keep], layer[keep], all_parts[keep]
     used, inv = np.unique(tris, return_inverse=True)
     return Mesh(vertices=V[origin[used]], triangles=inv.reshape(tris.shape), parts=all_parts, layer=layer, spacing=float(h))
+
+
+def _assemble(T, T2, origin, parts, copied, owner, n_parts, n):
+    """``T2`` (vertices ``origin``) and underlay copies of ``T[copied]`` in parts ``owner``: tris, layer, parts, origin"""
+    lookup = np.full((n_parts, n), -1, dtype=np.int64)
+    lookup[np.repeat(parts, 3), origin[T2.ravel()]] = T2.ravel()
+    extra = np.unique(np.column_stack([np.repeat(owner, 3), T[copied].ravel()]), axis=0).reshape(-1, 2)
+    extra = extra[lookup[extra[:, 0], extra[:, 1]] < 0]       # an underlay's own vertices, new copies
+    lookup[extra[:, 0], extra[:, 1]] = len(origin) + np.arange(len(extra))
+    return (np.vstack([T2, lookup[owner[:, None], T[copied]]]), np.repeat(np.array([0, 1]), [len(T2), len(copied)]),
+            np.concatenate([parts, owner]), np.concatenate([origin, extra[:, 1]]))
 
 
 def _raster(V: np.ndarray, T: np.ndarray, shape, values=None) -> np.ndarray:
@@ -554,16 +562,9 @@ def _box(sel: np.ndarray, pad: int):
 
 def _lying_over(V, T, parts, pairs, candidates, cover, rig):
     """Which of the ``candidates`` ``(e,)`` interior edges (``pairs`` ``(e, 4)``) to cut, and the part
-    lying under each cut ``(e,)`` (−1 where no underlay is needed).
-
-    A cut may open; what shows in the opening must never be the page.  So an edge between a limb
-    and another part is cut only when it lies over: the middle of the limb beside it (the nearest
-    point of its bones, ``rig`` a :class:`~nnsf.reshape.rig.Rig`; not the joint it shares with
-    that part) lies where limbs cover that part (:func:`_covered`), or when the limb is so cut
-    from some part along most of their boundary.  The part beneath gets an underlay there
-    (:func:`_underlays`); however far the limb moves away, the opening shows its colour.  Every
-    other boundary stays joined: parts side by side (legs pressed together, an arm hanging at the
-    body's side) stretch apart rather than open, as a continuous map of a joined mesh cannot crack.
+    lying under each cut ``(e,)`` (−1 where no underlay is needed): an edge between a limb and a part
+    it lies over (:func:`_covered`, the limb's middle beside it; ``rig`` a :class:`~nnsf.reshape.rig.Rig`),
+    so an opening shows the part's underlay, never the page (docs/method.md §13, Cuts).
     """
     p, q = parts[pairs[:, 0]], parts[pairs[:, 2]]
     ends = V[np.stack([T[pairs[:, 0], pairs[:, 1]], T[pairs[:, 0], (pairs[:, 1] + 1) % 3]])]
@@ -617,17 +618,9 @@ def _nearest_on_bones(rig, part: int, points: np.ndarray) -> np.ndarray:
 
 
 def _underlays(V, T, parts, pairs, under, cover) -> tuple[np.ndarray, np.ndarray]:
-    """The triangles to copy into underlays ``(c,)`` and the part each copy goes to ``(c,)``.
-
-    Beneath a limb that is cut from a part it lies over, its triangles where it covers that part
-    (:func:`_covered`) are copied into that part, and so is every limb triangle touching a cut:
-    when the limb moves away, the part beneath is there, joined to it by shared vertices, so an
-    opening seam shows its colour, never the page.  Touching, not only along the cut's edges: a
-    triangle meeting the cut at a corner alone (a sliver at the cut's mouth on the outline, a fan
-    at an elbow) outside the cover left a hole in the underlay, which opened as a pinhole.  A
-    triangle lying over two parts is copied into both (each copy moves with its own part).
-    Nothing else is copied: beneath a joined boundary an underlay would only poke out as a flap
-    when the mesh bends there.
+    """The triangles to copy into underlays ``(c,)`` and the part each copy goes to ``(c,)``: a cut
+    limb's triangles where it covers a part (:func:`_covered`), and every limb triangle touching a cut
+    by an edge or a corner, copied into each part beneath (docs/method.md §13, Underlays).
     """
     centre = V[T].mean(axis=1)
     cut = np.flatnonzero(under >= 0)

@@ -139,7 +139,7 @@ class Rig:
         rig.labels = rig.segment(character.texture, character.mask)
         return rig
 
-    def segment(self, texture: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    def segment(self, texture: np.ndarray, mask: np.ndarray, joints=()) -> np.ndarray:
         """The part of every drawn pixel ``(H, W)`` int16 (−1 off the drawing): a watershed of the drawing.
 
         Each part is seeded by its bones' middles (λ from 0.2 to 0.8, half their radius thick, thin
@@ -197,6 +197,9 @@ class Rig:
         trial = np.where(doubt | ~mask, np.where(mask, 0, self.n_parts + 1), markers).astype(np.int32)
         cv2.watershed(image, trial)
         markers[doubt & (np.append(chain, -1)[np.clip(trial - 1, 0, self.n_parts)] == hand)] = 0
+        for c in joints:    # the parent's seed at the joint a child hangs from (end of this method)
+            cv2.circle(markers, tuple(np.rint(self.keypoints[self.joint[c]] * 16).astype(int)),
+                       int(16 * seed[self.bones[:, 2] == c][0]), int(self.parent[c]) + 1, -1, cv2.LINE_8, 4)
         seeds = markers.copy()
         markers[~mask] = self.n_parts + 1
         cv2.watershed(image, markers)
@@ -239,7 +242,11 @@ class Rig:
             iy, ix = ndimage.distance_transform_edt((flood <= 0) | (flood > self.n_parts), return_distances=False,
                                                     return_indices=True)
             labels[mask] = (flood[iy, ix][mask] - 1).astype(np.int16)
-        return labels
+        # A limb over the joints a part's children hang from (a hand over the hips) took the part's seeds
+        # there and cut the children off it: the part is seeded at the joint of each such child, once.
+        lost = [c for c in np.flatnonzero(self.parent >= 0) if (labels == c).any() and not (
+                cv2.dilate((labels == c).astype(np.uint8), np.ones((3, 3), np.uint8)) & (labels == self.parent[c])).any()]
+        return self.segment(texture, mask, lost) if lost and not len(joints) else labels
 
     @property
     def n_parts(self) -> int:
