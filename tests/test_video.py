@@ -6,8 +6,11 @@ with an OpenCV ``mp4v`` file as the control it must refuse.
 from __future__ import annotations
 
 import ctypes
+import itertools
+import json
 import os
 import resource
+import select
 import shutil
 import subprocess
 import sys
@@ -164,14 +167,11 @@ window.result = new Promise(settle => {{
 </script></body></html>
 """
 
-_AWAIT = ("new Promise(r => {{ const f = () => window.result ? window.result.then(r) : setTimeout(f, 50); f(); }})")
+_AWAIT = "new Promise(r => { const f = () => window.result ? window.result.then(r) : setTimeout(f, 50); f(); })"
 
 
 def play_in_chromium(video: Path, timeout: float = 60.0) -> str:
     """What headless Chromium makes of ``video``: ``ok W H DURATION PLAYED``, ``error CODE`` or ``timeout``."""
-    import json
-    import select
-
     page = video.with_suffix(".html")
     page.write_text(_PAGE.format(name=video.name))
     profile = video.parent / f".chromium-{video.stem}"
@@ -189,7 +189,7 @@ def play_in_chromium(video: Path, timeout: float = 60.0) -> str:
                             pass_fds=(3, 4), env={**os.environ, "HOME": str(profile)})
     os.close(to_browser[0])
     os.close(from_browser[1])
-    deadline, buffer, calls = time.monotonic() + timeout, b"", iter(range(1, 1000))
+    deadline, buffer, calls = time.monotonic() + timeout, b"", itertools.count(1)
 
     def call(method, session=None, **params):
         ident = next(calls)
@@ -215,7 +215,7 @@ def play_in_chromium(video: Path, timeout: float = 60.0) -> str:
         target = next(t["targetId"] for t in targets if t["type"] == "page")
         session = call("Target.attachToTarget", targetId=target, flatten=True)["sessionId"]
         while True:                      # an evaluation that the page's own load interrupts is asked again
-            reply = call("Runtime.evaluate", session, expression=_AWAIT.format(), awaitPromise=True,
+            reply = call("Runtime.evaluate", session, expression=_AWAIT, awaitPromise=True,
                          returnByValue=True)
             if "result" in reply:
                 return reply["result"].get("value", str(reply))
