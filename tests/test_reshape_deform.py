@@ -223,7 +223,8 @@ def test_a_bent_elbow_bends_the_limb_smoothly_and_subkeys_keep_it_in_shape(figur
     V = rig.deformer.run(clip)
     base = Deformer(m, rig.rig, figure.mask, "keypoints")
     Vb = base.run(clip)
-    assert len(base.handles) == 17 and len(rig.deformer.handles) == 17 + len(rig.deformer.subkeys)
+    fans = sum(len(f[3]) for f in rig.deformer.fans)
+    assert len(base.handles) == 17 and len(rig.deformer.handles) == 17 + len(rig.deformer.subkeys) + fans
     for out in (V, Vb):   # the inside of a bent elbow may fold a few triangles, no more
         assert metrics.flipped(m.vertices, out, m.triangles).max() <= 0.02 * len(m.triangles)
     om = rig.deformer.rest_omega
@@ -241,6 +242,33 @@ def test_a_bent_elbow_bends_the_limb_smoothly_and_subkeys_keep_it_in_shape(figur
     rel = V[-1, fore][mid] - el
     off = np.abs(d[0] * rel[:, 1] - d[1] * rel[:, 0]) / np.linalg.norm(d)
     assert off.max() < 0.2 * np.linalg.norm(figure.keypoints[J["l_wrist"]] - figure.keypoints[J["l_elbow"]]) + 0.09 * 300
+
+
+def test_a_sharply_bent_elbow_stays_round_on_the_outside(figure, rig, monkeypatch):
+    """Bent 150° from the drawn straight arm, the outside of the elbow is an arc about the joint (the
+    elbow's fan, docs/method.md §13), not the chord two rigid triangles cut across it: the drawing
+    reaches at least 0.7 of the arm's half-width from the elbow along the outer bisector (0.78
+    measured), against 0.37 without the fan."""
+    import nnsf.reshape.deform as deform
+    from nnsf.reshape.animator import canvas
+    from nnsf.reshape.artefacts import coverage
+
+    clip = _raise_arm(figure.keypoints, 30, 1, elbow=150)
+    el, sh, wr = clip[0, J["l_elbow"]], clip[0, J["l_shoulder"]], clip[0, J["l_wrist"]]
+    inner = (sh - el) / np.linalg.norm(sh - el) + (wr - el) / np.linalg.norm(wr - el)
+    out = -inner / np.linalg.norm(inner)
+    half = rig.rig.radius[(rig.rig.bones[:, 2] == 3)][0]            # part 3 = l_forearm
+    reach, fan = {}, deform.FAN_WEIGHT
+    for weight in (fan, 0.0):
+        monkeypatch.setattr(deform, "FAN_WEIGHT", weight)
+        d = Deformer(rig.mesh, rig.rig, figure.mask, "ours")
+        V = d.run(clip)
+        offset, size = canvas(V, shape=figure.shape)
+        cov = coverage(rig.renderer(size).render(V[0] + offset))
+        steps = np.arange(0, 3 * half, 0.25)
+        p = np.clip(np.rint(el + offset + steps[:, None] * out).astype(int), 0, [size[1] - 1, size[0] - 1])
+        reach[weight] = steps[np.argmin(cov[p[:, 1], p[:, 0]])]
+    assert reach[fan] >= 0.7 * half and reach[fan] > 1.6 * reach[0.0], (reach, half)
 
 
 def test_nothing_comes_apart_through_a_motion(figure, rig):

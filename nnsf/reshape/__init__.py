@@ -16,8 +16,7 @@ One pipeline, each step a module, built once per character and run once per fram
 6. :mod:`~nnsf.reshape.video`: encoding.
 
 :class:`~nnsf.reshape.animator.Animator` runs the six.  Around them: :mod:`~nnsf.reshape.drive`
-retargets a motion onto a drawing, :mod:`~nnsf.reshape.metrics` and
-:mod:`~nnsf.reshape.artefacts` measure the result, :mod:`~nnsf.reshape.evaluation` and
-:mod:`~nnsf.reshape.stage` are the evaluation and the ``reshape`` stage.  Coordinates are pixels,
-x right, y down.
+retargets a motion onto a drawing, :mod:`~nnsf.reshape.metrics` and :mod:`~nnsf.reshape.artefacts`
+measure the result, :mod:`~nnsf.reshape.evaluation` and :mod:`~nnsf.reshape.stage` are the
+evaluation and the ``reshape`` stage.  Coordinates are pixels, x right, y down.
 """

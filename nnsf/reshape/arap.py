@@ -1,41 +1,22 @@
-"""Two-step as-rigid-as-possible deformation (Igarashi, Moscovich & Hughes 2005).
+"""Two-step as-rigid-as-possible deformation (Igarashi, Moscovich & Hughes 2005; docs/method.md §13).
 
-Notation: n rest vertices v ``(n, 2)``, t triangles, m handles.  A handle is
-a fixed linear combination of vertices, a row of the sparse matrix C ``(m, n)``:
-barycentric weights of the triangle that contains a key point, or a single 1
-for a subkey vertex.  Handle h has weight w_h and, per frame, a target
-position g_h; handles are soft constraints w_h ‖C_h v' − g_h‖².
+Notation: n rest vertices v ``(n, 2)``, t triangles, m handles.  A handle is a fixed linear
+combination of vertices, a row of the sparse matrix C ``(m, n)`` (barycentric weights of the
+triangle holding a key point, or a single 1 for a vertex); handle h has weight w_h and, per frame,
+a target g_h: a soft constraint w_h² ‖C_h v' − g_h‖².
 
-**Step 1, similarity fit.**  In every triangle (a, b, c) and for each of its
-three corners c, the rest corner in the frame of the opposite edge,
-v_c = v_a + x e + y R90 e with e = v_b − v_a, is invariant to rotation and
-uniform scale.  Step 1 minimises, over the deformed v',
+* **Step 1, similarity fit**: each rest corner, written in the frame of the opposite edge
+  (v_c = v_a + x e + y R90 e, e = v_b − v_a), keeps its (x, y) in least squares with the handle
+  terms; normal matrix G₁ = A₁ᵀA₁ + I₂ ⊗ CᵀW²C.
+* **Step 2, scale adjustment**: each rest triangle is fitted to its step-1 image by a rotation
+  (2-D Procrustes in closed form), then per coordinate Σ ‖(v''_b − v''_a) − R_tri (v_b − v_a)‖²
+  plus the handle terms; normal matrix G₂ = A₂ᵀA₂ + CᵀW²C.
 
-    Σ_tri Σ_corners ‖v'_c − v'_a − x (v'_b − v'_a) − y R90 (v'_b − v'_a)‖²
-      + Σ_h w_h² ‖C_h v' − g_h‖²,
-
-linear least squares in the 2n coordinates (x and y are coupled through R90).
-Its normal matrix G₁ = A₁ᵀA₁ + I₂ ⊗ CᵀW²C does not depend on the targets.
-
-**Step 2, scale adjustment.**  Each rest triangle is fitted to its step-1
-image by a rotation about the centroids (2-D orthogonal Procrustes in closed
-form: the angle of Σ (rest corner) · / × (deformed corner)), removing the
-scale step 1 allowed.  Then, separately for x and y,
-
-    Σ_tri Σ_edges ‖(v''_b − v''_a) − R_tri (v_b − v_a)‖² + Σ_h w_h² ‖C_h v'' − g_h‖²,
-
-with normal matrix G₂ = A₂ᵀA₂ + CᵀW²C, again fixed.
-
-Both normal matrices are factorised once (``scipy.sparse.linalg.splu`` with
-a symmetric fill-reducing ordering; scipy has no sparse Cholesky) when the
-deformer is built, in float64.  Step 1's residual is complex-linear in the
-vertices (x + iy), so G₁ is the real form of a Hermitian n × n matrix H and
-is factorised as that (a quarter of the real factor's entries).  Step 1's
-solution is linear in the m targets, z₁ = H⁻¹CᵀW² g = M₁ g, and M₁ ``(n, m)``
-is computed once (m back-solves).  A frame then costs a few sparse mat-vecs
-(step 1, right-hand sides, and step 2's rotation fit, which is linear up to a
-per-triangle normalisation) and one back-solve of size n with two columns
-(x and y).  :meth:`TwoStepARAP.deform` takes a whole clip in one call.
+Neither normal matrix depends on the targets: both are factorised once (``splu``, symmetric
+ordering; G₁ as the Hermitian n × n matrix H whose real form it is, since step 1 is
+complex-linear in x + iy).  Step 1 is z₁ = M₁ g with M₁ = H⁻¹CᵀW² computed once, so a frame is a
+few sparse products and one back-solve with x and y as two columns; :meth:`TwoStepARAP.deform`
+takes a whole clip in one call.
 """
 from __future__ import annotations
 
@@ -82,12 +63,12 @@ class Handles:
                        np.concatenate([self.weights, other.weights]))
 
     @classmethod
-    def at_vertices(cls, n_vertices: int, index, weight: float = 1.0) -> "Handles":
-        """One handle per listed vertex ``(k,)``."""
+    def at_vertices(cls, n_vertices: int, index, weight=1.0) -> "Handles":
+        """One handle per listed vertex ``(k,)``, of ``weight`` (one, or ``(k,)``)."""
         index = np.asarray(index, dtype=np.int64)
         k = len(index)
         m = sp.csr_matrix((np.ones(k), (np.arange(k), index)), shape=(k, n_vertices))
-        return cls(m, np.full(k, float(weight)))
+        return cls(m, np.full(k, weight, dtype=np.float64))
 
 
 def barycentric(vertices: np.ndarray, triangles: np.ndarray, points: np.ndarray):
@@ -148,10 +129,9 @@ def _edge_rows(n: int, triangles: np.ndarray) -> sp.csr_matrix:
 
 def _factorise(G: sp.spmatrix, what: str):
     """Sparse LU of a symmetric (Hermitian) positive (semi)definite normal matrix; refuse a singular one."""
-    # G is positive definite once the handles pin a similarity; a symmetric
-    # ordering and diagonal pivots keep the LU as sparse as a Cholesky factor
-    # would be.  Diagonal pivoting does not stop at a numerically zero pivot,
-    # so singularity is tested on U's diagonal.
+    # G is positive definite once the handles pin a similarity; a symmetric ordering and diagonal
+    # pivots keep the LU as sparse as a Cholesky factor would be.  Diagonal pivoting does not stop
+    # at a numerically zero pivot, so singularity is tested on U's diagonal.
     msg = (f"ARAP {what} system is singular: the handles must pin at least two distinct points "
            "of every connected piece of the mesh")
     try:
@@ -327,9 +307,8 @@ class TwoStepARAP:
     def deform(self, targets, steps: int = 2) -> np.ndarray:
         """Vertex positions for handle targets: ``(m, 2)`` -> ``(n, 2)``; ``(F, m, 2)`` -> ``(F, n, 2)``.
 
-        ``steps=1`` returns the similarity step alone.  Frames are
-        independent, so a clip is solved with all frames as columns of one
-        right-hand side.
+        ``steps=1`` returns the similarity step alone.  Frames are independent, so a clip is solved
+        with all frames as columns of one right-hand side.
         """
         g, F = self._frames(targets)
         z1 = self._step1(g)

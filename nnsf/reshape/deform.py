@@ -9,8 +9,9 @@
 * **Subkeys** (``method="ours"``, the paper's): per limb, the vertices of the limb's own
   triangles nearest ``subkeys_per_limb`` samples of its rest Bézier curve (Eq. 9-11,
   :func:`nnsf.reshape.subkeys.init_subkeys`), tracked through the clip by Eq. 12-14
-  (:class:`nnsf.reshape.subkeys.SubkeyTracker`).  ``method="keypoints"`` leaves them out: the
-  comparison baseline of the paper's Fig. 8.
+  (:class:`nnsf.reshape.subkeys.SubkeyTracker`); and the vertices about each elbow, which bend
+  round it (:func:`elbow_fans`).  ``method="keypoints"`` leaves them out: the comparison baseline
+  of the paper's Fig. 8.
 * **Two-step ARAP** (:class:`nnsf.reshape.arap.TwoStepARAP`, Igarashi et al. 2005), factorised
   once; a frame is a few sparse products and one back-solve.  An underlay's own vertices then ride
   with the part beneath (:func:`underlay_riders`).
@@ -34,6 +35,9 @@ METHODS = ("ours", "keypoints")
 #: An underlay's own vertex rides with the affine map fitted to this many of its part's vertices
 #: nearest it: more than a triangle's three, so no one strained triangle carries it.
 RIDE_NEIGHBOURS = 8
+#: An elbow's fan: its vertices within this many radii of the thicker arm bone and this share of
+#: the shorter bone of the joint, weighted up to FAN_WEIGHT (docs/method.md §13, Elbows).
+FAN_REACH, FAN_SHARE, FAN_WEIGHT = 1.25, 0.5, 3.0
 
 
 def keypoint_handles(mesh: Mesh, rig, weight: float) -> Handles:
@@ -58,6 +62,52 @@ def keypoint_handles(mesh: Mesh, rig, weight: float) -> Handles:
                        (np.repeat(np.arange(len(rows)), 3), np.concatenate([t for t, _ in rows]))),
                       shape=(len(rows), mesh.n_vertices))
     return Handles(m, np.asarray(weights))
+
+
+def elbow_fans(mesh: Mesh, rig) -> list:
+    """Per elbow (a forearm hanging from an upper arm; hidden arms have none): ``(shoulder, elbow,
+    wrist, vertices (k,), weights (k,))``: the vertices only the two segments' drawn triangles use,
+    within :data:`FAN_REACH` radii and :data:`FAN_SHARE` of the shorter bone of the elbow, weighted
+    ``FAN_WEIGHT (1 − (d / reach)²)`` so the fan fades into what ARAP makes of the arm."""
+    own = mesh.layer == 0
+    count = np.zeros((mesh.n_vertices, len(rig.parts)), np.int64)
+    np.add.at(count, (mesh.triangles[own].ravel(), np.repeat(mesh.parts[own], 3)), 1)
+    fans, kp = [], rig.keypoints
+    for c, (p, j) in enumerate(zip(rig.parent, rig.joint)):
+        if p <= 0 or "forearm" not in rig.parts[c] or {p, c} & set(rig.hidden):
+            continue
+        a = rig.bones[(rig.bones[:, 2] == p) & (rig.bones[:, 1] == j), 0][0]
+        b = rig.bones[(rig.bones[:, 2] == c) & (rig.bones[:, 0] == j), 1][0]
+        reach = min(FAN_REACH * rig.radius[np.isin(rig.bones[:, 2], (p, c))].max(),
+                    FAN_SHARE * min(np.linalg.norm(kp[a] - kp[j]), np.linalg.norm(kp[b] - kp[j])))
+        d = np.linalg.norm(mesh.vertices - kp[j], axis=1)
+        mine = count[:, [p, c]].sum(axis=1)
+        v = np.flatnonzero((mine > 0) & (mine == count.sum(axis=1)) & (d < reach))
+        fans.append((a, j, b, v, FAN_WEIGHT * (1 - (d[v] / reach) ** 2)))
+    return fans
+
+
+def fan_targets(fans, rest_kp: np.ndarray, rest_vertices: np.ndarray, kp: np.ndarray) -> np.ndarray:
+    """Targets ``(T, k, 2)`` of the fans' vertices for key points ``(T, K, 2)``.  A vertex keeps its
+    distance to the elbow.  Its angle about it, from the upper arm, is stretched with the angle
+    between the bones on the side that opens, so the outside of the bend is an arc; on the side
+    that closes it turns with the nearer bone, as two capsules overlap."""
+    ang = lambda d: np.arctan2(d[..., 1], d[..., 0])
+    full, out = 2 * np.pi, []
+    for a, j, b, v, _ in fans:
+        a0 = ang(rest_kp[a] - rest_kp[j])
+        beta0 = (ang(rest_kp[b] - rest_kp[j]) - a0) % full
+        d = rest_vertices[v] - rest_kp[j]
+        psi, rad = (ang(d) - a0) % full, np.hypot(d[:, 0], d[:, 1])
+        up = ang(kp[:, a] - kp[:, j])[:, None]
+        turn = (ang(kp[:, b] - kp[:, j])[:, None] - up - beta0 + np.pi) % full - np.pi
+        beta = np.clip(beta0 + turn, 0.1, full - 0.1)                   # (T, 1): the bend, never folded through
+        first = psi < beta0                                             # between the upper arm and the forearm
+        stretched = np.where(first, psi * beta / beta0, beta + (psi - beta0) * (full - beta) / (full - beta0))
+        child = np.where(first, psi >= beta0 / 2, psi < (beta0 + full) / 2)
+        psi = np.where(first == (beta > beta0), stretched, np.where(child, psi + beta - beta0, psi))
+        out.append(kp[:, j, None] + rad[:, None] * np.stack([np.cos(up + psi), np.sin(up + psi)], axis=-1))
+    return np.concatenate(out, axis=1) if out else np.zeros((len(kp), 0, 2))
 
 
 def part_owner(mesh: Mesh) -> np.ndarray:
@@ -122,7 +172,7 @@ class Deformer:
         kp = rig.keypoints[:N_JOINTS]
         self.rest_omega = fit_omega(mask, kp)
         handles = keypoint_handles(mesh, rig, weight)
-        self.tracker = None
+        self.tracker, self.fans = None, []
         self.subkeys = Subkeys(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 2)))
         if method == "ours" and subkeys_per_limb > 0:
             # A limb's subkeys are vertices of its own triangles that no other part shares.
@@ -132,6 +182,9 @@ class Deformer:
                                         candidates=candidates)
             handles = handles + Handles.at_vertices(mesh.n_vertices, self.subkeys.vertex, weight)
             self.tracker = SubkeyTracker(self.subkeys, kp, self.rest_omega, propagation=propagation)
+            self.fans = elbow_fans(mesh, rig)
+            for *_, v, w in self.fans:
+                handles = handles + Handles.at_vertices(mesh.n_vertices, v, w)
         self.handles = handles
         self.arap = TwoStepARAP(mesh.vertices, mesh.triangles, handles)
         self.riders, self.ride = underlay_riders(mesh)
@@ -142,7 +195,8 @@ class Deformer:
         g = self.rig.full_keypoints(kp)
         if self.tracker is None:
             return g
-        return np.concatenate([g, self.tracker.track(kp, omega)], axis=1)
+        return np.concatenate([g, self.tracker.track(kp, omega),
+                               fan_targets(self.fans, self.rig.keypoints, self.mesh.vertices, g)], axis=1)
 
     def run(self, keypoints: np.ndarray, omega=None) -> np.ndarray:
         """Deformed vertices ``(T, n, 2)`` for key points ``(T, 17, 2)`` (pixels); ``omega``

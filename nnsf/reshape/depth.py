@@ -75,9 +75,8 @@ def _sort(behind: np.ndarray, prev_rank: np.ndarray, z: np.ndarray, hard: np.nda
 def part_overlaps(frames: np.ndarray, triangles: np.ndarray, parts: np.ndarray) -> np.ndarray:
     """Which parts overlap in the image, ``(T, 10, 10)`` bool, from deformed vertices ``(T, n, 2)``.
 
-    Two parts overlap when their axis-aligned bounding boxes (over the
-    vertices of their triangles) intersect: a cheap, conservative test (only
-    pairs that may overlap need a depth order).
+    Two parts overlap when their axis-aligned bounding boxes (over the vertices of their triangles)
+    intersect: a cheap, conservative test (only pairs that may overlap need a depth order).
     """
     V = np.asarray(frames, dtype=np.float64)
     T = len(V)
@@ -148,15 +147,13 @@ def order_ranks(orders: np.ndarray) -> np.ndarray:
 def depth_metric(orders: np.ndarray, part_z: np.ndarray, margin: float, pairs=None) -> dict[str, float]:
     """docs/method.md §15.7: agreement of the drawn pairwise order with the source depth, and order flips.
 
-    orders ``(T, 10)``; part_z ``(T, 10)``; a pair counts in a frame when the
-    source separates it by more than ``margin`` (source units).  ``pairs``:
-    optional ``(T, 10, 10)`` bool of the pairs that matter (e.g. overlap in
-    the image); default all.  Returns ``depth_agreement`` (share of counted
-    (frame, pair) cases drawn in the source's order; NaN with none),
-    ``depth_pairs`` (how many were counted), ``order_flips`` (changes of
-    a pair's relative order between consecutive frames, summed over pairs;
-    with ``pairs``, only pairs that overlap in both frames)
-    and ``order_flips_per_100_frames``.
+    orders ``(T, 10)``; part_z ``(T, 10)``; a pair counts in a frame when the source separates it by
+    more than ``margin`` (source units).  ``pairs``: optional ``(T, 10, 10)`` bool of the pairs that
+    matter (e.g. overlap in the image); default all.  Returns ``depth_agreement`` (share of counted
+    (frame, pair) cases drawn in the source's order; NaN with none), ``depth_pairs`` (how many were
+    counted), ``order_flips`` (changes of a pair's relative order between consecutive frames, summed
+    over pairs; with ``pairs``, only pairs that overlap in both frames) and
+    ``order_flips_per_100_frames``.
     """
     ranks = order_ranks(orders)
     z = np.asarray(part_z, dtype=np.float64)
@@ -196,12 +193,11 @@ PART_ALIASES: dict[str, tuple[int, ...]] = {
 def parse_overrides(spec, n_frames: int, source="params.yaml", field="reshape.depth_overrides"):
     """User depth overrides, checked: ``[(over parts, under parts, first frame, last frame), ...]``.
 
-    ``spec``: a list (or None) of items, each either a sentence
-    ``"left_arm over torso from 12 to 30"`` or a mapping
-    ``{over: left_arm, under: torso, from: 12, to: 30}``; frames are
-    0-based and inclusive, within ``0 .. n_frames − 1``.  Names are
-    :data:`PART_ALIASES` (a part, or ``left_arm`` etc. for both its
-    segments).  Bad input raises :class:`InputError` naming the item's field.
+    ``spec``: a list (or None) of items, each either a sentence ``"left_arm over torso from 12 to
+    30"`` or a mapping ``{over: left_arm, under: torso, from: 12, to: 30}``; frames are 0-based and
+    inclusive, within ``0 .. n_frames − 1``.  Names are :data:`PART_ALIASES` (a part, or
+    ``left_arm`` etc. for both its segments).  Bad input raises :class:`InputError` naming the
+    item's field.
     """
     if spec is None:
         return []
@@ -243,10 +239,9 @@ def parse_overrides(spec, n_frames: int, source="params.yaml", field="reshape.de
 def apply_overrides(orders: np.ndarray, overrides) -> np.ndarray:
     """Orders ``(T, 10)`` with each override ``(over, under, t0, t1)`` enforced on frames t0..t1.
 
-    In a frame where some ``over`` part is drawn before some ``under`` part,
-    the ``over`` parts move (keeping their order among themselves) to just
-    after the last ``under`` part; every other part keeps its place, and
-    frames outside the range are untouched.  Overrides apply in list order.
+    In a frame where some ``over`` part is drawn before some ``under`` part, the ``over`` parts move
+    (keeping their order among themselves) to just after the last ``under`` part; every other part
+    keeps its place, and frames outside the range are untouched.  Overrides apply in list order.
     """
     out = np.array(orders, dtype=np.int64, copy=True)
     for over, under, t0, t1 in overrides:

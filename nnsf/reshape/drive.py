@@ -5,8 +5,7 @@ A motion is any 17-point clip ``(T, 17, 2)``: unified template features
 projected BVH clip.  :func:`retarget` puts it on a character:
 
 * bone directions come from the motion, frame by frame (with
-  ``arms="drawing"`` the arms keep their drawn directions, turned by the
-  motion's swing);
+  ``arms="drawing"`` the arms keep their drawn directions, turned by the motion's swing);
 * bone lengths come from the drawing;
 * the root is anchored at the drawing's pelvis: it moves by
   ``s · (root(t) − median root)``, with ``s`` the ratio of the drawing's to
@@ -114,43 +113,38 @@ def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", fr
 
     ``rest_keypoints`` ``(17, 2)``: the drawing's key points.
 
-    * Root: the drawing's pelvis plus ``s · (root(t) − median root)``, ``s``
-      the body-scale ratio (:func:`nnsf.skeleton.character_scale`).
-    * Torso (:data:`TORSO`): the drawn torso, rigid, turned by the motion's
-      spine angle (pelvis→thorax) relative to the drawing's.  ARAP cannot
-      meet handles that are not a similarity of the drawing, and copying the
-      motion's hip and shoulder bone directions would shear the drawn torso.
-    * Every other bone (limbs, neck, head): the motion's direction at the
-      drawing's length, chained from its parent: the inverse unification
-      ``W_char⁻¹ W_motion`` (module docstring) without the motion's
-      foreshortening, since a drawn limb cannot shrink without squashing.
+    * Root: the drawing's pelvis plus ``s · (root(t) − median root)``, ``s`` the body-scale ratio
+      (:func:`nnsf.skeleton.character_scale`).
+    * Torso (:data:`TORSO`): the drawn torso, rigid, turned by the motion's spine angle
+      (pelvis→thorax) relative to the drawing's.  ARAP cannot meet handles that are not a
+      similarity of the drawing, and copying the motion's hip and shoulder bone directions would
+      shear the drawn torso.
+    * Every other bone (limbs, neck, head): the motion's direction at the drawing's length, chained
+      from its parent: the inverse unification ``W_char⁻¹ W_motion`` (module docstring) without the
+      motion's foreshortening, since a drawn limb cannot shrink without squashing.
 
-    * ``arms="drawing"``: each arm bone (:data:`ARM_BONES`) keeps its drawn
-      direction turned by the motion's swing, the angle ``θ_b(t) − θ̄_b``
-      between its direction in frame t and its mean direction over the clip
-      (the angle of the mean unit vector).  The arm moves as the motion's
-      arm does, about the pose it is drawn in: arms drawn spread (a
-      six-armed bug, a figure with its hands on its hips) stay spread and
-      swing, where ``"motion"`` hangs them as the performer's hang.  An
-      unchanged motion arm gives the drawn pose exactly.
+    * ``arms="drawing"``: each arm bone (:data:`ARM_BONES`) keeps its drawn direction turned by the
+      motion's swing, the angle ``θ_b(t) − θ̄_b`` between its direction in frame t and its mean
+      direction over the clip (the angle of the mean unit vector).  The arm moves as the motion's
+      arm does, about the pose it is drawn in: arms drawn spread (a six-armed bug, a figure with its
+      hands on its hips) stay spread and swing, where ``"motion"`` hangs them as the performer's
+      hang.  An unchanged motion arm gives the drawn pose exactly.
 
-    * ``head="torso"``: head_top moves with the drawn
-      torso, so the head keeps its drawn angle to the body.  For a drawing
-      with no neck, whose head is the top of one shape (a cone whose tip is
-      the head, a head sitting flat on its body): turned on its own, the head
-      part slides across the body and its drawn outline shows inside it.
-      ``"motion"`` (the default) turns the head as the performer's.
+    * ``head="torso"``: head_top moves with the drawn torso, so the head keeps its drawn angle to
+      the body.  For a drawing with no neck, whose head is the top of one shape (a cone whose tip
+      is the head, a head sitting flat on its body): turned on its own, the head part slides across
+      the body and its drawn outline shows inside it.  ``"motion"`` (the default) turns the head as
+      the performer's.
 
-    * ``body="quadruped"``: a four-legged drawing, every leg about its drawn
-      pose and the body rigid (:func:`nnsf.reshape.quadruped.retarget_quadruped`;
-      ``arms`` does not apply).
+    * ``body="quadruped"``: a four-legged drawing, every leg about its drawn pose and the body
+      rigid (:func:`nnsf.reshape.quadruped.retarget_quadruped`; ``arms`` does not apply).
 
     * ``facing``: the drawing's (:func:`biped_facing`; +1 towards +x, −1, 0 unknown).  A biped
       motion that faces the other way (:func:`nnsf.reshape.quadruped.facing`) is mirrored, so a
       figure drawn from the side does not walk backwards with its knees bent the wrong way.
 
-    A NaN/Inf frame or a bone of zero median length raises
-    :class:`InputError` naming ``source`` and the frame / bone.
+    A NaN/Inf frame or a bone of zero median length raises :class:`InputError` naming ``source``
+    and the frame / bone.
     """
     P = check_finite(points, source, frames)
     if arms not in ARM_CHOICES:
@@ -204,10 +198,9 @@ def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", fr
 def _swing_about_drawing(unit: np.ndarray, rest: np.ndarray) -> np.ndarray:
     """Bone unit vectors ``(T, 16, 2)`` with the arm bones' replaced by the drawn direction turned by the swing.
 
-    For each bone of :data:`ARM_BONES`: the motion's angle in each frame
-    minus the angle of its mean unit vector (a circular mean: it is
-    defined for any clip whose arm does not point every way equally),
-    added to the drawn bone's angle in ``rest`` ``(17, 2)``.
+    For each bone of :data:`ARM_BONES`: the motion's angle in each frame minus the angle of its mean
+    unit vector (a circular mean: it is defined for any clip whose arm does not point every way
+    equally), added to the drawn bone's angle in ``rest`` ``(17, 2)``.
     """
     out = unit.copy()
     bones = [BONES.index(b) for b in ARM_BONES]

@@ -9,11 +9,10 @@ and p_con is stored relative to the bone as ω = (ω_x, ω_y):
 
     p_con = p_j + ω_x d + ω_y R90 d,   d = p_{j+1} − p_j,
 
-with R90 the rotation by +90° in (x, y) axes, R90 (x, y) = (−y, x).  In image
-axes (y down) that turns the bone *clockwise* on screen; ω_y > 0 bends the
-curve to the bone's right as seen walking from p_j to p_{j+1}.  ω = (½, 0) is
-the straight, uniformly parameterised bone (``STRAIGHT``); ω is invariant to
-moving, rotating and scaling the bone, which is why only ω is keyframed.
+with R90 the rotation by +90° in (x, y) axes, R90 (x, y) = (−y, x).  In image axes (y down) that
+turns the bone *clockwise* on screen; ω_y > 0 bends the curve to the bone's right as seen walking
+from p_j to p_{j+1}.  ω = (½, 0) is the straight, uniformly parameterised bone (``STRAIGHT``); ω is
+invariant to moving, rotating and scaling the bone, which is why only ω is keyframed.
 
 All functions broadcast over leading axes (frames), so a clip ``(T, 17, 2)``
 is processed in one call.
@@ -83,12 +82,10 @@ def fit_omega(mask: np.ndarray, keypoints: np.ndarray, samples: int = 24, span=(
               max_bend: float = 0.35) -> np.ndarray:
     """ω ``(8, 2)`` of the rest pose, from the silhouette's medial curve along each limb.
 
-    For λ in ``span`` (away from the joints, where limbs merge into the body)
-    the chord of the mask through p_j + λ d, perpendicular to the bone (the
-    run of mask pixels on it nearest the bone), gives a medial point
-    p_j + λ d + m(λ) n̂.  The Bézier with fixed end points that
-    fits these points best in least squares has ω_x = ½ exactly (the points
-    are spaced uniformly along d) and
+    For λ in ``span`` (away from the joints, where limbs merge into the body) the chord of the mask
+    through p_j + λ d, perpendicular to the bone (the run of mask pixels on it nearest the bone),
+    gives a medial point p_j + λ d + m(λ) n̂.  The Bézier with fixed end points that fits these
+    points best in least squares has ω_x = ½ exactly (the points are spaced uniformly along d) and
 
         ω_y = Σ 2λ(1−λ) m(λ) / (‖d‖ Σ 4λ²(1−λ)²),
 

@@ -17,11 +17,10 @@
    are triangulated again; drawn pixels left outside every triangle get points at least
    :data:`MIN_SPACING` apart (one per region at least), until none is.
 
-:func:`cut` duplicates the vertices along chosen edges: the mesh stays one connected piece
-wherever it is not cut, so the two sides of an uncut edge move together in every frame and no
-crack can open there.  :func:`build_mesh` cuts only where a limb lies over another part in the
-drawing, and puts an underlay of that part beneath every cut, so an opening cut shows the part
-beneath, never the page.
+:func:`cut` duplicates the vertices along chosen edges: the mesh stays one connected piece wherever
+it is not cut, so the two sides of an uncut edge move together in every frame and no crack can open
+there.  :func:`build_mesh` cuts only where a limb lies over another part in the drawing, and puts an
+underlay of that part beneath every cut, so an opening cut shows the part beneath, never the page.
 """
 from __future__ import annotations
 

@@ -1,9 +1,8 @@
 """The body's parts: the one table of part names, the bones that label them and the joints that join them.
 
 Part ids index :data:`PARTS`: the torso, the head, then the limb segments in
-:data:`nnsf.skeleton.LIMBS` order (part ``2 + i`` is limb ``i``).  Arms a
-skeleton has beyond the two it drives get parts after these
-(:class:`nnsf.reshape.rig.Rig`).
+:data:`nnsf.skeleton.LIMBS` order (part ``2 + i`` is limb ``i``).  Arms a skeleton has beyond the
+two it drives get parts after these (:class:`nnsf.reshape.rig.Rig`).
 """
 from __future__ import annotations
 

@@ -1,30 +1,26 @@
 """Four-legged drawings: their skeleton read as our 17 points, and driven by a biped's motion.
 
-AnimatedDrawings' skeleton of a quadruped (an animal drawn from the side) has
-``root``, ``hip``, ``torso``, ``neck`` and three joints per leg:
-``{right,left}_{hip,knee,foot}_{b,f}`` (``b`` the hind legs, ``f`` the
-front).  Our 17-point body has two legs and two arms, so a quadruped is read
-as (:func:`quadruped_keypoints`):
+AnimatedDrawings' skeleton of a quadruped (an animal drawn from the side) has ``root``, ``hip``,
+``torso``, ``neck`` and three joints per leg: ``{right,left}_{hip,knee,foot}_{b,f}`` (``b`` the hind
+legs, ``f`` the front).  Our 17-point body has two legs and two arms, so a quadruped is read as
+(:func:`quadruped_keypoints`):
 
 * the hind legs are the legs (``r_hip``, ``r_knee``, ``r_ankle`` …);
 * the front legs are the arms (``r_shoulder``, ``r_elbow``, ``r_wrist`` …);
 * ``pelvis`` and ``thorax`` are the middles of the hind and front hips,
-  ``spine`` halfway between; ``neck`` is AnimatedDrawings' ``neck`` (the
-  head's centre) and ``head_top`` continues its torso→neck direction to just
-  inside the mask, as for a biped.
+  ``spine`` halfway between; ``neck`` is AnimatedDrawings' ``neck`` (the head's centre) and
+  ``head_top`` continues its torso→neck direction to just inside the mask, as for a biped.
 
-A biped's motion cannot give a horizontal body its bone directions (it would
-stand the animal up on its hind legs), so a quadruped is driven about its drawn
-pose (:func:`retarget_quadruped`): every leg bone keeps its drawn direction,
-turned by the swing of a motion leg bone about its mean direction; the hind
-legs follow the motion's legs of their own side and the front legs the legs of
-the other side, so the diagonal pairs step together (a trot, as a walking
-biped's left arm swings with its right leg).  The body and the head move as
-one rigid piece: the root follows the motion's pelvis, the body turns by the
-swing of the motion's spine.  A motion seen walking the other way from the
-drawing's facing is mirrored first, so the animal does not walk backwards.
-Drawn from the side, its near legs are in front of the body and the head, its
-far legs behind them (:func:`quadruped_orders`).
+A biped's motion cannot give a horizontal body its bone directions (it would stand the animal up on
+its hind legs), so a quadruped is driven about its drawn pose (:func:`retarget_quadruped`): every
+leg bone keeps its drawn direction, turned by the swing of a motion leg bone about its mean
+direction; the hind legs follow the motion's legs of their own side and the front legs the legs of
+the other side, so the diagonal pairs step together (a trot, as a walking biped's left arm swings
+with its right leg).  The body and the head move as one rigid piece: the root follows the motion's
+pelvis, the body turns by the swing of the motion's spine.  A motion seen walking the other way from
+the drawing's facing is mirrored first, so the animal does not walk backwards.  Drawn from the side,
+its near legs are in front of the body and the head, its far legs behind them
+(:func:`quadruped_orders`).
 """
 from __future__ import annotations
 
@@ -124,9 +120,8 @@ def swing(theta: np.ndarray) -> np.ndarray:
 def retarget_quadruped(points: np.ndarray, rest_keypoints: np.ndarray) -> np.ndarray:
     """A biped motion ``(T, 17, 2)`` (checked, finite) as a quadruped drawing's key points ``(T, 17, 2)`` px.
 
-    Module docstring.  Units: the motion's are free (only angles and the
-    ratio of the drawing's hind-leg length to the motion's leg length are
-    used); lengths are the drawing's exactly.
+    Module docstring.  Units: the motion's are free (only angles and the ratio of the drawing's
+    hind-leg length to the motion's leg length are used); lengths are the drawing's exactly.
     """
     P = np.array(points, dtype=np.float64)
     rest = np.asarray(rest_keypoints, dtype=np.float64)
@@ -161,9 +156,8 @@ def quadruped_orders(orders: np.ndarray, rest_keypoints: np.ndarray) -> np.ndarr
     """Depth orders ``(T, P)`` (back to front) of a quadruped drawn from the side: the far legs,
     the body, the head, the near legs.
 
-    An animal facing +x shows its right side (its right is towards the
-    viewer), so its right legs are near; facing −x, its left.  Within the far
-    and the near legs the motion's order is kept.
+    An animal facing +x shows its right side (its right is towards the viewer), so its right legs
+    are near; facing −x, its left.  Within the far and the near legs the motion's order is kept.
     """
     near = "r_" if drawn_facing(rest_keypoints) > 0 else "l_"
     front = [PART_INDEX["torso"], PART_INDEX["head"]]

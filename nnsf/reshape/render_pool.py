@@ -1,10 +1,9 @@
 """Rendering the frames of an animation on several processes.
 
 :func:`render_frames` draws frame ``t`` of a deformed mesh with one
-:class:`~nnsf.reshape.render.Renderer` call, as a serial loop would, and
-so gives the same bytes whatever the number of workers.  With more than one
-worker, the frames are split into contiguous chunks, each drawn by a
-process of a ``spawn`` pool straight into one shared-memory image array:
+:class:`~nnsf.reshape.render.Renderer` call, as a serial loop would, and so gives the same bytes
+whatever the number of workers.  With more than one worker, the frames are split into contiguous
+chunks, each drawn by a process of a ``spawn`` pool straight into one shared-memory image array:
 
 * spawn, not fork: the calling process may hold threads (OpenCV's pool,
   Prefect's and MLflow's workers) whose locks a forked child would inherit;
@@ -79,15 +78,13 @@ def _exit_with_parent() -> None:
 def _stops_held():
     """SIGINT and SIGTERM wait, and then take effect, while the spawn workers start.
 
-    The caller writes each worker its start-up data (the pickled renderer,
-    megabytes) through a pipe.  An interrupt in the middle of that write
-    leaves the worker a truncated pickle (its traceback on the terminal) or
-    blocked on the rest of it, and the pool's shutdown waiting on that
-    worker for ever.  So, in the main thread, the signals' handlers only
-    note them until the workers are started; and the signals are blocked in
-    this thread, a mask the workers inherit, so that a Ctrl-C sent to the
-    whole process group meanwhile reaches no worker before :func:`_init`
-    ignores it.
+    The caller writes each worker its start-up data (the pickled renderer, megabytes) through a
+    pipe.  An interrupt in the middle of that write leaves the worker a truncated pickle (its
+    traceback on the terminal) or blocked on the rest of it, and the pool's shutdown waiting on that
+    worker for ever.  So, in the main thread, the signals' handlers only note them until the workers
+    are started; and the signals are blocked in this thread, a mask the workers inherit, so that a
+    Ctrl-C sent to the whole process group meanwhile reaches no worker before :func:`_init` ignores
+    it.
     """
     noted: list[int] = []
     main = threading.current_thread() is threading.main_thread()

@@ -12,13 +12,12 @@
   with A = p_j − 2p_con + p_{j+1}, Bv = p_con − p_j, C = p_j − q.
 
 **Offsets (our decision).**  Eq. 11 snaps a subkey to a vertex, so at rest
-it lies off the curve by up to half the mesh spacing, and the first fit
-(Eq. 13) would make it jump by that much.  The tracker therefore runs Eq.
-12-14 on the curve point s = B(λ*) closest to the rest vertex, and returns
-q = s + offset, where the rest offset (vertex − s) is kept constant in the
-limb's frame (along d̂ and R90 d̂, pixels).  The rest pose then reproduces
-the rest mesh exactly and the subkeys move continuously.  ``keep_offset=False``
-returns the paper's on-curve positions instead.
+it lies off the curve by up to half the mesh spacing, and the first fit (Eq. 13) would make it jump
+by that much.  The tracker therefore runs Eq. 12-14 on the curve point s = B(λ*) closest to the
+rest vertex, and returns q = s + offset, where the rest offset (vertex − s) is kept constant in the
+limb's frame (along d̂ and R90 d̂, pixels).  The rest pose then reproduces the rest mesh exactly and
+the subkeys move continuously.  ``keep_offset=False`` returns the paper's on-curve positions
+instead.
 """
 from __future__ import annotations
 
@@ -98,12 +97,11 @@ def propagate(q, p0_prev, p1_prev, p0_new, p1_new) -> np.ndarray:
 def propagate_in_frame(q, p0_prev, p1_prev, p0_new, p1_new) -> np.ndarray:
     """Alternative to Eq. 12: carry ``q`` in the limb's own frame, all ``(..., 2)``.
 
-    q = p_j + u d + v R90 d at the previous frame; the same (u, v) on the
-    new bone.  Exact for any similarity motion of the limb wherever q lies,
-    so a subkey on a bent curve does not slide along it (Eq. 12 blends the
-    end points' displacements, which is exact only on the straight bone; the
-    fit of Eq. 13-14 removes the error across the curve but not along it, so
-    the slide accumulates over frames).
+    q = p_j + u d + v R90 d at the previous frame; the same (u, v) on the new bone.  Exact for any
+    similarity motion of the limb wherever q lies, so a subkey on a bent curve does not slide along
+    it (Eq. 12 blends the end points' displacements, which is exact only on the straight bone; the
+    fit of Eq. 13-14 removes the error across the curve but not along it, so the slide accumulates
+    over frames).
     """
     q = np.asarray(q, dtype=np.float64)
     d0 = p1_prev - p0_prev

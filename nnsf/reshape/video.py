@@ -1,16 +1,14 @@
 """Rendered frames to files: PNG frames, GIF, MP4 (H.264) and a contact sheet, each written whole or not at all.
 
-An MP4 or GIF is written under a temporary name beside its destination,
-decoded back (its frame count, and the MP4's size, checked against what was
-asked), and only then renamed into place; a write error (a full disk, a file
-size limit) is one :class:`~nnsf.io.WriteError` naming the destination, and
-leaves nothing behind.
+An MP4 or GIF is written under a temporary name beside its destination, decoded back (its frame
+count, and the MP4's size, checked against what was asked), and only then renamed into place; a
+write error (a full disk, a file size limit) is one :class:`~nnsf.io.WriteError` naming the
+destination, and leaves nothing behind.
 
-The MP4 is H.264 (``libx264``), 4:2:0 chroma (``yuv420p``) at even width and
-height, with its index at the front (``+faststart``): the form browsers,
-phones and chat previews play.  It is encoded with PyAV, whose wheels carry
-FFmpeg with libx264 and which, unlike OpenCV's ``VideoWriter``, reports every
-write error.
+The MP4 is H.264 (``libx264``), 4:2:0 chroma (``yuv420p``) at even width and height, with its index
+at the front (``+faststart``): the form browsers, phones and chat previews play.  It is encoded with
+PyAV, whose wheels carry FFmpeg with libx264 and which, unlike OpenCV's ``VideoWriter``, reports
+every write error.
 """
 from __future__ import annotations
 
@@ -62,11 +60,10 @@ def over_white(img: np.ndarray) -> np.ndarray:
 def gif_palette(images, colors: int = 256) -> np.ndarray:
     """One palette for a whole animation: ``(k, 3)`` uint8 RGB, ``k ≤ colors`` (≤ 256).
 
-    ``images`` ``(T, H, W, 3|4)`` RGB(A).  The colours come from up to
-    :data:`GIF_PALETTE_FRAMES` evenly spaced frames at every 4th pixel of every 4th row:
-    Pillow's median cut refined by k-means (``kmeans=1``) for ``colors − 1`` entries,
-    then the sample's most common colour (the page) exactly, so the page
-    stays its own colour and not the mean of a box of near-whites.
+    ``images`` ``(T, H, W, 3|4)`` RGB(A).  The colours come from up to :data:`GIF_PALETTE_FRAMES`
+    evenly spaced frames at every 4th pixel of every 4th row: Pillow's median cut refined by k-means
+    (``kmeans=1``) for ``colors − 1`` entries, then the sample's most common colour (the page)
+    exactly, so the page stays its own colour and not the mean of a box of near-whites.
 
     Why one palette and not one per frame: a drawn character keeps its
     colours from frame to frame, so one palette loses little, while a palette
@@ -93,10 +90,9 @@ def _rgb_codes(rgb: np.ndarray) -> np.ndarray:
 class _NearestColour:
     """Index of the nearest palette entry (Euclidean RGB) for each pixel, exact, cached per colour.
 
-    Hand-written because Pillow's mapping to a given palette first rounds a
-    colour to a box of 8 levels per channel: measured, a white page mapped to
-    a palette's 250 grey although the palette held white.  A k-d tree
-    (``scipy.spatial.cKDTree``) answers each colour not met before; a
+    Hand-written because Pillow's mapping to a given palette first rounds a colour to a box of 8
+    levels per channel: measured, a white page mapped to a palette's 250 grey although the palette
+    held white.  A k-d tree (``scipy.spatial.cKDTree``) answers each colour not met before; a
     2²⁴-entry table remembers the answers, so a frame costs a gather.
     """
 
@@ -121,10 +117,9 @@ class _NearestColour:
 def write_gif(path, images, fps: float) -> Path:
     """Write RGB(A) images ``(T, H, W, 3|4)`` as a looping GIF (Pillow), atomically.
 
-    RGBA is composited over white.  Every frame is mapped, without dithering,
-    to the nearest colours of one palette (:func:`gif_palette`), which the
-    file holds once as its global colour table.  Written under a temporary
-    name, decoded back (frame count) and renamed; a write error is a
+    RGBA is composited over white.  Every frame is mapped, without dithering, to the nearest colours
+    of one palette (:func:`gif_palette`), which the file holds once as its global colour table.
+    Written under a temporary name, decoded back (frame count) and renamed; a write error is a
     :class:`~nnsf.io.WriteError` naming ``path``.
     """
     path = Path(path)
