@@ -81,9 +81,7 @@ def radii(mask: np.ndarray, keypoints: np.ndarray, rest_widths: np.ndarray) -> d
     for a, b in BONES:
         if (a, b) in out:
             continue
-        if b in (J["l_shoulder"], J["r_shoulder"]):
-            out[(a, b)] = limb[b]
-        elif b in (J["l_hip"], J["r_hip"]):
+        if b in (J["l_shoulder"], J["r_shoulder"], J["l_hip"], J["r_hip"]):
             out[(a, b)] = limb[b]
         elif b == J["head_top"]:
             out[(a, b)] = out[(J["thorax"], a)]

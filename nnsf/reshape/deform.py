@@ -155,7 +155,7 @@ class Deformer:
     ----------
     mesh : :class:`~nnsf.reshape.mesh.Mesh`; rig : :class:`~nnsf.reshape.rig.Rig`.
     mask : ``(H, W)`` bool, the drawing's silhouette (the rest ω is fitted to it, Eq. 10).
-    method : ``"ours"`` (key points and subkeys) or ``"keypoints"``.
+    method : ``"ours"`` (key points, subkeys and elbow fans) or ``"keypoints"``.
     subkeys_per_limb : subkeys per limb (Eq. 11).
     weight : handle weight w of every handle (the shape terms weigh 1 per triangle corner; with 10
         the handles are met within about a pixel in strained poses and the normal matrices stay
