@@ -476,6 +476,24 @@ def test_a_fist_drawn_on_the_body_leaves_with_its_forearm(fist):
         assert (np.abs(img[there][:, :3].astype(int) - skin).max(axis=1) < 40).mean() > 0.9
 
 
+def test_a_fist_lifted_off_a_hem_leaves_shirt_above_it_and_trousers_below():
+    """The fist lay across the line where the body's shirt meets its trousers (one part, two fills):
+    swung out, the body painted in where it lay is the shirt above that line and the trousers below.
+    (One colour for the part, its most common, painted the shirt over both.)"""
+    ch, inside = _fist_on_the_body(12)
+    trousers = np.array([90, 90, 90])
+    band = np.zeros(ch.mask.shape, bool)
+    band[160:199, 62:159] = True
+    ch.texture[band & ~inside & (np.abs(ch.texture[..., :3].astype(int) - [200, 120, 60]).max(axis=2) < 5), :3] = trousers
+    poses = [_swing(ch.keypoints, [J["l_wrist"]], J["l_elbow"], -90)]
+    _, frames, offset = _render(ch, poses)
+    o = np.rint(offset).astype(int)
+    ys, xs = np.nonzero(inside)
+    got = frames[0][ys + o[1], xs + o[0], :3].astype(int)
+    for rows, colour in ((ys < 156, [200, 120, 60]), (ys > 164, trousers)):
+        assert (np.abs(got[rows] - colour).max(axis=1) < 40).mean() > 0.9
+
+
 @pytest.mark.parametrize("fist", [16, 22])
 def test_a_fist_reaching_past_two_arm_widths_on_the_body_is_the_forearms(fist):
     """The body's spine runs under a fist drawn past the wrist, beyond two seed widths of it: the

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components, shortest_path
 from scipy.spatial import Delaunay, cKDTree
@@ -637,14 +638,12 @@ def _underlays(V, T, parts, pairs, under, cover) -> tuple[np.ndarray, np.ndarray
 
 
 def underlay_texture(texture: np.ndarray, mask: np.ndarray, mesh: Mesh) -> np.ndarray | None:
-    """The drawing ``(H, W, 4)`` with each part's colour laid, opaque, where its underlay lies, or None
-    without an underlay.
-
-    The colour is the part's most common one (colours binned 16 levels a channel, the mean of the
-    fullest bin) over all its own pixels deeper than half a triangle inside it: its fill, not a
-    line drawn across it (among the pixels around an underlay at a hip, a belt line's ink was the
-    most common), and neither its outline's ink nor a patch of another colour runs in, as an
-    inpainting would let it.
+    """The drawing ``(H, W, 4)`` with each part's colours laid, opaque, where its underlay lies (None
+    without one). A pixel takes the colour of the nearest of the part's fill pixels: those deeper than
+    half a triangle inside it, of its most common colour (binned 16 levels a channel) or of one that
+    makes up a tenth of them and fills a disc of half a triangle. Neither ink nor a line drawn across
+    the part (a belt) runs in, as an inpainting would let it; a shirt and the trousers below it each
+    go on under a hand on the hip (one colour for the part painted the shirt over both).
     """
     if not (mesh.layer == 1).any():
         return None
@@ -655,14 +654,16 @@ def underlay_texture(texture: np.ndarray, mask: np.ndarray, mesh: Mesh) -> np.nd
     for p in np.unique(mesh.parts[mesh.layer == 1]):
         region = _raster(mesh.vertices, mesh.triangles[(mesh.layer == 1) & (mesh.parts == p)], (H, W)) >= 0
         drawn = _raster(mesh.vertices, mesh.triangles[(mesh.layer == 0) & (mesh.parts == p)], (H, W)) >= 0
-        own = cv2.erode(drawn.astype(np.uint8), inner) & np.asarray(mask, np.uint8)
-        pix = texture[own > 0][:, :3]
-        if not len(pix):
+        own = (cv2.erode(drawn.astype(np.uint8), inner) & np.asarray(mask, np.uint8)) > 0
+        if not own.any():
             continue
-        bins, inv, counts = np.unique(pix >> 4, axis=0, return_inverse=True, return_counts=True)
-        colour = pix[inv.ravel() == np.argmax(counts)].mean(axis=0)
-        # Opaque over the underlay's own triangles (the limb's footprint where it covers the part),
-        # within the drawing (the renderer masks it): wherever a cut beside it opens, this colour shows.
-        out[region, :3] = np.rint(colour).astype(np.uint8)
+        _, inv, counts = np.unique(texture[own][:, :3] >> 4, axis=0, return_inverse=True, return_counts=True)
+        binned = np.full((H, W), -1)
+        binned[own] = inv.ravel()
+        thick = lambda b: cv2.distanceTransform(np.pad((binned == b).astype(np.uint8), 1), cv2.DIST_L2, 5).max() >= deep
+        fills = [b for b in np.flatnonzero(counts >= 0.1 * own.sum()) if thick(b)] + [int(np.argmax(counts))]
+        near = ndimage.distance_transform_edt(~np.isin(binned, fills), return_distances=False, return_indices=True)
+        # Opaque over the underlay's triangles, within the drawing (the renderer masks it): what a cut beside it shows.
+        out[region, :3] = texture[near[0][region], near[1][region], :3]
         out[region, 3] = 255
     return out
