@@ -27,19 +27,18 @@ from __future__ import annotations
 
 import argparse
 import shlex
-import shutil
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-import cv2
 import pandas as pd
 
 from nnsf import params as params_mod
 from nnsf.io import write_csv, write_json
 from nnsf.params import checked
 from nnsf.reshape.evaluation import run
+from scripts.publish_eval import sheets_as_jpeg
 
 #: Clips inside the data folder that the method was never tuned on (the module docstring).
 MOTIONS = ("animated-drawings/bvh/fair1/dab.bvh", "animated-drawings/bvh/rokoko/jesse_dance.bvh",
@@ -91,14 +90,7 @@ def main(argv=None) -> int:
             motions=MOTIONS, n_vertices=get("n_vertices", 800), max_frames=get("max_frames", 240),
             subkeys_per_limb=get("subkeys_per_limb", 4), mapper=mapper if a.workers > 1 else None)
         df = pd.read_csv(Path(tmp) / "reshape_eval.csv")
-        sheets = a.out / "reshape_heldout_motions"
-        if sheets.exists():
-            shutil.rmtree(sheets)
-        sets = {f"{r.character}_{r.motion}": r.set for r in df.itertuples()}
-        for png in sorted((Path(tmp) / "reshape_eval").glob("*.png")):
-            (sheets / sets[png.stem]).mkdir(parents=True, exist_ok=True)
-            half = cv2.resize(cv2.imread(str(png)), None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
-            cv2.imwrite(str(sheets / sets[png.stem] / f"{png.stem}.jpg"), half, [cv2.IMWRITE_JPEG_QUALITY, 85])
+        sheets_as_jpeg(Path(tmp) / "reshape_eval", df, a.out / "reshape_heldout_motions", scale=0.5)
     write_csv(a.out / "reshape_heldout_motions.csv", df)
     write_json(a.out / "reshape_heldout_motions.json", {
         "motions": list(MOTIONS), "sets": summary(df, a.out / "reshape_eval.csv"),

@@ -20,8 +20,9 @@ TABLES = ("reshape_eval.csv", "reshape_eval_frames.csv", "reshape_eval.json", "r
 QUALITY = 85
 
 
-def sheets_as_jpeg(src: Path, rows: pd.DataFrame, dst: Path) -> int:
-    """Each contact sheet ``src/<drawing>_<motion>.png`` → ``dst/<set>/<drawing>_<motion>.jpg``; returns how many."""
+def sheets_as_jpeg(src: Path, rows: pd.DataFrame, dst: Path, scale: float = 1.0) -> int:
+    """Each contact sheet ``src/<drawing>_<motion>.png`` → ``dst/<set>/<drawing>_<motion>.jpg``, ``scale``
+    times its size (``rows``: a ``reshape_eval.csv`` naming each item's set); returns how many."""
     sets = {f"{r.character}_{r.motion}": r.set for r in rows.itertuples()}
     if dst.exists():
         shutil.rmtree(dst)
@@ -29,7 +30,10 @@ def sheets_as_jpeg(src: Path, rows: pd.DataFrame, dst: Path) -> int:
     for png in sorted(src.glob("*.png")):
         folder = dst / sets[png.stem]
         folder.mkdir(parents=True, exist_ok=True)
-        cv2.imwrite(str(folder / f"{png.stem}.jpg"), cv2.imread(str(png)), [cv2.IMWRITE_JPEG_QUALITY, QUALITY])
+        img = cv2.imread(str(png))
+        if scale != 1.0:
+            img = cv2.resize(img, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+        cv2.imwrite(str(folder / f"{png.stem}.jpg"), img, [cv2.IMWRITE_JPEG_QUALITY, QUALITY])
         n += 1
     return n
 
