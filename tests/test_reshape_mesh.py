@@ -559,3 +559,92 @@ def test_a_hand_hanging_over_the_hips_leaves_each_thigh_bordering_the_body(outli
     m = build_mesh(ch, rig, 800)
     of = lambda *names: np.unique(m.triangles[(m.layer == 0) & np.isin(m.parts, [PART_INDEX[n] for n in names])])
     assert not np.intersect1d(of("l_forearm"), of("l_thigh", "r_thigh", "l_shin", "r_shin")).size
+
+
+SKIRT, SKIN = (200, 40, 60), (240, 200, 170)
+
+
+def _skirted(covered: bool) -> Character:
+    """A figure in a skirt drawn over the tops of its legs: hips inside the skirt, knees and feet below
+    its hem at y = 232; with ``covered``, its YAML's ``depth: [torso over left_leg, torso over right_leg]``."""
+    H, W = 330, 240
+    tex = np.zeros((H, W, 4), np.uint8)
+    ink = (30, 30, 30, 255)
+    for x in (92, 148):                                            # the legs, hip to foot
+        cv2.line(tex, (x, 190), (x, 300), ink, 22)
+        cv2.line(tex, (x, 190), (x, 300), (*SKIN, 255), 18)
+    cv2.rectangle(tex, (80, 60), (160, 170), ink, -1)
+    cv2.rectangle(tex, (82, 62), (158, 168), (70, 120, 200, 255), -1)
+    skirt = np.array([[84, 160], [156, 160], [190, 232], [50, 232]], np.int32)
+    cv2.fillPoly(tex, [skirt], ink)
+    cv2.fillPoly(tex, [np.array([[86, 163], [154, 163], [186, 229], [54, 229]], np.int32)], (*SKIRT, 255))
+    cv2.circle(tex, (120, 35), 26, ink, -1)
+    cv2.circle(tex, (120, 35), 24, (*SKIN, 255), -1)
+    for arm in ([(84, 68), (60, 110), (50, 150)], [(156, 68), (180, 110), (190, 150)]):
+        cv2.polylines(tex, [np.array(arm, np.int32)], False, ink, 16)
+        cv2.polylines(tex, [np.array(arm, np.int32)], False, (*SKIN, 255), 12)
+    kp = np.zeros((17, 2))
+    for name, p in dict(pelvis=(120, 190), r_hip=(92, 192), r_knee=(92, 246), r_ankle=(92, 296), l_hip=(148, 192),
+                        l_knee=(148, 246), l_ankle=(148, 296), spine=(120, 130), thorax=(120, 70), neck=(120, 58),
+                        head_top=(120, 12), r_shoulder=(84, 68), r_elbow=(60, 110), r_wrist=(50, 150),
+                        l_shoulder=(156, 68), l_elbow=(180, 110), l_wrist=(190, 150)).items():
+        kp[J[name]] = p
+    ch = Character("skirted", tex, tex[..., 3] > 0, kp)
+    ch.depth = [((PART_INDEX["torso"],), legs) for legs in ((6, 7), (8, 9))] if covered else []
+    return ch
+
+
+def test_a_skirt_drawn_over_the_legs_is_the_bodys_when_its_yaml_says_so():
+    """Seeded along their bones, the thighs flood the skirt they are drawn under; with the torso drawn
+    over the legs (the character's YAML), the legs are seeded from the feet and meet the body at the
+    hem: the skirt is the body's, the legs below it the legs'."""
+    inside = np.all(_skirted(False).texture[..., :3] == SKIRT, axis=2)
+    legs = [PART_INDEX[p] for p in ("l_thigh", "l_shin", "r_thigh", "r_shin")]
+    assert np.isin(Rig.build(_skirted(False)).labels[inside], legs).mean() > 0.2
+    ch = _skirted(True)
+    labels = Rig.build(ch).labels
+    assert (labels[inside] == PART_INDEX["torso"]).mean() > 0.99
+    below = np.all(ch.texture[..., :3] == SKIN, axis=2) & (np.arange(330)[:, None] > 240)
+    assert np.isin(labels[below], legs).mean() > 0.99
+    # What the skirt hides of a thigh is drawn as the leg's first cross-section below the hem, at the
+    # same offset across the bone: 6 px either side of it under the skirt, 6 px that side just below the hem.
+    rig = Rig.build(ch)
+    got = rig.continued(PART_INDEX["l_thigh"], np.array([[148.0 + 6, 200.0], [148.0 - 6, 180.0]]))
+    np.testing.assert_allclose(got[:, 0], [154, 142], atol=1e-6)
+    assert (232 <= got[:, 1]).all() and (got[:, 1] <= 240).all()
+
+
+def test_legs_under_a_skirt_swing_out_from_under_it_whole_and_leave_it_whole():
+    """The legs spread 35° apart at the hips under the skirt (drawn over them): the skirt stays where it
+    is, whole and unstretched; each leg shows below the hem, painted in its own colour where it was
+    hidden; no crack and no detached piece in any frame."""
+    from nnsf.reshape.animator import Animator, canvas
+    from nnsf.reshape.artefacts import FrameMeasures
+
+    ch = _skirted(True)
+    a = Animator(ch, n_vertices=700)
+    legs = [(J["l_knee"], J["l_ankle"], J["l_hip"], -35), (J["r_knee"], J["r_ankle"], J["r_hip"], 35)]
+    poses = [ch.keypoints]
+    for share in (0.5, 1.0):
+        kp = ch.keypoints
+        for knee, ankle, hip, deg in legs:
+            kp = _swing(kp, [knee, ankle], hip, share * deg)
+        poses.append(kp)
+    V = a.deformer.run(np.asarray(poses))
+    offset, size = canvas(V, shape=ch.shape)
+    r, o = a.renderer(size), np.rint(offset).astype(int)
+    order = [PART_INDEX[p] for p in ("l_thigh", "l_shin", "r_thigh", "r_shin", "torso", "head",
+                                     "l_upper_arm", "l_forearm", "r_upper_arm", "r_forearm")]
+    measure = FrameMeasures(ch.texture, ch.mask, ch.keypoints)
+    skirt = np.all(ch.texture[..., :3] == SKIRT, axis=2)
+    ys, xs = np.nonzero(skirt)
+    for kp, v in zip(poses, V):
+        img = r.render(v + offset, order)
+        got = measure(img, kp + offset)
+        assert got["detached"] == 0 and got["crack_px"] == 0, got
+        assert (np.abs(img[ys + o[1], xs + o[0], :3].astype(int) - SKIRT).max(axis=1) < 30).mean() > 0.98
+    # Just below the hem, along each spread thigh: the leg, in its colour (where it was hidden at rest).
+    for knee, _, hip, _ in legs:
+        p = kp[hip] + (kp[knee] - kp[hip]) * (240 - kp[hip, 1]) / (kp[knee, 1] - kp[hip, 1]) + offset
+        x, y = np.rint(p).astype(int)
+        assert np.abs(img[y, x, :3].astype(int) - SKIN).max() < 40, (x, y, img[y, x])

@@ -58,7 +58,7 @@ class Animator:
         self.mesh = build_mesh(character, self.rig, n_vertices)
         self.deformer = Deformer(self.mesh, self.rig, character.mask, method, subkeys_per_limb,
                                  propagation=propagation)
-        self.underlay = underlay_texture(character.texture, character.mask, self.mesh)
+        self.underlay = underlay_texture(character.texture, character.mask, self.mesh, self.rig)
         self.facing = (FACING[character.facing] if character.facing else
                        biped_facing(character.mask, character.keypoints) if character.body == "biped" else 0.0)
 

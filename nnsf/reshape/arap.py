@@ -261,9 +261,7 @@ class TwoStepARAP:
 
     def _step1(self, g: np.ndarray) -> np.ndarray:
         """Step 1 for targets ``(F, m, 2)``: complex vertices ``(n, F)``."""
-        if self._M1 is not None:
-            return self._M1 @ self._complex(g)
-        return _block_solve(self._lu1, self._handle_rhs(g))
+        return self._M1 @ self._complex(g) if self._M1 is not None else _block_solve(self._lu1, self._handle_rhs(g))
 
     def _frames(self, targets) -> tuple[np.ndarray, int | None]:
         g = np.asarray(targets, dtype=np.float64)

@@ -11,7 +11,8 @@
   :func:`nnsf.reshape.subkeys.init_subkeys`), tracked through the clip by Eq. 12-14
   (:class:`nnsf.reshape.subkeys.SubkeyTracker`); and the vertices about each elbow, which bend
   round it (:func:`elbow_fans`).  ``method="keypoints"`` leaves them out: the comparison baseline
-  of the paper's Fig. 8.
+  of the paper's Fig. 8.  A limb the body covers (a leg under a skirt) shows too little to hold its
+  joints: every vertex of it is a subkey, in both methods.
 * **Two-step ARAP** (:class:`nnsf.reshape.arap.TwoStepARAP`, Igarashi et al. 2005), factorised
   once; a frame is a few sparse products and one back-solve.  An underlay's own vertices then ride
   with the part beneath (:func:`underlay_riders`).
@@ -46,8 +47,9 @@ def keypoint_handles(mesh: Mesh, rig, weight: float) -> Handles:
     rows, weights = [], []
     for k, p in enumerate(rig.keypoints):
         parts = np.unique(rig.bones[(rig.bones[:, 0] == k) | (rig.bones[:, 1] == k), 2])
-        # A key point of hidden parts only (a limb drawn as its twin) pins nothing.
-        weights.append(0.0 if len(parts) and set(parts.tolist()) <= set(rig.hidden) else float(weight))
+        # A key point of hidden or covered parts only (a limb drawn as its twin, a knee under a skirt) pins nothing.
+        weights.append(0.0 if len(parts) and set(parts.tolist()) <= set(rig.hidden) | set(rig.covered) else float(weight))
+        parts = np.setdiff1d(parts, rig.covered)
         cand = np.flatnonzero(own & np.isin(mesh.parts, parts))
         bary, tri = barycentric(mesh.vertices, mesh.triangles[cand], p[None]) if len(cand) else (None, None)
         # A key point just outside its parts' triangles (under a limb drawn over its part, in a
@@ -74,7 +76,7 @@ def elbow_fans(mesh: Mesh, rig) -> list:
     np.add.at(count, (mesh.triangles[own].ravel(), np.repeat(mesh.parts[own], 3)), 1)
     fans, kp = [], rig.keypoints
     for c, (p, j) in enumerate(zip(rig.parent, rig.joint)):
-        if p <= 0 or "forearm" not in rig.parts[c] or {p, c} & set(rig.hidden):
+        if p <= 0 or "forearm" not in rig.parts[c] or {p, c} & set(rig.hidden + rig.covered):
             continue
         a = rig.bones[(rig.bones[:, 2] == p) & (rig.bones[:, 1] == j), 0][0]
         b = rig.bones[(rig.bones[:, 2] == c) & (rig.bones[:, 0] == j), 1][0]
@@ -110,18 +112,18 @@ def fan_targets(fans, rest_kp: np.ndarray, rest_vertices: np.ndarray, kp: np.nda
     return np.concatenate(out, axis=1) if out else np.zeros((len(kp), 0, 2))
 
 
-def part_owner(mesh: Mesh) -> np.ndarray:
-    """The part ``(n,)`` whose drawn (layer 0) triangles alone use each vertex, −1 on none or on two
-    parts' (a seam's vertex moves with both)."""
-    own = mesh.layer == 0
+def part_owner(mesh: Mesh, own=None) -> np.ndarray:
+    """The part ``(n,)`` whose drawn (layer 0) triangles, or ``own`` ``(t,)`` bool, alone use each vertex,
+    −1 on none or on two parts' (a seam's vertex moves with both)."""
+    own = mesh.layer == 0 if own is None else own
     count = np.zeros((mesh.n_vertices, int(mesh.parts.max()) + 1), dtype=np.int64)
     np.add.at(count, (mesh.triangles[own].ravel(), np.repeat(mesh.parts[own], 3)), 1)
     return np.where((count > 0).sum(axis=1) == 1, count.argmax(axis=1), -1)
 
 
-def underlay_riders(mesh: Mesh):
-    """The underlay's own vertices ``(k,)`` (used by no triangle of the drawing) and a sparse
-    ``(k, n)`` map placing each from its part's own vertices nearest it.
+def underlay_riders(mesh: Mesh, rig=None):
+    """The underlay's own vertices ``(k,)`` (used by no triangle of the drawing; not a covered limb's,
+    ``rig``'s, which its subkeys carry) and a sparse ``(k, n)`` map placing each from its part's own vertices nearest it.
 
     An underlay is joined to its part along the cut beside it, which may be short; solved by ARAP
     with the rest, a patch could swing about that seam and show beside its part (over a leg the body
@@ -130,7 +132,7 @@ def underlay_riders(mesh: Mesh):
     uses; one triangle's map would magnify its strain by the rider's distance over its size (a
     sliver along a seam, one corner on the limb above, carried the patch off as a long wedge).
     """
-    owner, under = part_owner(mesh), mesh.layer == 1
+    owner, under = part_owner(mesh), (mesh.layer == 1) & ~np.isin(mesh.parts, getattr(rig, "covered", ()))
     riders = np.setdiff1d(mesh.triangles[under], mesh.triangles[~under])
     part = np.zeros(mesh.n_vertices, np.int64)
     part[mesh.triangles[under]] = mesh.parts[under, None]
@@ -174,20 +176,22 @@ class Deformer:
         handles = keypoint_handles(mesh, rig, weight)
         self.tracker, self.fans = None, []
         self.subkeys = Subkeys(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 2)))
-        if method == "ours" and subkeys_per_limb > 0:
-            # A limb's subkeys are vertices of its own triangles that no other part shares.
-            owner = part_owner(mesh)
-            candidates = [np.flatnonzero(owner == 2 + i) for i in range(N_LIMBS)]
-            self.subkeys = init_subkeys(mesh.vertices, kp, self.rest_omega, per_limb=subkeys_per_limb,
-                                        candidates=candidates)
+        ours = method == "ours" and subkeys_per_limb > 0
+        if ours or rig.covered:
+            # A limb's subkeys are vertices of its own triangles that no other part shares; a covered
+            # limb's are all its vertices, its underlay's too, in either method: no joint of it is drawn.
+            owner, every = part_owner(mesh), part_owner(mesh, np.ones(len(mesh.layer), bool))
+            candidates = [np.flatnonzero((every if 2 + i in rig.covered else owner) == 2 + i) for i in range(N_LIMBS)]
+            self.subkeys = init_subkeys(mesh.vertices, kp, self.rest_omega, per_limb=subkeys_per_limb * ours,
+                                        candidates=candidates, whole=[p - 2 for p in rig.covered])
             handles = handles + Handles.at_vertices(mesh.n_vertices, self.subkeys.vertex, weight)
             self.tracker = SubkeyTracker(self.subkeys, kp, self.rest_omega, propagation=propagation)
-            self.fans = elbow_fans(mesh, rig)
+            self.fans = elbow_fans(mesh, rig) if ours else []
             for *_, v, w in self.fans:
                 handles = handles + Handles.at_vertices(mesh.n_vertices, v, w)
         self.handles = handles
         self.arap = TwoStepARAP(mesh.vertices, mesh.triangles, handles)
-        self.riders, self.ride = underlay_riders(mesh)
+        self.riders, self.ride = underlay_riders(mesh, rig)
 
     def targets(self, keypoints: np.ndarray, omega=None) -> np.ndarray:
         """Handle targets ``(T, m, 2)`` for key points ``(T, 17, 2)``; subkeys tracked from rest."""

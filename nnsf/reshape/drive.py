@@ -109,39 +109,20 @@ def biped_facing(mask: np.ndarray, keypoints: np.ndarray, share: float = 0.1) ->
 def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", frames=None,
              arms: str = "motion", body: str = "biped", head: str = "motion",
              facing: float = 0.0) -> np.ndarray:
-    """Map a motion ``(T, 17, 2)`` (any units) onto a character: ``(T, 17, 2)`` pixels.
+    """Map a motion ``(T, 17, 2)`` (any units) onto a character: ``(T, 17, 2)`` pixels (docs/method.md §12).
 
-    ``rest_keypoints`` ``(17, 2)``: the drawing's key points.
-
-    * Root: the drawing's pelvis plus ``s · (root(t) − median root)``, ``s`` the body-scale ratio
-      (:func:`nnsf.skeleton.character_scale`).
-    * Torso (:data:`TORSO`): the drawn torso, rigid, turned by the motion's spine angle
-      (pelvis→thorax) relative to the drawing's.  ARAP cannot meet handles that are not a
-      similarity of the drawing, and copying the motion's hip and shoulder bone directions would
-      shear the drawn torso.
-    * Every other bone (limbs, neck, head): the motion's direction at the drawing's length, chained
-      from its parent: the inverse unification ``W_char⁻¹ W_motion`` (module docstring) without the
-      motion's foreshortening, since a drawn limb cannot shrink without squashing.
+    ``rest_keypoints`` ``(17, 2)``: the drawing's key points.  The root is the drawing's pelvis plus
+    the motion's root displacement scaled by the body-scale ratio (:func:`nnsf.skeleton.character_scale`);
+    the torso (:data:`TORSO`) is the drawn one, rigid, turned by the motion's spine angle (ARAP cannot
+    meet handles that are not a similarity of the drawing); every other bone takes the motion's
+    direction at the drawing's length, chained from its parent, without the motion's foreshortening.
 
     * ``arms="drawing"``: each arm bone (:data:`ARM_BONES`) keeps its drawn direction turned by the
-      motion's swing, the angle ``θ_b(t) − θ̄_b`` between its direction in frame t and its mean
-      direction over the clip (the angle of the mean unit vector).  The arm moves as the motion's
-      arm does, about the pose it is drawn in: arms drawn spread (a six-armed bug, a figure with its
-      hands on its hips) stay spread and swing, where ``"motion"`` hangs them as the performer's
-      hang.  An unchanged motion arm gives the drawn pose exactly.
-
-    * ``head="torso"``: head_top moves with the drawn torso, so the head keeps its drawn angle to
-      the body.  For a drawing with no neck, whose head is the top of one shape (a cone whose tip
-      is the head, a head sitting flat on its body): turned on its own, the head part slides across
-      the body and its drawn outline shows inside it.  ``"motion"`` (the default) turns the head as
-      the performer's.
-
-    * ``body="quadruped"``: a four-legged drawing, every leg about its drawn pose and the body
-      rigid (:func:`nnsf.reshape.quadruped.retarget_quadruped`; ``arms`` does not apply).
-
-    * ``facing``: the drawing's (:func:`biped_facing`; +1 towards +x, −1, 0 unknown).  A biped
-      motion that faces the other way (:func:`nnsf.reshape.quadruped.facing`) is mirrored, so a
-      figure drawn from the side does not walk backwards with its knees bent the wrong way.
+      motion's swing about the clip's mean direction (an unchanged motion arm gives the drawn pose).
+    * ``head="torso"``: head_top moves with the drawn torso (a head drawn as the top of one shape).
+    * ``body="quadruped"``: :func:`nnsf.reshape.quadruped.retarget_quadruped` (``arms`` does not apply).
+    * ``facing``: the drawing's (:func:`biped_facing`; +1 towards +x, −1, 0 unknown); a biped motion
+      facing the other way is mirrored, so a figure drawn from the side does not walk backwards.
 
     A NaN/Inf frame or a bone of zero median length raises :class:`InputError` naming ``source``
     and the frame / bone.

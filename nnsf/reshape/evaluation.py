@@ -13,16 +13,9 @@ Drawings and motions come from ``params.yaml`` (``reshape_eval``), never from th
 Each (drawing, motion) is driven twice on the same mesh: the paper's method (key points and
 subkeys, the default) and key points only (the baseline of the paper's Fig. 8).  Every frame of
 both is rendered and measured by :mod:`nnsf.reshape.artefacts` against the drawing.  Written to
-``out`` (default ``reports``):
-
-* ``reshape_eval.csv``: one row per drawing × motion × method: the worst and mean of each
-  per-frame measure, the drawing's own value, the deformation measures (ARAP energy, stretch,
-  flips, limb bending and its change) and render time per frame;
-* ``reshape_eval_frames.csv``: every frame's measures (the default method);
-* ``reshape_eval.json``: the totals per set (tuning, held out), the Fig. 8 table (subkeys vs key
-  points: limb width profile and outline smoothness), drawings refused with the reader's reason;
-* ``reshape_eval/<drawing>_<motion>.png``: a contact sheet of ten evenly spaced frames and the
-  two worst (detached pieces and cracks first, then notch pixels beyond the drawing's and spikes), each labelled.
+``out`` (default ``reports``): ``reshape_eval.csv`` (a row per drawing × motion × method),
+``reshape_eval_frames.csv`` (every frame), ``reshape_eval.json`` (totals per set, the Fig. 8 table,
+drawings refused) and a contact sheet per drawing × motion; their columns are in docs/formats.md §6.9.
 """
 from __future__ import annotations
 
@@ -116,9 +109,8 @@ def evaluate_item(item: dict) -> dict:
             row[f"{k}_max"], row[f"{k}_mean"] = float(table[k].max()), float(table[k].mean())
         for k in ("detached", "cracks", "specks", "notch_px", "spikes", "outline_roughness"):
             row[f"{k}_rest"] = rest[k]
-        row["frames_with_detached"] = int((table["detached"] > rest["detached"]).sum())
-        row["frames_with_cracks"] = int((table["cracks"] > rest["cracks"]).sum())
-        row["frames_with_specks"] = int((table["specks"] > rest["specks"]).sum())
+        for k in ("detached", "cracks", "specks"):
+            row[f"frames_with_{k}"] = int((table[k] > rest[k]).sum())
         row["frames_with_joint_cracks"] = int((table["joint_cracks"] > 0).sum())
         row["frames_notch_over_rest"] = int((table["notch_beyond_rest"] > 4).sum())
         row["frames_spikes_over_rest"] = int((table["spikes"] > rest["spikes"]).sum())

@@ -13,18 +13,8 @@
   :func:`write_character`) or **a built-in character** name.
 
 The character YAML holds the per-character choices, beside the drawing (``character.yaml`` in an
-AnimatedDrawings folder, ``<stem>.yaml`` beside a PNG) or given as the character itself::
-
-    drawing: folder            # an AnimatedDrawings folder or char_cfg.yaml, or
-    image: hero.png            # a PNG; paths relative to this file and inside its folder
-    mask: auto                 # optional: the mask from the border colour (a PNG without alpha)
-    name: hero                 # optional
-    joints: {pelvis: [256, 300], r_hip: [236, 302], ...}   # the 17 key points (spine optional)
-    arms: drawing              # optional: motion | drawing (nnsf.reshape.drive.retarget)
-    head: torso                # optional: motion | torso
-    extra_arms: follow         # optional: follow (turn with the driven arm of their side) | body
-    facing: left               # optional: left | right, a figure drawn from the side (default: found)
-    depth: [left_arm over torso]   # optional: parts always drawn over others
+AnimatedDrawings folder, ``<stem>.yaml`` beside a PNG) or given as the character itself; its fields
+are in docs/formats.md §4.4 (:func:`_choices` checks them).
 
 Every YAML is read by :func:`nnsf.safe_yaml.read_yaml` (bounded, safe).
 """

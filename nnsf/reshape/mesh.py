@@ -454,6 +454,14 @@ def build_mesh(character, rig, n_vertices: int = 800) -> Mesh:
     cover, radius = _covered(V, T, parts, shape)
     candidates = rig.cuts(0.5 * (V[a] + V[b]), parts[pairs[:, 0]], parts[pairs[:, 2]], radius)
     cut_edges, under = _lying_over(V, T, parts, pairs, candidates, cover, rig)
+    # A limb the body is drawn over (a leg under a skirt) is a layer beneath it, cut from every other part;
+    # its length hidden under them (their triangles within its radius of its bones) is painted in.
+    hid = np.isin(parts, rig.covered)
+    apart = hid[pairs[:, 0]] != hid[pairs[:, 2]]
+    cut_edges, under = cut_edges | apart, np.where(apart, -1, under)
+    centre, reach = V[T].mean(axis=1), rig.covered_radius() + 0.5 * h
+    hidden = np.array([(t, p) for p in rig.covered for t in np.flatnonzero((parts != p) & (
+        np.linalg.norm(centre - rig.nearest_on_bones(p, centre), axis=1) <= reach[p]))], np.int64).reshape(-1, 2).T
     # A cut ending inside the mesh where a third part meets both sides leaves limb and part beneath
     # one vertex there, which drags the part after the limb (a forearm folded back along its upper
     # arm over the body): the limb's edges with that part are cut too, or where a joint keeps them, the part's.
@@ -474,16 +482,16 @@ def build_mesh(character, rig, n_vertices: int = 800) -> Mesh:
         # over the hips, joins the body above and below it), is joined back where it touches its
         # nearest kin (a leg to the other leg, not to a hand lying over it).
         T2, origin = cut(T, cut_edges, pairs)
-        tris, layer, all_parts, origin = _assemble(T, T2, origin, parts, *_underlays(V, T, parts, pairs,
-                                                   np.where(cut_edges, under, -1), cover), rig.n_parts, len(V))
+        copied = np.hstack([_underlays(V, T, parts, pairs, np.where(cut_edges, under, -1), cover), hidden])
+        tris, layer, all_parts, origin = _assemble(T, T2, origin, parts, *copied, rig.n_parts, len(V))
         comp = _components(tris)
-        loose = (comp != np.bincount(comp[layer == 0]).argmax())[layer == 0]
+        loose = (comp != np.bincount(comp[layer == 0]).argmax())[layer == 0] & ~hid
         if not loose.any():
             break
         edge = cut_edges & (loose[pairs[:, 0]] | loose[pairs[:, 2]])
         cut_edges &= ~(edge & (hops[p, q] == hops[p, q][edge].min()))
     # An underlay patch that shares no edge with its part would float: it is left out.
-    keep = np.isin(comp, comp[layer == 0])
+    keep = np.isin(comp, comp[layer == 0]) | np.isin(all_parts, rig.covered)
     tris, layer, all_parts = tris[keep], layer[keep], all_parts[keep]
     used, inv = np.unique(tris, return_inverse=True)
     return Mesh(vertices=V[origin[used]], triangles=inv.reshape(tris.shape), parts=all_parts, layer=layer, spacing=float(h))
@@ -590,7 +598,7 @@ def _lying_over(V, T, parts, pairs, candidates, cover, rig):
         # (behind a thigh's hip, past its knee into the shin) has that joint for its nearest
         # point, which lies on their boundary, in the corner the closing fills: there the limb
         # lies beside the part, not over it, and a cut would tear open as the joint bends.
-        near = _nearest_on_bones(rig, o, mid[sel])
+        near = rig.nearest_on_bones(o, mid[sel])
         j = rig.joint[o] if rig.parent[o] == u else rig.joint[u] if rig.parent[u] == o else -1
         beside = np.abs(near - rig.keypoints[j]).max(axis=1) < 1e-6 if j >= 0 else np.zeros(len(sel), bool)
         hit = sel[(_lookup(covered[u], near) > 0) & ~beside]
@@ -604,17 +612,6 @@ def _lying_over(V, T, parts, pairs, candidates, cover, rig):
             under[between(u, o) & ~cut_edges] = u
             cut_edges |= between(u, o)
     return cut_edges, under
-
-
-def _nearest_on_bones(rig, part: int, points: np.ndarray) -> np.ndarray:
-    """The nearest point ``(k, 2)`` of ``part``'s bones (rest key-point segments) to each of ``points``."""
-    bones = rig.bones[rig.bones[:, 2] == part]
-    a, b = rig.keypoints[bones[:, 0]], rig.keypoints[bones[:, 1]]
-    d = b - a
-    t = np.clip(np.einsum("kbx,bx->kb", points[:, None] - a[None], d) / np.maximum((d * d).sum(1), 1e-12), 0, 1)
-    near = a[None] + t[..., None] * d[None]                              # (k, B, 2)
-    best = np.argmin(np.linalg.norm(points[:, None] - near, axis=2), axis=1)
-    return near[np.arange(len(points)), best]
 
 
 def _underlays(V, T, parts, pairs, under, cover) -> tuple[np.ndarray, np.ndarray]:
@@ -637,13 +634,14 @@ def _underlays(V, T, parts, pairs, under, cover) -> tuple[np.ndarray, np.ndarray
     return both[:, 1], both[:, 0]
 
 
-def underlay_texture(texture: np.ndarray, mask: np.ndarray, mesh: Mesh) -> np.ndarray | None:
+def underlay_texture(texture: np.ndarray, mask: np.ndarray, mesh: Mesh, rig=None) -> np.ndarray | None:
     """The drawing ``(H, W, 4)`` with each part's colours laid, opaque, where its underlay lies (None
     without one). A pixel takes the colour of the nearest of the part's fill pixels: those deeper than
     half a triangle inside it, of its most common colour (binned 16 levels a channel) or of one that
     makes up a tenth of them and fills a disc of half a triangle. Neither ink nor a line drawn across
     the part (a belt) runs in, as an inpainting would let it; a shirt and the trousers below it each
-    go on under a hand on the hip (one colour for the part painted the shirt over both).
+    go on under a hand on the hip (one colour for the part painted the shirt over both).  A limb
+    covered by the body (``rig``'s) goes on as it is drawn where it shows (:meth:`~nnsf.reshape.rig.Rig.continued`).
     """
     if not (mesh.layer == 1).any():
         return None
@@ -653,6 +651,15 @@ def underlay_texture(texture: np.ndarray, mask: np.ndarray, mesh: Mesh) -> np.nd
     inner = np.ones((2 * deep + 1, 2 * deep + 1), np.uint8)
     for p in np.unique(mesh.parts[mesh.layer == 1]):
         region = _raster(mesh.vertices, mesh.triangles[(mesh.layer == 1) & (mesh.parts == p)], (H, W)) >= 0
+        if rig is not None and p in rig.covered:    # the limb as drawn where it shows, carried on, and a few
+            # texels past its triangles (their edges sample there: the drawing left there shows as lines)
+            ys, xs = np.nonzero(cv2.dilate(region.astype(np.uint8), np.ones((5, 5), np.uint8)))
+            src = np.rint(rig.continued(p, np.column_stack([xs, ys]))).astype(int) + 1     # in the padded images
+            sx, sy = np.clip(src[:, 0], 0, W + 1), np.clip(src[:, 1], 0, H + 1)
+            limb = [q for q in rig.covered if rig.chains()[q] == rig.chains()[p]]
+            shows = np.isin(np.pad(rig.labels, 1, constant_values=-1)[sy, sx], limb)
+            out[ys, xs] = np.where(shows[:, None], np.pad(texture, ((1, 1), (1, 1), (0, 0)))[sy, sx], 0)
+            continue
         drawn = _raster(mesh.vertices, mesh.triangles[(mesh.layer == 0) & (mesh.parts == p)], (H, W)) >= 0
         own = (cv2.erode(drawn.astype(np.uint8), inner) & np.asarray(mask, np.uint8)) > 0
         if not own.any():

@@ -6,12 +6,8 @@ arm the skeleton has beyond the two it drives), the bones that make up each part
 hangs from, and each bone's radius.
 
 * **Labels** (:meth:`Rig.segment`): a watershed of the drawing seeded along the bones, so parts end
-  at the drawing's own lines; :meth:`Rig.scores` is the signed distance to each part's region.
-  Before it, and where it leaves a pixel, a point belongs to the part whose band (:meth:`Rig.band_scores`:
-  a bone's radius along its segment, flat ends) it lies relatively deepest in, so a thin arm against a
-  wide body keeps its own pixels and the cut between a limb and its parent is a line across the limb.
-  A bone's radius is the median distance to the silhouette's edge along its middle; an upper limb
-  segment's is at most 1.5 times its lower one's, so an upper arm drawn inside the body does not claim it.
+  at the drawing's own lines; where it leaves a pixel, the part whose band (:meth:`Rig.band_scores`)
+  the pixel lies relatively deepest in.  :meth:`Rig.scores` is the signed distance to each region.
 * **Joints** (:meth:`Rig.cuts`): a part and the part it hangs from are never cut apart along
   their root cross-section (within :data:`ROOT_DEPTH` child radii of the line through the joint
   across the child's bone); there the two share vertices, so the joint bends as one piece of paper
@@ -98,6 +94,8 @@ class Rig:
     fused: tuple[int, ...] = ()
     #: Parts that get no pixels: the second of two limbs drawn as one (:func:`coincident_limbs`).
     hidden: tuple[int, ...] = ()
+    #: Limb segments the body is drawn over (a skirt over the thighs, YAML ``depth: [torso over left_leg]``).
+    covered: tuple[int, ...] = ()
     #: ``(H, W)`` int16, the part of each drawn pixel (−1 off the drawing), :meth:`segment`.
     labels: np.ndarray | None = None
 
@@ -134,8 +132,9 @@ class Rig:
                 radius[b] = min(radius[b], UPPER_TO_LOWER * min(radius[i] for i in lower))
         fused = (PARTS.index("head"),) if getattr(character, "head", None) == "torso" else ()
         hidden = coincident_limbs(kp, bones, radius)
+        covered = tuple(sorted({p for over, under in character.depth if 0 in over for p in under if p >= 2}))
         rig = cls(kp, bones, radius.astype(np.float64), tuple(parts), np.array(parent), np.array(joint),
-                  tuple(sides), fused, hidden)
+                  tuple(sides), fused, hidden, covered)
         rig.labels = rig.segment(character.texture, character.mask)
         return rig
 
@@ -171,6 +170,12 @@ class Rig:
         chain, shown = self.chains(), ~np.isin(self.bones[:, 2], self.hidden)
         last = np.array([j not in self.bones[self.bones[:, 2] != q, 0] and chain[q] >= 0 for _, j, q in self.bones])
         start, ends = a + 0.2 * (b - a), np.where(last[:, None], b + seed[:, None] * u, a + 0.8 * (b - a))
+        # A covered limb is seeded from its end on, two radii long, one wide (a foot below a skirt): its flood
+        # meets the body's at the hem; the split along its bones (below) gives its segments their shares.
+        under = np.isin(self.bones[:, 2], self.covered)
+        start, shown = np.where((under & last)[:, None], b, start), shown & (~under | last)
+        seed = np.where(under, self.radius, seed)
+        ends = np.where((under & last)[:, None], b + 2 * seed[:, None] * u, ends)
         for k in [k for k in np.argsort(-seed, kind="stable") if shown[k]]:
             cv2.line(markers, tuple(np.rint(start[k] * 16).astype(int)), tuple(np.rint(ends[k] * 16).astype(int)),
                      int(self.bones[k, 2]) + 1, max(1, int(0.5 * seed[k])), cv2.LINE_8, 4)
@@ -210,15 +215,18 @@ class Rig:
         reach = np.maximum(2.0, self.part_radius())
         for k, ((i, _, p), r) in enumerate(zip(self.bones, self.radius)):
             n, grow = np.array([-u[k, 1], u[k, 0]]), reach[p]
-            # Nothing behind the joint a limb hangs from on a limb (a forearm flooded round the elbow folds on itself).
-            back = 0.0 if (i == self.joint[p] and self.parent[p] > 0) else grow
-            box = np.array([a[k] - back * u[k] + (r + grow) * n, b[k] + grow * u[k] + (r + grow) * n,
-                            b[k] + grow * u[k] - (r + grow) * n, a[k] - back * u[k] - (r + grow) * n])
+            # Nothing behind the joint a limb hangs from on a limb (a forearm flooded round the elbow
+            # folds on itself), but a covered limb's (seeded from its end, all its length is one flood).
+            back = 0.0 if (i == self.joint[p] and self.parent[p] > 0 and not under[k]) else grow
+            tip = b[k] + (grow + 2 * r * (under & last)[k]) * u[k]    # past a covered limb's seed
+            box = np.array([a[k] - back * u[k] + (r + grow) * n, tip + (r + grow) * n,
+                            tip - (r + grow) * n, a[k] - back * u[k] - (r + grow) * n])
             cv2.fillConvexPoly(near[p], np.rint(box * 16).astype(np.int32), 1, cv2.LINE_8, 4)
             near[p] |= (hand == chain[p]) & last[k]   # and its hand
         own = np.take_along_axis(near, np.clip(labels, 0, self.n_parts - 1)[None].astype(np.intp), 0)[0] > 0
         ys, xs = np.nonzero(mask & ~(own & (labels >= 0) & (labels < self.n_parts)))
-        labels[ys, xs] = np.argmin(self.band_scores(np.column_stack([xs, ys])), axis=1)
+        labels[ys, xs] = np.argmin(self.band_scores(np.column_stack([xs, ys])) + np.where(  # no covered limb's band
+            np.isin(np.arange(self.n_parts), self.covered), np.inf, 0.0), axis=1)
         # A strip of a part thinner than 5 px more than 2 px from its bones (a stroke of outline the
         # flood ran along) would hang between seams, and a piece of a part cut off from its seeds
         # would move with a limb it does not touch: both are flooded again from the parts around
@@ -242,9 +250,14 @@ class Rig:
             iy, ix = ndimage.distance_transform_edt((flood <= 0) | (flood > self.n_parts), return_distances=False,
                                                     return_indices=True)
             labels[mask] = (flood[iy, ix][mask] - 1).astype(np.int16)
+        for c in {chain[p] for p in self.covered}:    # a covered limb's flood goes to its nearest segment
+            mine = np.flatnonzero(chain == c)
+            ys, xs = np.nonzero(np.isin(labels, mine))
+            pts = np.column_stack([xs, ys]).astype(np.float64)
+            labels[ys, xs] = mine[np.argmin([np.linalg.norm(pts - self.nearest_on_bones(p, pts), axis=1) for p in mine], axis=0)]
         # A limb over the joints a part's children hang from (a hand over the hips) took the part's seeds
         # there and cut the children off it: the part is seeded at the joint of each such child, once.
-        lost = [c for c in np.flatnonzero(self.parent >= 0) if (labels == c).any() and not (
+        lost = [c for c in np.flatnonzero(self.parent >= 0) if chain[c] not in chain[list(self.covered)] and (labels == c).any() and not (
                 cv2.dilate((labels == c).astype(np.uint8), np.ones((3, 3), np.uint8)) & (labels == self.parent[c])).any()]
         return self.segment(texture, mask, lost) if lost and not len(joints) else labels
 
@@ -262,6 +275,32 @@ class Rig:
                 q = self.parent[q]
             out[p] = q if self.parent[p] >= 0 and q != PARTS.index("head") else -1
         return out
+
+    def covered_radius(self) -> np.ndarray:
+        """``(P,)`` each covered limb segment's half-width, pixels (else 0): its bones' radius, at most the
+        widest its limb is drawn where it shows (about a hidden bone the drawing's depth is the body's)."""
+        out, chain = np.zeros(self.n_parts), self.chains()
+        for p in self.covered:     # the limb's drawn pixels' largest distance to anything else
+            shown = np.pad(np.isin(self.labels, [q for q in self.covered if chain[q] == chain[p]]), 1)
+            out[p] = min(self.part_radius()[p], cv2.distanceTransform(shown.astype(np.uint8), cv2.DIST_L2, 3).max())
+        return out
+
+    def continued(self, part: int, points: np.ndarray) -> np.ndarray:
+        """Where the drawing shows what a covered limb segment hides at ``points`` ``(k, 2)``, pixels: the same
+        offset across its bone from the limb's first cross-section that shows (2 px on from its drawn pixel
+        nearest its root, but for 2 %): a leg under a skirt goes on as it is drawn below the hem."""
+        mine = [q for q in self.covered if self.chains()[q] == self.chains()[part]]
+        ys, xs = np.nonzero(np.isin(self.labels, mine))
+        if not len(xs):
+            return np.full(np.shape(points), -1.0)
+        px = np.column_stack([xs, ys]).astype(np.float64)
+        first = px[np.argsort(np.linalg.norm(px - self.keypoints[self.joint[mine[0]]], axis=1))[len(px) // 50]]
+        on = [self.nearest_on_bones(q, first[None])[0] for q in mine]
+        i = int(np.argmin([np.linalg.norm(first - c) for c in on]))
+        (ua, ub), (va, vb) = (self.keypoints[self.bones[self.bones[:, 2] == q][0, :2]] for q in (mine[i], part))
+        u, v = (ub - ua) / max(np.linalg.norm(ub - ua), 1e-9), (vb - va) / max(np.linalg.norm(vb - va), 1e-9)
+        across = (np.asarray(points, np.float64) - va) @ np.array([-v[1], v[0]])     # pixels, to the bone's left
+        return on[i] + 2.0 * u + across[:, None] * np.array([-u[1], u[0]])
 
     def part_radius(self) -> np.ndarray:
         """``(P,)`` the largest radius of each part's bones, pixels."""
@@ -312,6 +351,16 @@ class Rig:
             if sel.any() and p not in self.hidden:
                 out[:, p] = score[:, sel].min(axis=1)
         return out
+
+    def nearest_on_bones(self, part: int, points: np.ndarray) -> np.ndarray:
+        """The nearest point ``(k, 2)`` of ``part``'s bones (rest key-point segments) to each of ``points`` ``(k, 2)``."""
+        bones = self.bones[self.bones[:, 2] == part]
+        a, b = self.keypoints[bones[:, 0]], self.keypoints[bones[:, 1]]
+        d = b - a
+        t = np.clip(np.einsum("kbx,bx->kb", points[:, None] - a[None], d) / np.maximum((d * d).sum(1), 1e-12), 0, 1)
+        near = a[None] + t[..., None] * d[None]                              # (k, B, 2)
+        best = np.argmin(np.linalg.norm(points[:, None] - near, axis=2), axis=1)
+        return near[np.arange(len(points)), best]
 
     def root_distance(self, points: np.ndarray, child: int, radius=None) -> np.ndarray:
         """``(k,)`` how far points ``(k, 2)`` lie from ``child``'s root cross-section, in units of its

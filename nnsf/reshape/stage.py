@@ -1,22 +1,7 @@
 """The ``reshape`` stage: a drawn character performing a motion clip, rendered to files.
 
-:func:`reshape` reads the ``reshape:`` section of ``params.yaml``::
-
-    reshape:
-      clip: null            # clip name in the motion CSV; null = the first clip
-      character: bruno      # a built-in character, or a path inside the project to any character
-                            # nnsf animate reads (docs/formats.md §4)
-      character_size: 512   # px, for a built-in character
-      n_vertices: 800       # mesh size (100..6000)
-      subkeys_per_limb: 4   # 0..12
-      method: ours          # ours (key points + subkeys) | keypoints (the ARAP baseline)
-      propagation: limb-frame   # limb-frame | eq12
-      fps: 24
-      max_frames: 240
-      formats: [png, gif, mp4]
-      depth_overrides: []   # e.g. ["left_arm over torso from 12 to 30"] (frames 0-based, inclusive)
-
-(``arms`` and ``head`` may be set too; unset, the character's own choice applies, else ``motion``)
+:func:`reshape` reads the ``reshape:`` section of ``params.yaml`` (every key is commented there;
+``arms`` and ``head`` may be set too: unset, the character's own choice applies, else ``motion``)
 and writes, atomically as one folder ``out_dir``: ``frames/frame_0000.png`` …, ``<name>.gif``,
 ``<name>.mp4``, ``<name>_sheet.png`` (a contact sheet) and ``metrics.json`` (docs/method.md §15.7,
 with the reader's notes; no wall times, so reruns are byte-identical).
@@ -137,12 +122,10 @@ def reshape(params: dict, motion_csv=TRANSLATION_DIR / "translated_features.csv"
     with atomic_dir(out_dir) as tmp:
         if "png" in p["formats"]:
             write_png_frames(tmp / "frames", images)
-        if "gif" in p["formats"]:
-            write_gif(tmp / f"{name}.gif", images, p["fps"])
-            artifacts.append(out_dir / f"{name}.gif")
-        if "mp4" in p["formats"]:
-            write_mp4(tmp / f"{name}.mp4", images, p["fps"])
-            artifacts.append(out_dir / f"{name}.mp4")
+        for fmt, write in (("gif", write_gif), ("mp4", write_mp4)):
+            if fmt in p["formats"]:
+                write(tmp / f"{name}.{fmt}", images, p["fps"])
+                artifacts.append(out_dir / f"{name}.{fmt}")
         pick = np.linspace(0, len(images) - 1, min(12, len(images))).astype(int)
         write_sheet(tmp / f"{name}_sheet.png", images[pick], [f"t={t}" for t in pick])
         artifacts.append(out_dir / f"{name}_sheet.png")

@@ -145,7 +145,7 @@ class Subkeys:
 
 
 def init_subkeys(vertices: np.ndarray, keypoints: np.ndarray, omega: np.ndarray,
-                 per_limb: int = 4, candidates=None) -> Subkeys:
+                 per_limb: int = 4, candidates=None, whole=()) -> Subkeys:
     """Eq. 11: the vertices nearest ``per_limb`` samples of each limb's rest curve.
 
     Parameters
@@ -157,6 +157,7 @@ def init_subkeys(vertices: np.ndarray, keypoints: np.ndarray, omega: np.ndarray,
         joints themselves are key-point handles already).
     candidates : optional list of 8 vertex-index arrays, the vertices each
         limb may pick from (a split mesh: the limb's own piece).
+    whole : limbs whose every candidate is a subkey (a limb under the body, carried whole by its curve).
 
     A vertex picked twice (a short limb on a coarse mesh) is kept once.
     """
@@ -168,6 +169,8 @@ def init_subkeys(vertices: np.ndarray, keypoints: np.ndarray, omega: np.ndarray,
         idx = np.concatenate([np.asarray(c)[cKDTree(vertices[c]).query(samples[i])[1]] if len(c)
                               else np.full(len(lam), -1) for i, c in enumerate(candidates)])
     limb = np.repeat(np.arange(N_LIMBS), len(lam))
+    idx = np.concatenate([idx] + [candidates[i] for i in whole])
+    limb = np.concatenate([limb] + [np.full(len(candidates[i]), i) for i in whole])
     keep = idx >= 0
     limb, idx = limb[keep], idx[keep]
     _, first = np.unique(idx, return_index=True)
@@ -237,9 +240,7 @@ class SubkeyTracker:
     def positions(self) -> np.ndarray:
         """Current subkey positions ``(s, 2)``, pixels."""
         p0, p1 = self._keypoints[self._pairs[:, 0]], self._keypoints[self._pairs[:, 1]]
-        if not self.keep_offset:
-            return self._state.copy()
-        return self._state + _from_frame(self.subkeys.offset, p0, p1)
+        return self._state + _from_frame(self.subkeys.offset, p0, p1) if self.keep_offset else self._state.copy()
 
     def step(self, keypoints, omega=None) -> np.ndarray:
         """Advance to the next frame's key points ``(17, 2)`` and ω ``(8, 2)``; return ``(s, 2)``."""
