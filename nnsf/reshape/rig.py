@@ -170,8 +170,8 @@ class Rig:
         chain, shown = self.chains(), ~np.isin(self.bones[:, 2], self.hidden)
         last = np.array([j not in self.bones[self.bones[:, 2] != q, 0] and chain[q] >= 0 for _, j, q in self.bones])
         start, ends = a + 0.2 * (b - a), np.where(last[:, None], b + seed[:, None] * u, a + 0.8 * (b - a))
-        # A covered limb is seeded from its end on, two radii long, one wide (a foot below a skirt): its flood
-        # meets the body's at the hem; the split along its bones (below) gives its segments their shares.
+        # A covered limb is seeded from its end on, two radii long, half a radius thick (a foot below a skirt):
+        # its flood meets the body's at the hem; the split along its bones (below) gives its segments their shares.
         under = np.isin(self.bones[:, 2], self.covered)
         start, shown = np.where((under & last)[:, None], b, start), shown & (~under | last)
         seed = np.where(under, self.radius, seed)
@@ -257,7 +257,8 @@ class Rig:
             labels[ys, xs] = mine[np.argmin([np.linalg.norm(pts - self.nearest_on_bones(p, pts), axis=1) for p in mine], axis=0)]
         # A limb over the joints a part's children hang from (a hand over the hips) took the part's seeds
         # there and cut the children off it: the part is seeded at the joint of each such child, once.
-        lost = [c for c in np.flatnonzero(self.parent >= 0) if chain[c] not in chain[list(self.covered)] and (labels == c).any() and not (
+        lost = [c for c in np.flatnonzero(self.parent >= 0)
+                if chain[c] not in chain[list(self.covered)] and (labels == c).any() and not (
                 cv2.dilate((labels == c).astype(np.uint8), np.ones((3, 3), np.uint8)) & (labels == self.parent[c])).any()]
         return self.segment(texture, mask, lost) if lost and not len(joints) else labels
 
