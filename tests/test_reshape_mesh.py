@@ -564,9 +564,10 @@ def test_a_hand_hanging_over_the_hips_leaves_each_thigh_bordering_the_body(outli
 SKIRT, SKIN = (200, 40, 60), (240, 200, 170)
 
 
-def _skirted(covered: bool) -> Character:
+def _skirted(covered: bool, legs=((6, 7), (8, 9))) -> Character:
     """A figure in a skirt drawn over the tops of its legs: hips inside the skirt, knees and feet below
-    its hem at y = 232; with ``covered``, its YAML's ``depth: [torso over left_leg, torso over right_leg]``."""
+    its hem at y = 232; with ``covered``, its YAML's ``depth: [torso over left_leg, torso over right_leg]``
+    (or the parts ``legs``)."""
     H, W = 330, 240
     tex = np.zeros((H, W, 4), np.uint8)
     ink = (30, 30, 30, 255)
@@ -590,7 +591,7 @@ def _skirted(covered: bool) -> Character:
                         l_shoulder=(156, 68), l_elbow=(180, 110), l_wrist=(190, 150)).items():
         kp[J[name]] = p
     ch = Character("skirted", tex, tex[..., 3] > 0, kp)
-    ch.depth = [((PART_INDEX["torso"],), legs) for legs in ((6, 7), (8, 9))] if covered else []
+    ch.depth = [((PART_INDEX["torso"],), leg) for leg in legs] if covered else []
     return ch
 
 
@@ -614,14 +615,15 @@ def test_a_skirt_drawn_over_the_legs_is_the_bodys_when_its_yaml_says_so():
     assert (232 <= got[:, 1]).all() and (got[:, 1] <= 240).all()
 
 
-def test_legs_under_a_skirt_swing_out_from_under_it_whole_and_leave_it_whole():
-    """The legs spread 35° apart at the hips under the skirt (drawn over them): the skirt stays where it
-    is, whole and unstretched; each leg shows below the hem, painted in its own colour where it was
-    hidden; no crack and no detached piece in any frame."""
+@pytest.mark.parametrize("legs", [((6, 7), (8, 9)), ((6,), (8,))], ids=["legs", "thighs"])
+def test_legs_under_a_skirt_swing_out_from_under_it_whole_and_leave_it_whole(legs):
+    """The legs spread 35° apart at the hips under the skirt (drawn over them, or over the thighs only:
+    the shins stay joined to them): the skirt stays where it is, whole and unstretched; each leg shows
+    below the hem, in its own colour where it was hidden; no crack and no detached piece in any frame."""
     from nnsf.reshape.animator import Animator, canvas
     from nnsf.reshape.artefacts import FrameMeasures
 
-    ch = _skirted(True)
+    ch = _skirted(True, legs)
     a = Animator(ch, n_vertices=700)
     legs = [(J["l_knee"], J["l_ankle"], J["l_hip"], -35), (J["r_knee"], J["r_ankle"], J["r_hip"], 35)]
     poses = [ch.keypoints]

@@ -454,10 +454,10 @@ def build_mesh(character, rig, n_vertices: int = 800) -> Mesh:
     cover, radius = _covered(V, T, parts, shape)
     candidates = rig.cuts(0.5 * (V[a] + V[b]), parts[pairs[:, 0]], parts[pairs[:, 2]], radius)
     cut_edges, under = _lying_over(V, T, parts, pairs, candidates, cover, rig)
-    # A limb the body is drawn over (a leg under a skirt) is a layer beneath it, cut from every other part;
-    # its length hidden under them (their triangles within its radius of its bones) is painted in.
-    hid = np.isin(parts, rig.covered)
-    apart = hid[pairs[:, 0]] != hid[pairs[:, 2]]
+    # A limb the body is drawn over (a leg under a skirt) is a layer beneath it, cut from every part but its
+    # own segments; its length hidden under them (their triangles within its radius of its bones) is painted in.
+    hid, chain = np.isin(parts, rig.covered), rig.chains()[parts]
+    apart = (hid[pairs[:, 0]] != hid[pairs[:, 2]]) & (chain[pairs[:, 0]] != chain[pairs[:, 2]])
     cut_edges, under = cut_edges | apart, np.where(apart, -1, under)
     centre, reach = V[T].mean(axis=1), rig.covered_radius() + 0.5 * h
     hidden = np.array([(t, p) for p in rig.covered for t in np.flatnonzero((parts != p) & (
@@ -485,7 +485,8 @@ def build_mesh(character, rig, n_vertices: int = 800) -> Mesh:
         copied = np.hstack([_underlays(V, T, parts, pairs, np.where(cut_edges, under, -1), cover), hidden])
         tris, layer, all_parts, origin = _assemble(T, T2, origin, parts, *copied, rig.n_parts, len(V))
         comp = _components(tris)
-        loose = (comp != np.bincount(comp[layer == 0]).argmax())[layer == 0] & ~hid
+        loose = ((comp != np.bincount(comp[layer == 0]).argmax())    # but a covered limb's piece, under the body
+                 & ~np.isin(comp, comp[np.isin(all_parts, rig.covered)]))[layer == 0]
         if not loose.any():
             break
         edge = cut_edges & (loose[pairs[:, 0]] | loose[pairs[:, 2]])

@@ -257,8 +257,7 @@ class Rig:
             labels[ys, xs] = mine[np.argmin([np.linalg.norm(pts - self.nearest_on_bones(p, pts), axis=1) for p in mine], axis=0)]
         # A limb over the joints a part's children hang from (a hand over the hips) took the part's seeds
         # there and cut the children off it: the part is seeded at the joint of each such child, once.
-        lost = [c for c in np.flatnonzero(self.parent >= 0)
-                if chain[c] not in chain[list(self.covered)] and (labels == c).any() and not (
+        lost = [c for c in np.flatnonzero(self.parent >= 0) if chain[c] not in chain[list(self.covered)] and (labels == c).any() and not (
                 cv2.dilate((labels == c).astype(np.uint8), np.ones((3, 3), np.uint8)) & (labels == self.parent[c])).any()]
         return self.segment(texture, mask, lost) if lost and not len(joints) else labels
 
