@@ -180,7 +180,7 @@ class Deformer:
         if ours or rig.covered:
             # A limb's subkeys are vertices of its own triangles that no other part shares; a covered
             # limb's are all its vertices, its underlay's too, in either method: no joint of it is drawn.
-            owner, every = part_owner(mesh), part_owner(mesh, np.ones(len(mesh.layer), bool))
+            owner, every = part_owner(mesh), part_owner(mesh, np.ones(len(mesh.layer), bool)) if rig.covered else None
             candidates = [np.flatnonzero((every if 2 + i in rig.covered else owner) == 2 + i) for i in range(N_LIMBS)]
             self.subkeys = init_subkeys(mesh.vertices, kp, self.rest_omega, per_limb=subkeys_per_limb * ours,
                                         candidates=candidates, whole=[p - 2 for p in rig.covered])

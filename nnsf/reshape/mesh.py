@@ -655,10 +655,8 @@ def underlay_texture(texture: np.ndarray, mask: np.ndarray, mesh: Mesh, rig=None
         if rig is not None and p in rig.covered:    # the limb as drawn where it shows, carried on, and a few
             # texels past its triangles (their edges sample there: the drawing left there shows as lines)
             ys, xs = np.nonzero(cv2.dilate(region.astype(np.uint8), np.ones((5, 5), np.uint8)))
-            src = np.rint(rig.continued(p, np.column_stack([xs, ys]))).astype(int) + 1     # in the padded images
-            sx, sy = np.clip(src[:, 0], 0, W + 1), np.clip(src[:, 1], 0, H + 1)
-            limb = [q for q in rig.covered if rig.chains()[q] == rig.chains()[p]]
-            shows = np.isin(np.pad(rig.labels, 1, constant_values=-1)[sy, sx], limb)
+            sx, sy = np.clip(np.rint(rig.continued(p, np.column_stack([xs, ys]))).astype(int) + 1, 0, [W + 1, H + 1]).T
+            shows = np.isin(np.pad(rig.labels, 1, constant_values=-1)[sy, sx], rig.covered_limb(p))   # +1: padded, off the image is no limb
             out[ys, xs] = np.where(shows[:, None], np.pad(texture, ((1, 1), (1, 1), (0, 0)))[sy, sx], 0)
             continue
         drawn = _raster(mesh.vertices, mesh.triangles[(mesh.layer == 0) & (mesh.parts == p)], (H, W)) >= 0

@@ -225,8 +225,7 @@ class Rig:
             near[p] |= (hand == chain[p]) & last[k]   # and its hand
         own = np.take_along_axis(near, np.clip(labels, 0, self.n_parts - 1)[None].astype(np.intp), 0)[0] > 0
         ys, xs = np.nonzero(mask & ~(own & (labels >= 0) & (labels < self.n_parts)))
-        labels[ys, xs] = np.argmin(self.band_scores(np.column_stack([xs, ys])) + np.where(  # no covered limb's band
-            np.isin(np.arange(self.n_parts), self.covered), np.inf, 0.0), axis=1)
+        labels[ys, xs] = np.argmin(self.band_scores(np.column_stack([xs, ys])), axis=1)
         # A strip of a part thinner than 5 px more than 2 px from its bones (a stroke of outline the
         # flood ran along) would hang between seams, and a piece of a part cut off from its seeds
         # would move with a limb it does not touch: both are flooded again from the parts around
@@ -279,17 +278,21 @@ class Rig:
     def covered_radius(self) -> np.ndarray:
         """``(P,)`` each covered limb segment's half-width, pixels (else 0): its bones' radius, at most the
         widest its limb is drawn where it shows (about a hidden bone the drawing's depth is the body's)."""
-        out, chain = np.zeros(self.n_parts), self.chains()
+        out = np.zeros(self.n_parts)
         for p in self.covered:     # the limb's drawn pixels' largest distance to anything else
-            shown = np.pad(np.isin(self.labels, [q for q in self.covered if chain[q] == chain[p]]), 1)
-            out[p] = min(self.part_radius()[p], cv2.distanceTransform(shown.astype(np.uint8), cv2.DIST_L2, 3).max())
+            shown = np.pad(np.isin(self.labels, self.covered_limb(p)), 1).astype(np.uint8)
+            out[p] = min(self.part_radius()[p], cv2.distanceTransform(shown, cv2.DIST_L2, 3).max())
         return out
+
+    def covered_limb(self, part: int) -> list[int]:
+        """The covered segments of ``part``'s limb, root first."""
+        return [q for q in self.covered if self.chains()[q] == self.chains()[part]]
 
     def continued(self, part: int, points: np.ndarray) -> np.ndarray:
         """Where the drawing shows what a covered limb segment hides at ``points`` ``(k, 2)``, pixels: the same
         offset across its bone from the limb's first cross-section that shows (2 px on from its drawn pixel
         nearest its root, but for 2 %): a leg under a skirt goes on as it is drawn below the hem."""
-        mine = [q for q in self.covered if self.chains()[q] == self.chains()[part]]
+        mine = self.covered_limb(part)
         ys, xs = np.nonzero(np.isin(self.labels, mine))
         if not len(xs):
             return np.full(np.shape(points), -1.0)
@@ -348,15 +351,14 @@ class Rig:
         out = np.full((len(pts), self.n_parts), np.inf)
         for p in range(self.n_parts):
             sel = self.bones[:, 2] == p
-            if sel.any() and p not in self.hidden:
+            if sel.any() and p not in self.hidden + self.covered:   # no band of a limb drawn as its twin or under the body
                 out[:, p] = score[:, sel].min(axis=1)
         return out
 
     def nearest_on_bones(self, part: int, points: np.ndarray) -> np.ndarray:
         """The nearest point ``(k, 2)`` of ``part``'s bones (rest key-point segments) to each of ``points`` ``(k, 2)``."""
         bones = self.bones[self.bones[:, 2] == part]
-        a, b = self.keypoints[bones[:, 0]], self.keypoints[bones[:, 1]]
-        d = b - a
+        a, d = self.keypoints[bones[:, 0]], self.keypoints[bones[:, 1]] - self.keypoints[bones[:, 0]]
         t = np.clip(np.einsum("kbx,bx->kb", points[:, None] - a[None], d) / np.maximum((d * d).sum(1), 1e-12), 0, 1)
         near = a[None] + t[..., None] * d[None]                              # (k, B, 2)
         best = np.argmin(np.linalg.norm(points[:, None] - near, axis=2), axis=1)
