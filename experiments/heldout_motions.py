@@ -10,12 +10,13 @@ kick and dance, a boxing clip in 3ds Max's naming (``Boxing_Toes``) and a CMU cl
     python -m experiments.heldout_motions --data /work/shared/data /work/extra-drawings /work/extra-drawings-tuning --out reports
 
 Answer (``reports/reshape_heldout_motions.{csv,json}``, every frame of the first 240, the default
-method): about as well as on the tuned motions. On the tuning drawings (23 × 6 = 138 clips, 33,120
-frames) 1 frame has a detached piece (0.003 %; tuned motions 5 of 12,167, 0.04 %), 36.9 % have
-cracks beyond the drawing's (31.8 %), 48.3 % a notch (46.2 %) and 29.5 % spikes (31.9 %). On the
-held-out drawings (8 × 6 = 48 clips, 11,520 frames, looked at only to check) 35 frames (0.30 %) have
-a detached piece, 20 of them gdquest_wolf × Boxing_Toes (tuned motions 7 of 4,232, 0.17 %); cracks
-50.2 % (47.3 %), notches 50.6 % (49.0 %), spikes 48.6 % (51.0 %).
+method): about as well as on the tuned motions. On the tuning drawings (25 × 6 = 150 clips, 36,000
+frames) 2 frames have a detached piece (0.006 %, one each in gdquest_bear × dab and
+noto_person_cartwheeling × Boxing_Toes; tuned motions 0 of 13,225), 36.7 % have cracks beyond the
+drawing's (30.8 %), 51.6 % a notch (48.5 %) and 30.4 % spikes (31.8 %). On the held-out drawings
+(8 × 6 = 48 clips, 11,520 frames, looked at only to check) 35 frames (0.30 %) have a detached
+piece, 20 of them gdquest_wolf × Boxing_Toes (tuned motions 7 of 4,232, 0.17 %); cracks 50.2 %
+(47.3 %), notches 50.6 % (49.0 %), spikes 48.6 % (51.0 %).
 
 Writes ``OUT/reshape_heldout_motions.csv`` (one row per drawing × motion × method, the columns of
 ``reshape_eval.csv``), ``OUT/reshape_heldout_motions.json`` (totals per set on these motions and, as

@@ -57,6 +57,11 @@ DRAWINGS = [
      None, "U+1F3C3 U+200D U+2640 WOMAN RUNNING, side view"),
     ("tuning", "noto_person_kneeling", NOTO, "png/512/emoji_u1f9ce.png",
      None, "U+1F9CE PERSON KNEELING, side view, a forearm over the thigh"),
+    ("tuning", "noto_person_cartwheeling", NOTO, "png/512/emoji_u1f938.png",
+     None, "U+1F938 PERSON CARTWHEELING, drawn upside down on one hand, legs split"),
+    ("tuning", "noto_person_handball", NOTO, "png/512/emoji_u1f93e.png",
+     None, "U+1F93E PERSON PLAYING HANDBALL, a three-quarter throw: the far hand up with the ball "
+           "behind the head, the near arm along the chest's edge"),
     ("tuning", "fluent_person_running", FLUENT, "assets/Person running/Default/3D/person_running_3d_default.png",
      "513208dfab89a1e4689529199a51befc2375479f", "Fluent Emoji 3D \"Person running\", a shaded side view"),
     ("tuning", "gopher_sketch_ballet", GOPHERS, "sketch/arts/ballet-v2.png",
