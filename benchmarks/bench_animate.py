@@ -36,7 +36,8 @@ DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 
 
 def _character(folder: Path):
-    from nnsf.reshape.character import Character, stick_figure
+    from nnsf.datasets.stick_figure import stick_figure
+    from nnsf.reshape.character import Character
     from nnsf.reshape.formats import read_character
 
     src = DATA / "animated-drawings" / "characters" / "char1"

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from nnsf.reshape.animator import Animator
-from nnsf.reshape.character import stick_figure
+from nnsf.datasets.stick_figure import stick_figure
 from nnsf.reshape.formats import read_character
 from nnsf.skeleton import JOINT_INDEX as J
 

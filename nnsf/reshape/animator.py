@@ -18,7 +18,7 @@ from nnsf.reshape import depth as depth_mod
 from nnsf.reshape.character import Character
 from nnsf.reshape.deform import Deformer
 from nnsf.reshape.drive import biped_facing, retarget
-from nnsf.reshape.mesh import build_mesh, underlay_texture
+from nnsf.reshape.mesh import build_mesh, underlay_ring, underlay_texture
 from nnsf.reshape.quadruped import quadruped_orders
 from nnsf.reshape.render import Renderer
 from nnsf.reshape.rig import Rig
@@ -107,7 +107,8 @@ class Animator:
 
     def renderer(self, size) -> Renderer:
         """A :class:`~nnsf.reshape.render.Renderer` of this character for frames of ``size`` ``(H, W)``."""
-        return Renderer(self.mesh, self.character.texture, self.character.mask, size, self.underlay)
+        return Renderer(self.mesh, self.character.texture, self.character.mask, size, self.underlay,
+                        underlay_ring(self.mesh, self.rig))
 
 
 def canvas(frames: np.ndarray, margin: int = 16, shape=None) -> tuple[np.ndarray, tuple[int, int]]:

@@ -46,6 +46,9 @@ OVER_REACH = 1.5
 #: The closest two mesh points may lie, pixels: a triangle thinner than a pixel is rasterised as a
 #: pixel-wide needle sampling texels beside it, and a deformation stretches it.
 MIN_SPACING = 2.0
+#: A pixel of a part beside its underlay is a blend of a limb's edge over it when its colour lies within
+#: this distance (RGB levels) of the segment between the part's colour and the limb's (anti-aliasing).
+BLEND_TOL = 24.0
 
 
 @dataclass
@@ -635,13 +638,28 @@ def _underlays(V, T, parts, pairs, under, cover) -> tuple[np.ndarray, np.ndarray
     return both[:, 1], both[:, 0]
 
 
+def _fill_pixels(texture: np.ndarray, region: np.ndarray, deep: int) -> np.ndarray:
+    """``(H, W)`` bool: the pixels of ``region`` more than ``deep`` px inside it whose colour, binned 16
+    levels a channel, is its most common one or makes up a tenth of them and fills a disc of radius
+    ``deep`` (a flat colour of the part, not its ink: an outline or a line drawn across it)."""
+    own = cv2.erode(region.astype(np.uint8), np.ones((2 * deep + 1,) * 2, np.uint8)) > 0
+    if not own.any():
+        return own
+    _, inv, counts = np.unique(texture[own][:, :3] >> 4, axis=0, return_inverse=True, return_counts=True)
+    binned = np.full(own.shape, -1)
+    binned[own] = inv.ravel()
+    thick = lambda b: cv2.distanceTransform(np.pad((binned == b).astype(np.uint8), 1), cv2.DIST_L2, 5).max() >= deep
+    return np.isin(binned, [b for b in np.flatnonzero(counts >= 0.1 * own.sum()) if thick(b)] + [int(np.argmax(counts))])
+
+
 def underlay_texture(texture: np.ndarray, mask: np.ndarray, mesh: Mesh, rig=None) -> np.ndarray | None:
     """The drawing ``(H, W, 4)`` with each part's colours laid, opaque, where its underlay lies (None
-    without one). A pixel takes the colour of the nearest of the part's fill pixels: those deeper than
-    half a triangle inside it, of its most common colour (binned 16 levels a channel) or of one that
-    makes up a tenth of them and fills a disc of half a triangle. Neither ink nor a line drawn across
-    the part (a belt) runs in, as an inpainting would let it; a shirt and the trousers below it each
-    go on under a hand on the hip (one colour for the part painted the shirt over both).  A limb
+    without one). A pixel takes the colour of the nearest of the part's fill pixels (:func:`_fill_pixels`):
+    neither ink nor a line drawn across the part (a belt) runs in, as an inpainting would let it; a shirt
+    and the trousers below it each go on under a hand on the hip. Within a triangle of the underlay, on
+    the part's own triangles (:func:`underlay_ring` samples them here), the limb's edge left there takes
+    the part's colours too: pixels ``rig``'s labels give another part, and blends (within
+    :data:`BLEND_TOL`) of the part's colour and another part's fill, its anti-aliased outline. A limb
     covered by the body (``rig``'s) goes on as it is drawn where it shows (:meth:`~nnsf.reshape.rig.Rig.continued`).
     """
     if not (mesh.layer == 1).any():
@@ -649,7 +667,8 @@ def underlay_texture(texture: np.ndarray, mask: np.ndarray, mesh: Mesh, rig=None
     H, W = mask.shape
     out = texture.copy()
     deep = max(2, int(round(0.5 * mesh.spacing)))
-    inner = np.ones((2 * deep + 1, 2 * deep + 1), np.uint8)
+    labels = rig.labels if rig is not None and rig.labels is not None else np.full((H, W), -1)
+    colour = lambda y, x: texture[y, x, :3].astype(np.float64)
     for p in np.unique(mesh.parts[mesh.layer == 1]):
         region = _raster(mesh.vertices, mesh.triangles[(mesh.layer == 1) & (mesh.parts == p)], (H, W)) >= 0
         if rig is not None and p in rig.covered:    # the limb as drawn where it shows, carried on, and a few
@@ -660,16 +679,35 @@ def underlay_texture(texture: np.ndarray, mask: np.ndarray, mesh: Mesh, rig=None
             out[ys, xs] = np.where(shows[:, None], np.pad(texture, ((1, 1), (1, 1), (0, 0)))[sy, sx], 0)
             continue
         drawn = _raster(mesh.vertices, mesh.triangles[(mesh.layer == 0) & (mesh.parts == p)], (H, W)) >= 0
-        own = (cv2.erode(drawn.astype(np.uint8), inner) & np.asarray(mask, np.uint8)) > 0
-        if not own.any():
+        fill = _fill_pixels(texture, drawn & np.asarray(mask, bool), deep)
+        if not fill.any():
             continue
-        _, inv, counts = np.unique(texture[own][:, :3] >> 4, axis=0, return_inverse=True, return_counts=True)
-        binned = np.full((H, W), -1)
-        binned[own] = inv.ravel()
-        thick = lambda b: cv2.distanceTransform(np.pad((binned == b).astype(np.uint8), 1), cv2.DIST_L2, 5).max() >= deep
-        fills = [b for b in np.flatnonzero(counts >= 0.1 * own.sum()) if thick(b)] + [int(np.argmax(counts))]
-        near = ndimage.distance_transform_edt(~np.isin(binned, fills), return_distances=False, return_indices=True)
+        near = ndimage.distance_transform_edt(~fill, return_distances=False, return_indices=True)
+        reach = 2 * int(round(mesh.spacing)) + 1
+        band = (cv2.dilate(region.astype(np.uint8), np.ones((reach, reach), np.uint8)) > 0) & drawn & ~region
+        others = np.zeros((H, W), bool)
+        for o in np.setdiff1d(labels[cv2.dilate(band.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0], [-1, p]):
+            others |= _fill_pixels(texture, labels == o, deep)
+        ys, xs = np.nonzero(band)
+        edge = labels[ys, xs] != p
+        if others.any():    # how far each colour lies from the segment between the part's and the other's
+            oy, ox = ndimage.distance_transform_edt(~others, return_distances=False, return_indices=True)
+            c, f = colour(ys, xs), colour(near[0][ys, xs], near[1][ys, xs])
+            d = colour(oy[ys, xs], ox[ys, xs]) - f
+            t = np.clip(((c - f) * d).sum(1) / np.maximum((d * d).sum(1), 1e-9), 0.0, 1.0)
+            edge |= np.linalg.norm(c - f - t[:, None] * d, axis=1) < BLEND_TOL
+        band[ys[~edge], xs[~edge]] = False
         # Opaque over the underlay's triangles, within the drawing (the renderer masks it): what a cut beside it shows.
-        out[region, :3] = texture[near[0][region], near[1][region], :3]
+        out[region | band, :3] = texture[near[0][region | band], near[1][region | band], :3]
         out[region, 3] = 255
     return out
+
+
+def underlay_ring(mesh: Mesh, rig=None) -> np.ndarray:
+    """``(t,)`` bool: the drawn triangles of a part that share a corner with its underlay (not a covered
+    limb's, ``rig``'s); they sample :func:`underlay_texture`, which holds their part's colours where the
+    limb's edge was drawn."""
+    under = (mesh.layer == 1) & ~np.isin(mesh.parts, getattr(rig, "covered", ()))
+    mark = np.zeros((int(mesh.parts.max()) + 1, mesh.n_vertices), bool)
+    mark[np.repeat(mesh.parts[under], 3), mesh.triangles[under].ravel()] = True
+    return (mesh.layer == 0) & mark[mesh.parts[:, None], mesh.triangles].any(axis=1)

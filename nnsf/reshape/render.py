@@ -2,8 +2,8 @@
 
 Every pixel of a frame comes from a deformed triangle of the drawing: a triangle's texture
 coordinates are its rest corners, so it shows the patch of the drawing it covered at rest (the
-body underlay's triangles show the body painted in under a limb, the second half of a texture
-atlas).  Nothing is repaired after the render.
+body underlay's triangles, and the body's own beside them, read the body painted in under a limb:
+the second half of a texture atlas).  Nothing is repaired after the render.
 
 Per frame, for each part in the frame's back-to-front order:
 
@@ -49,9 +49,10 @@ class Renderer:
     texture : ``(H, W, 4)`` uint8 RGBA; mask : ``(H, W)`` bool (texels outside are transparent).
     size : output ``(H, W)``.
     underlay : ``(H, W, 4)`` uint8, the texture of the underlay triangles (None: the drawing).
+    ring : ``(t,)`` bool, drawn triangles that sample ``underlay`` too (:func:`~nnsf.reshape.mesh.underlay_ring`).
     """
 
-    def __init__(self, mesh, texture: np.ndarray, mask: np.ndarray, size, underlay=None):
+    def __init__(self, mesh, texture: np.ndarray, mask: np.ndarray, size, underlay=None, ring=None):
         self.size = (int(size[0]), int(size[1]))
         self.triangles = np.asarray(mesh.triangles, dtype=np.int64)
         H, W = np.asarray(mask).shape
@@ -61,7 +62,7 @@ class Renderer:
             # A transparent gap between the halves: a triangle reaching past the drawing's edge
             # (the mesh covers the mask grown by a few pixels) samples the page, not the other half.
             tex = np.hstack([tex, np.zeros((H, ATLAS_GAP, 4), tex.dtype), premultiplied(underlay, mask)])
-            uv[mesh.layer == 1, :, 0] += W + ATLAS_GAP
+            uv[(mesh.layer == 1) | (False if ring is None else ring), :, 0] += W + ATLAS_GAP
         # 8 bits a channel, premultiplied: sampling and compositing run on OpenCV's saturating uint8 arithmetic.
         self.texture = np.ascontiguousarray(np.clip(tex * 255.0 + 0.5, 0, 255).astype(np.uint8))
         self.set_texture_coordinates(uv)
