@@ -677,3 +677,25 @@ def test_legs_under_a_skirt_swing_out_from_under_it_whole_and_leave_it_whole(leg
         p = kp[hip] + (kp[knee] - kp[hip]) * (240 - kp[hip, 1]) / (kp[knee, 1] - kp[hip, 1]) + offset
         x, y = np.rint(p).astype(int)
         assert np.abs(img[y, x, :3].astype(int) - SKIN).max() < 40, (x, y, img[y, x])
+
+
+def test_the_ring_beside_an_underlay_is_its_parts_own_triangles_never_a_covered_limbs():
+    """``underlay_ring``: the drawn triangles sharing a corner with their own part's underlay (the body's
+    under a fist); a leg under a skirt has an underlay of its own (its hidden length) but no ring: its
+    underlay texture is the leg carried on, transparent where no leg shows."""
+    from nnsf.reshape.mesh import build_mesh, underlay_ring
+
+    for ch, ring_parts in ((_fist_on_the_body(12, flat=True)[0], {PART_INDEX["torso"]}), (_skirted(True), set())):
+        rig = Rig.build(ch)
+        mesh = build_mesh(ch, rig, 700)
+        ring = underlay_ring(mesh, rig)
+        assert set(np.unique(mesh.parts[ring]).tolist()) == ring_parts
+        assert (mesh.layer[ring] == 0).all()
+        for k in np.flatnonzero(ring):
+            under = (mesh.layer == 1) & (mesh.parts == mesh.parts[k])
+            assert np.isin(mesh.triangles[k], mesh.triangles[under]).any()
+        untouched = (mesh.layer == 0) & ~ring
+        for p in ring_parts:
+            corners = mesh.triangles[(mesh.layer == 1) & (mesh.parts == p)]
+            assert not np.isin(mesh.triangles[untouched & (mesh.parts == p)], corners).any()
+    assert rig.covered and (mesh.layer[np.isin(mesh.parts, rig.covered)] == 1).any()

@@ -656,8 +656,8 @@ def underlay_texture(texture: np.ndarray, mask: np.ndarray, mesh: Mesh, rig=None
     """The drawing ``(H, W, 4)`` with each part's colours laid, opaque, where its underlay lies (None
     without one). A pixel takes the colour of the nearest of the part's fill pixels (:func:`_fill_pixels`):
     neither ink nor a line drawn across the part (a belt) runs in, as an inpainting would let it; a shirt
-    and the trousers below it each go on under a hand on the hip. Within a triangle of the underlay, on
-    the part's own triangles (:func:`underlay_ring` samples them here), the limb's edge left there takes
+    and the trousers below it each go on under a hand on the hip. Within a triangle spacing of the underlay,
+    on the part's own triangles (:func:`underlay_ring` samples them here), the limb's edge left there takes
     the part's colours too: pixels ``rig``'s labels give another part, and blends (within
     :data:`BLEND_TOL`) of the part's colour and another part's fill, its anti-aliased outline. A limb
     covered by the body (``rig``'s) goes on as it is drawn where it shows (:meth:`~nnsf.reshape.rig.Rig.continued`).
