@@ -36,7 +36,8 @@ DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 
 
 def _character(folder: Path):
-    from nnsf.datasets.stick_figure import stick_figure
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))   # the tests' stick figure
+    from stick_figure import stick_figure
     from nnsf.reshape.character import Character
     from nnsf.reshape.formats import read_character
 

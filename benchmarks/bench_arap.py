@@ -20,15 +20,18 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
 from nnsf.reshape.animator import Animator
-from nnsf.datasets.stick_figure import stick_figure
 from nnsf.reshape.formats import read_character
 from nnsf.skeleton import JOINT_INDEX as J
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))   # the tests' stick figure
+from stick_figure import stick_figure
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "animated-drawings" / "characters" / "char1"
 

@@ -38,7 +38,8 @@ PAGE = 512
 
 def page_character(scale: float = 1.0):
     """char1 (or the stick figure) scaled so its longer side is ``scale`` × 512 px, on a square page."""
-    from nnsf.datasets.stick_figure import stick_figure
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))   # the tests' stick figure
+    from stick_figure import stick_figure
     from nnsf.reshape.character import Character
     from nnsf.reshape.formats import read_character
 

@@ -57,7 +57,7 @@ def model_file(tmp_path_factory):
 
 def write_ad_folder(folder: Path, height: int = 200, drop=None, move=None) -> Path:
     """The stick figure as an AnimatedDrawings folder (texture.png, mask.png, char_cfg.yaml)."""
-    from nnsf.datasets.stick_figure import stick_figure
+    from stick_figure import stick_figure
 
     ch = stick_figure(height=height)
     folder.mkdir(parents=True, exist_ok=True)
@@ -247,7 +247,7 @@ def test_animate_an_animated_drawings_folder_end_to_end(model_file, tmp_path, ca
 
 
 def test_animate_a_png_with_a_joints_yaml(tmp_path, capsys):
-    from nnsf.datasets.stick_figure import stick_figure
+    from stick_figure import stick_figure
 
     ch = stick_figure(height=160)
     cv2.imwrite(str(tmp_path / "hero.png"), cv2.cvtColor(ch.texture, cv2.COLOR_RGBA2BGRA))
@@ -347,7 +347,7 @@ def test_bad_input_one_line_exit_2_nothing_written(model_file, tmp_path, capsys)
 def test_frames_rendered_by_two_processes_are_the_frames_of_one(monkeypatch):
     from nnsf.reshape import render_pool
     from nnsf.reshape.animator import BACKGROUND, Animator, canvas
-    from nnsf.datasets.stick_figure import stick_figure
+    from stick_figure import stick_figure
 
     from nnsf.animate.animation import read_motion_spec
 
@@ -420,7 +420,7 @@ def test_a_render_worker_starts_with_numpy_and_opencv_only(tmp_path):
     import sys
 
     from nnsf.reshape.animator import Animator
-    from nnsf.datasets.stick_figure import stick_figure
+    from stick_figure import stick_figure
 
     (tmp_path / "r.pkl").write_bytes(pickle.dumps(Animator(stick_figure(height=120), n_vertices=150).renderer((160, 120))))
     code = ("import pickle, sys, nnsf.reshape.render_pool; r = pickle.load(open(sys.argv[1], 'rb')); "

@@ -123,7 +123,7 @@ def test_yaml_is_read_by_the_one_bounded_safe_loader_everywhere():
 
 @pytest.fixture
 def character_file(tmp_path):
-    from nnsf.datasets.stick_figure import stick_figure
+    from stick_figure import stick_figure
     from nnsf.reshape.formats import write_character
 
     folder = tmp_path / "chars"

@@ -122,7 +122,7 @@ def test_limb_width_across_a_drawn_bar_and_its_stats():
 
 
 def test_frame_measures_of_the_drawing_itself_are_its_rest_numbers():
-    from nnsf.datasets.stick_figure import stick_figure
+    from stick_figure import stick_figure
 
     ch = stick_figure(height=200)
     m = A.FrameMeasures(ch.texture, ch.mask, ch.keypoints)
@@ -183,7 +183,7 @@ def test_depth_override_bad_input_from_the_command_line(tmp_path):
     import yaml
 
     from tests.test_reshape_stage import _csv, _params
-    from nnsf.datasets.stick_figure import stick_figure
+    from stick_figure import stick_figure
     from nnsf.reshape.formats import write_character
 
     csv = _csv(tmp_path / "motion.csv")

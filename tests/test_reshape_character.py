@@ -14,7 +14,7 @@ import pytest
 import yaml
 
 from nnsf.errors import InputError
-from nnsf.datasets.stick_figure import stick_figure
+from stick_figure import stick_figure
 from nnsf.reshape.character import Character, mask_from_border
 from nnsf.reshape.formats import read_character, write_character
 from nnsf.safe_yaml import read_yaml

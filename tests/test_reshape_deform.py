@@ -11,7 +11,7 @@ from threadpoolctl import threadpool_limits
 from nnsf.reshape import metrics
 from nnsf.reshape.animator import Animator
 from nnsf.reshape.arap import Handles, TwoStepARAP, barycentric
-from nnsf.datasets.stick_figure import stick_figure
+from stick_figure import stick_figure
 from nnsf.reshape.deform import Deformer, keypoint_handles
 from nnsf.reshape.mesh import triangle_areas
 from nnsf.skeleton import JOINT_INDEX as J

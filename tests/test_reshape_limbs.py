@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nnsf.datasets.stick_figure import stick_figure
+from stick_figure import stick_figure
 from nnsf.reshape.limbs import (
     LIMB_PAIRS, STRAIGHT, bezier, control_from_omega, endpoints, fit_omega, limb_curves,
     omega_from_control, rot90,

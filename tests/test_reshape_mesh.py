@@ -9,7 +9,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from nnsf.errors import InputError
-from nnsf.datasets.stick_figure import stick_figure
+from stick_figure import stick_figure
 from nnsf.reshape.character import Character
 from nnsf.reshape.mesh import (
     MIN_SPACING, boundary_edges, build_mesh, cut, shared_edges, split_seams, triangle_angles, triangle_areas,

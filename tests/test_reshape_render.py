@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from nnsf.errors import InputError
-from nnsf.datasets.stick_figure import stick_figure
+from stick_figure import stick_figure
 from nnsf.reshape.depth import (
     default_order, depth_metric, depth_orders, order_ranks, part_depths, part_overlaps,
 )

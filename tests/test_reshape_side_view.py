@@ -5,7 +5,7 @@ import cv2
 import numpy as np
 
 from nnsf.reshape.animator import Animator
-from nnsf.datasets.stick_figure import stick_figure
+from stick_figure import stick_figure
 from nnsf.reshape.character import Character
 from nnsf.reshape.drive import biped_facing, drawn_from_side, retarget
 from nnsf.reshape.parts import PART_INDEX

@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 from nnsf.errors import InputError
-from nnsf.datasets.stick_figure import stick_figure
+from stick_figure import stick_figure
 from nnsf.reshape.formats import write_character
 from nnsf.reshape.stage import reshape
 from nnsf.skeleton import JOINT_INDEX as J, rest_pose

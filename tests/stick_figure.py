@@ -1,4 +1,4 @@
-"""A stick figure drawn from the template body: a character with no data files, for tests and benchmarks."""
+"""A stick figure drawn from the template body: a character with no data files, for the tests and the benchmarks (which fall back on it without the data folder)."""
 from __future__ import annotations
 
 import cv2
