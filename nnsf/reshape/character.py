@@ -239,5 +239,3 @@ def downscale(texture: np.ndarray, mask: np.ndarray, points: np.ndarray, max_siz
             f"downscaled to {size[0]}x{size[1]} px")
     return tex, m, pts, note
 
-
-# --------------------------------------------------------------------------- a built-in figure

@@ -689,7 +689,7 @@ def underlay_texture(texture: np.ndarray, mask: np.ndarray, mesh: Mesh, rig=None
         for o in np.setdiff1d(labels[cv2.dilate(band.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0], [-1, p]):
             others |= _fill_pixels(texture, labels == o, deep)
         ys, xs = np.nonzero(band)
-        edge = labels[ys, xs] != p
+        edge = (labels[ys, xs] != p) & (labels[ys, xs] >= 0)     # no labels (no rig): no edge to find
         if others.any():    # how far each colour lies from the segment between the part's and the other's
             oy, ox = ndimage.distance_transform_edt(~others, return_distances=False, return_indices=True)
             c, f = colour(ys, xs), colour(near[0][ys, xs], near[1][ys, xs])
