@@ -870,3 +870,45 @@ def test_an_end_site_at_zero_offset_is_no_point_and_the_next_rule_is_used():
     b = parse_bvh(GOOD_HEADER.replace("OFFSET 0 1 0", "OFFSET 0 0 0") + "Frames: 1\nFrame Time: 0.1\n"
                   "0 0 0 0 0 0\n", "zero.bvh")
     assert list(b.site_kinds) == [0, 2]
+
+
+def _swinging_human(bind: bool, frames: int = 40) -> str:
+    """The tiny human walking with its left arm swinging, ``frames`` frames; with ``bind`` a first
+    frame of the skeleton's bind pose (every rotation zero, the root at the origin) before them."""
+    head = _tiny_human().split("MOTION")[0]
+    arm = 6 + 3 * 4                 # UpperArm_L's first rotation channel (Zrotation), fifth joint written
+    rows = []
+    if bind:
+        rows.append(np.zeros(6 + 3 * 16))
+    for f in range(frames):
+        v = np.zeros(6 + 3 * 16)
+        v[1], v[2], v[4] = 90.0, 2.0 * f, 5.0
+        v[arm] = -60.0 + 20.0 * np.sin(f / 4.0)
+        rows.append(v)
+    body = "\n".join(" ".join(f"{x:g}" for x in r) for r in rows)
+    return head + f"MOTION\nFrames: {len(rows)}\nFrame Time: 0.0333333\n{body}\n"
+
+
+def test_a_bind_pose_before_the_motion_is_left_out_with_a_note(tmp_path):
+    """Exporters often put the skeleton's bind pose (a T-pose) at frame 0: drawn, it flashed for a
+    frame before the motion.  It is left out, and the rest is the clip without it."""
+    with_bind = load_clip(_write(tmp_path, "bound.bvh", _swinging_human(True)), fps=None)
+    without = load_clip(_write(tmp_path, "plain.bvh", _swinging_human(False)), fps=None)
+    assert with_bind.points.shape == without.points.shape == (40, 17, 2)
+    np.testing.assert_allclose(with_bind.points, without.points, atol=1e-9)
+    assert len(with_bind.notes) == 1 and "bound.bvh: frame 0 is the skeleton's bind pose" in with_bind.notes[0]
+    assert without.notes == []
+
+
+@pytest.mark.parametrize("rel, dropped", [("bvh-skeletons/cmu-motionbuilder/cmu_12_01_walk.bvh", True),
+                                          ("bvh-skeletons/cmu-daz/29_01.bvh", True),
+                                          ("bvh-skeletons/mixamo/test_freebvh.bvh", False),
+                                          ("animated-drawings/bvh/fair1/dab.bvh", False),
+                                          ("bandai-namco-1/data/dataset-1_walk_normal_001.bvh", False)])
+def test_real_clips_lose_a_bind_pose_first_frame_and_nothing_else(rel, dropped):
+    p = DATA / rel
+    if not p.is_file():
+        pytest.skip(f"{p} not found (../shared/data absent)")
+    clip = load_clip(p, fps=None)
+    assert len(clip.points) == read_bvh(p).n_frames - int(dropped)
+    assert any("bind pose" in n for n in clip.notes) == dropped

@@ -253,6 +253,25 @@ def keypoints_of(bvh, family: SkeletonFamily) -> np.ndarray:
     return out
 
 
+#: A first frame whose pose lies farther from the second's than this many times the clip's own
+#: 99th-percentile step between frames is the skeleton's bind pose (a T-pose that many exporters
+#: put at frame 0), not motion: it is left out.  On the shared clips the CMU conversions' first
+#: step is 24-43 times that percentile; every other clip's is at most 1.1 times it.
+BIND_JUMP = 5.0
+
+
+def bind_frame(points: np.ndarray) -> float:
+    """How far the first pose of ``points`` ``(F, 17, 3)`` jumps to the second, in units of the clip's
+    99th-percentile step (0 for a clip under 3 frames).  A pose is the key points less the pelvis; a
+    step is the largest move of a key point from one frame to the next."""
+    if len(points) < 3:
+        return 0.0
+    pose = points - points[:, JOINT_INDEX["pelvis"]][:, None]
+    step = np.linalg.norm(np.diff(pose, axis=0), axis=2).max(axis=1)
+    usual = float(np.percentile(step[1:], 99))
+    return float(step[0] / usual) if usual > 0 else (np.inf if step[0] > 0 else 0.0)
+
+
 def load_clip(path, fps: float | None = 30, azimuth: float = 0.0, elevation: float = 0.0,
               facing: str = "normalise", center: bool = True, up: str = "auto",
               family: str | SkeletonFamily | None = None, window: float = 1.0,
@@ -261,7 +280,8 @@ def load_clip(path, fps: float | None = 30, azimuth: float = 0.0, elevation: flo
 
     Raises :class:`InputError` for a skeleton no family clearly fits, key
     points that coincide (:func:`~nnsf.datasets.bvh_skeletons.check_bones`)
-    or a clip too long to resample (:func:`check_duration`).
+    or a clip too long to resample (:func:`check_duration`).  A first frame
+    that is the skeleton's bind pose (:func:`bind_frame`) is left out, with a note.
     """
     path = Path(path)
     bvh = read_bvh(path)
@@ -270,6 +290,11 @@ def load_clip(path, fps: float | None = 30, azimuth: float = 0.0, elevation: flo
     check_duration(bvh, fps, path)
     K = keypoints_of(bvh, fam)
     check_bones(K, fam, bvh.names, path, bvh.site_kinds)
+    notes = list(bvh.notes)
+    if (jump := bind_frame(K)) > BIND_JUMP:
+        K = K[1:]
+        how = f"{jump:.0f} times the clip's usual largest step" if np.isfinite(jump) else "while the rest holds still"
+        notes.append(f"{path}: frame 0 is the skeleton's bind pose (its pose jumps to frame 1 {how}): left out")
     if up == "auto":
         up = detect_up_axis(K, JOINT_INDEX["head_top"], (JOINT_INDEX["l_ankle"], JOINT_INDEX["r_ankle"]))
     K = resample(K, bvh.fps, out_fps) * float(scale)
@@ -278,7 +303,7 @@ def load_clip(path, fps: float | None = 30, azimuth: float = 0.0, elevation: flo
                    across=FACING_PAIRS, root=JOINT_INDEX["pelvis"], center=center, window=win)
     return BVHClip(name=path.stem, path=path, points=proj.xy, depth=proj.depth,
                    points3d=K @ up_rotation(up).T, fps=out_fps, source_fps=bvh.fps,
-                   family=fam.name, up=up, yaw=proj.yaw, notes=list(bvh.notes))
+                   family=fam.name, up=up, yaw=proj.yaw, notes=notes)
 
 
 def _data_folder(folder: Path) -> Path:
