@@ -13,10 +13,10 @@ Answer (``reports/reshape_heldout_motions.{csv,json}``, every frame of the first
 method): about as well as on the tuned motions. On the tuning drawings (25 × 6 = 150 clips, 36,000
 frames) 2 frames have a detached piece (0.006 %, one each in gdquest_bear × dab and
 noto_person_cartwheeling × Boxing_Toes; tuned motions 0 of 13,225), 36.7 % have cracks beyond the
-drawing's (30.8 %), 51.6 % a notch (48.5 %) and 30.4 % spikes (31.8 %). On the held-out drawings
+drawing's (30.9 %), 51.6 % a notch (48.5 %) and 30.4 % spikes (31.7 %). On the held-out drawings
 (8 × 6 = 48 clips, 11,520 frames, looked at only to check) 35 frames (0.30 %) have a detached
 piece, 20 of them gdquest_wolf × Boxing_Toes (tuned motions 7 of 4,232, 0.17 %); cracks 50.2 %
-(47.3 %), notches 50.6 % (49.0 %), spikes 48.6 % (51.0 %).
+(47.3 %), notches 50.6 % (49.0 %), spikes 48.6 % (51.4 %).
 
 Writes ``OUT/reshape_heldout_motions.csv`` (one row per drawing × motion × method, the columns of
 ``reshape_eval.csv``), ``OUT/reshape_heldout_motions.json`` (totals per set on these motions and, as
