@@ -71,6 +71,8 @@ def test_bvh_info_reads_every_skeleton_file_with_its_family(rel, family, capsys)
     assert "\nview: " in out and "frames: " in out
     if rel.endswith("Boxing_Toes.bvh"):
         assert "note: " in out and "Frames: says 3069" in out
+    # The CMU conversions begin with the skeleton's bind pose, which the motion leaves out.
+    assert ("frame 0 is the skeleton's bind pose" in out) == rel.startswith(("cmu-motionbuilder/", "cmu-daz/")), out
 
 
 def test_bvh_info_on_an_iclone_rig(tmp_path, capsys):

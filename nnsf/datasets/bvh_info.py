@@ -103,6 +103,7 @@ def bvh_info(path, joint_map: SkeletonFamily | None = None, fps: float = 30.0) -
     except InputError as exc:
         info.error = exc
         return info
+    L += [f"note: {n}" for n in clip.notes if n not in bvh.notes]
     var = views.view_variances(clip.points, clip.depth)
     info.view = views.pick_view(clip.points, clip.depth)
     L.append(f"up axis: {clip.up}")

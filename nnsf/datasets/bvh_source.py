@@ -293,7 +293,7 @@ def load_clip(path, fps: float | None = 30, azimuth: float = 0.0, elevation: flo
     notes = list(bvh.notes)
     if (jump := bind_frame(K)) > BIND_JUMP:
         K = K[1:]
-        how = f"{jump:.0f} times the clip's usual largest step" if np.isfinite(jump) else "while the rest holds still"
+        how = f"by {jump:.0f} times the clip's usual largest step" if np.isfinite(jump) else "while the rest holds still"
         notes.append(f"{path}: frame 0 is the skeleton's bind pose (its pose jumps to frame 1 {how}): left out")
     if up == "auto":
         up = detect_up_axis(K, JOINT_INDEX["head_top"], (JOINT_INDEX["l_ankle"], JOINT_INDEX["r_ankle"]))
