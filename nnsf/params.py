@@ -43,6 +43,8 @@ VIEW_CHOICES = ("front", "side", "three-quarter", "auto")
 ARM_CHOICES = ("motion", "drawing")
 #: How a drawn character's head follows a motion (:func:`nnsf.reshape.drive.retarget`).
 HEAD_CHOICES = ("motion", "torso")
+#: How a drawn character's legs follow a motion (:func:`nnsf.reshape.drive.retarget`).
+LEG_CHOICES = ("motion", "torso")
 TRANSLATION_METHODS = ("nnsf", "nnsf_nosmooth", "nnsf_restore", "nnsf_swapped", "nnsf_refit", "api",
                        "api_source", "bilinear", "mgpm", "cbgpm", "offset", "identity", "real")
 #: Methods of the leave-one-content-out protocol (nnsf.evaluate.content_out).

@@ -67,7 +67,8 @@ class Animator:
         ``head`` default to the character's own choice, else ``motion``."""
         ch = self.character
         return retarget(motion, ch.keypoints, source=source, frames=frames, body=ch.body,
-                        arms=arms or ch.arms or "motion", head=head or ch.head or "motion", facing=self.facing)
+                        arms=arms or ch.arms or "motion", head=head or ch.head or "motion", facing=self.facing,
+                        legs=ch.legs or "motion")
 
     def orders(self, frames: np.ndarray, motion: np.ndarray, joint_depth=None, hysteresis: float = 0.015,
                overrides=()) -> tuple[np.ndarray, np.ndarray | None]:

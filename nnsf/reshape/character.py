@@ -53,8 +53,9 @@ class Character:
     body : ``"biped"`` or ``"quadruped"`` (hind legs our legs, front legs our arms).
     extra_limbs : arms beyond the two the skeleton drives, ``[{"side": "l" | "r", "joints": (3, 2)}]``
         (shoulder, elbow, hand); each turns as the driven arm of its side.
-    arms, head : the character's own choice of :func:`nnsf.reshape.drive.retarget`'s ``arms``
-        (``motion`` | ``drawing``) and ``head`` (``motion`` | ``torso``), or None (the caller's).
+    arms, head, legs : the character's own choice of :func:`nnsf.reshape.drive.retarget`'s ``arms``
+        (``motion`` | ``drawing``), ``head`` and ``legs`` (``motion`` | ``torso``), or None (the caller's;
+        legs: ``motion``).
     depth : parts always drawn over others, ``[(over parts, under parts)]`` (ids).
     facing : ``left`` | ``right``: which way a figure drawn from the side faces, or None (found from
         the drawing, :func:`nnsf.reshape.drive.biped_facing`).
@@ -70,6 +71,7 @@ class Character:
     extra_limbs: list = field(default_factory=list)
     arms: str | None = None
     head: str | None = None
+    legs: str | None = None
     depth: list = field(default_factory=list)
     facing: str | None = None
 

@@ -27,7 +27,7 @@ import pandas as pd
 
 from nnsf.datasets import contract
 from nnsf.errors import InputError
-from nnsf.params import ARM_CHOICES, HEAD_CHOICES
+from nnsf.params import ARM_CHOICES, HEAD_CHOICES, LEG_CHOICES
 from nnsf.reshape.quadruped import facing as motion_facing, knees_ahead, retarget_quadruped, swing
 from nnsf.reshape.rig import distance_transform, sample
 from nnsf.skeleton import BONES, JOINT_INDEX, JOINTS, N_JOINTS, character_scale, to_points
@@ -59,6 +59,9 @@ def check_finite(points: np.ndarray, source="motion", frames=None) -> np.ndarray
 #: and only head_top follows the motion (the head turns about the neck).
 TORSO = tuple(JOINT_INDEX[j] for j in (
     "pelvis", "r_hip", "l_hip", "spine", "thorax", "neck", "l_shoulder", "r_shoulder"))
+
+#: Key points ``legs="torso"`` moves with the torso: the knees and ankles (the hips are the torso's).
+LEGS = tuple(JOINT_INDEX[j] for j in ("r_knee", "r_ankle", "l_knee", "l_ankle"))
 
 #: The arm bones (parent, child) that ``arms="drawing"`` turns about their drawn direction.
 ARM_BONES = tuple((JOINT_INDEX[p], JOINT_INDEX[c]) for p, c in (
@@ -108,7 +111,7 @@ def biped_facing(mask: np.ndarray, keypoints: np.ndarray, share: float = 0.1) ->
 
 def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", frames=None,
              arms: str = "motion", body: str = "biped", head: str = "motion",
-             facing: float = 0.0) -> np.ndarray:
+             facing: float = 0.0, legs: str = "motion") -> np.ndarray:
     """Map a motion ``(T, 17, 2)`` (any units) onto a character: ``(T, 17, 2)`` pixels (docs/method.md §12).
 
     ``rest_keypoints`` ``(17, 2)``: the drawing's key points.  The root is the drawing's pelvis plus
@@ -120,7 +123,10 @@ def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", fr
     * ``arms="drawing"``: each arm bone (:data:`ARM_BONES`) keeps its drawn direction turned by the
       motion's swing about the clip's mean direction (an unchanged motion arm gives the drawn pose).
     * ``head="torso"``: head_top moves with the drawn torso (a head drawn as the top of one shape).
-    * ``body="quadruped"``: :func:`nnsf.reshape.quadruped.retarget_quadruped` (``arms`` does not apply).
+    * ``legs="torso"``: the knees and ankles move with the drawn torso, in their drawn pose (a figure
+      drawn without legs, or cut off at the waist: the motion's legs would swing what is not there).
+    * ``body="quadruped"``: :func:`nnsf.reshape.quadruped.retarget_quadruped` (``arms``, ``head`` and
+      ``legs`` do not apply).
     * ``facing``: the drawing's (:func:`biped_facing`; +1 towards +x, −1, 0 unknown); a biped motion
       facing the other way is mirrored, so a figure drawn from the side does not walk backwards.
 
@@ -132,6 +138,8 @@ def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", fr
         raise InputError(source, "arms", f"one of {', '.join(ARM_CHOICES)}", repr(arms))
     if head not in HEAD_CHOICES:
         raise InputError(source, "head", f"one of {', '.join(HEAD_CHOICES)}", repr(head))
+    if legs not in LEG_CHOICES:
+        raise InputError(source, "legs", f"one of {', '.join(LEG_CHOICES)}", repr(legs))
     rest = np.asarray(rest_keypoints, dtype=np.float64)
     if body == "quadruped":
         return retarget_quadruped(P, rest)
@@ -163,7 +171,7 @@ def retarget(points: np.ndarray, rest_keypoints: np.ndarray, source="motion", fr
     ang = np.arctan2(up_m[:, 1], up_m[:, 0]) - np.arctan2(up_d[1], up_d[0])
     u = up_d / np.linalg.norm(up_d)
     n = np.array([-u[1], u[0]])
-    rigid = TORSO + ((JOINT_INDEX["head_top"],) if head == "torso" else ())
+    rigid = TORSO + ((JOINT_INDEX["head_top"],) if head == "torso" else ()) + (LEGS if legs == "torso" else ())
     rel = rest[list(rigid)] - rest[0]  # (k, 2)
     local = (rel @ u)[:, None] * u + (rel @ n)[:, None] * n
     c, s_ = np.cos(ang)[:, None], np.sin(ang)[:, None]

@@ -31,7 +31,7 @@ from nnsf.errors import InputError
 from nnsf.frames.render import render_character
 from nnsf.io import atomic_path, read_json, write_json
 from nnsf.safe_yaml import read_yaml
-from nnsf.params import ARM_CHOICES, HEAD_CHOICES
+from nnsf.params import ARM_CHOICES, HEAD_CHOICES, LEG_CHOICES
 from nnsf.reshape import character as C
 from nnsf.reshape.character import Character
 from nnsf.reshape.depth import PART_ALIASES
@@ -51,7 +51,7 @@ AD_JOINTS = tuple(AD_TO_OURS.values()) + ("hip", "torso")
 HEAD_TOP_SHARE = 0.9
 #: The most joints a skeleton may list.
 MAX_JOINTS = 256
-CHOICES = {"arms": ARM_CHOICES, "head": HEAD_CHOICES, "extra_arms": ("follow", "body"),
+CHOICES = {"arms": ARM_CHOICES, "head": HEAD_CHOICES, "legs": LEG_CHOICES, "extra_arms": ("follow", "body"),
            "facing": ("left", "right")}
 FORMAT, VERSION = "nnsf.character", 1
 
@@ -258,7 +258,7 @@ def _from_yaml(path: Path, obj, root: Path | None, max_size: float, mask=None) -
         raise InputError(path, "drawing", "drawing: (an AnimatedDrawings folder) or image: (a PNG)")
     if obj.get("name") is not None:
         ch.name = str(obj["name"])
-    ch.arms, ch.head, ch.facing = choices.get("arms"), choices.get("head"), choices.get("facing")
+    ch.arms, ch.head, ch.legs, ch.facing = (choices.get(k) for k in ("arms", "head", "legs", "facing"))
     ch.depth = choices["depth"]
     said = [f"{k} {v}" for k, v in choices.items() if k != "depth" and v] + (["depth"] if choices["depth"] else [])
     if said:
