@@ -35,10 +35,10 @@ triangle's map stretched over the pixels the rasteriser gives it along its edges
     python -m experiments.crack_origins --data /work/shared/data /work/extra-drawings /work/extra-drawings-tuning --out reports
 
 Answer (``reports/reshape_crack_origins.{csv,json}``, every frame): the crack counts are the
-measure's own (per drawing × motion, equal to ``reshape_eval_frames.csv``).  Of the 7,202 cracks
-on the tuning set (25 drawings), 96.6 % are the drawing's page (50.5 % a gap or concavity of the
-drawing, 45.5 % the mesh's margin, 0.6 % far page, mostly texels a thin or folded triangle
-stretched beyond itself), 1.5 % thinned strokes and 141 openings (2.0 %): 139 in
+measure's own (per drawing × motion, equal to ``reshape_eval_frames.csv``).  Of the 7,404 cracks
+on the tuning set (26 drawings), 96.7 % are the drawing's page (51.4 % a gap or concavity of the
+drawing, 44.7 % the mesh's margin, 0.6 % far page, mostly texels a thin or folded triangle
+stretched beyond itself), 1.4 % thinned strokes and 141 openings (1.9 %): 139 in
 gopher_sketch_ballet, at its shoulders and bow, 1 in a drawing whose forearm crosses its torso,
 1 (one uncovered pixel, not a tear) in the cartwheel; of the 3,260 held-out ones (8 drawings)
 78.7 % page (27.3 % gap, 51.0 % margin, 0.4 % far), 19.5 % openings (635, all in

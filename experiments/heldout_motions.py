@@ -10,10 +10,11 @@ kick and dance, a boxing clip in 3ds Max's naming (``Boxing_Toes``) and a CMU cl
     python -m experiments.heldout_motions --data /work/shared/data /work/extra-drawings /work/extra-drawings-tuning --out reports
 
 Answer (``reports/reshape_heldout_motions.{csv,json}``, every frame of the first 240, the default
-method): about as well as on the tuned motions. On the tuning drawings (25 × 6 = 150 clips, 36,000
-frames) 2 frames have a detached piece (0.006 %, one each in gdquest_bear × dab and
-noto_person_cartwheeling × Boxing_Toes; tuned motions 0 of 13,225), 36.7 % have cracks beyond the
-drawing's (30.9 %), 51.6 % a notch (48.5 %) and 30.4 % spikes (31.7 %). On the held-out drawings
+method): about as well as on the tuned motions. On the tuning drawings (26 × 6 = 156 clips, 37,440
+frames) 8 frames have a detached piece (0.02 %: one each in gdquest_bear × dab and
+noto_person_cartwheeling × Boxing_Toes, and 6 in noto_person_juggling × Boxing_Toes and × 29_01, a
+3-5 px fleck split off the sleeve's outer edge; tuned motions 0 of 13,754), 37.0 % have cracks
+beyond the drawing's (31.1 %), 50.9 % a notch (46.9 %) and 29.8 % spikes (30.8 %). On the held-out drawings
 (8 × 6 = 48 clips, 11,520 frames, looked at only to check) 35 frames (0.30 %) have a detached
 piece, 20 of them gdquest_wolf × Boxing_Toes (tuned motions 7 of 4,232, 0.17 %); cracks 50.2 %
 (47.3 %), notches 50.6 % (49.0 %), spikes 48.6 % (51.4 %).
