@@ -43,13 +43,17 @@ def test_legs_torso_carries_the_drawn_legs_with_the_torso(figure):
     np.testing.assert_allclose(held[:, others], free[:, others])
 
 
-def test_a_character_yaml_says_legs_torso_and_the_animator_follows_it(tmp_path, figure):
-    folder = tmp_path / "c"
+def _bust_yaml(folder, figure, legs):
+    """``folder/bust.yaml`` beside ``bust.png``: the figure's joints and ``legs``."""
     folder.mkdir()
     assert cv2.imwrite(str(folder / "bust.png"), cv2.cvtColor(figure.texture, cv2.COLOR_RGBA2BGRA))
-    doc = {"joints": {j: [float(x), float(y)] for j, (x, y) in zip(JOINTS, figure.keypoints)}, "legs": "torso"}
+    doc = {"joints": {j: [float(x), float(y)] for j, (x, y) in zip(JOINTS, figure.keypoints)}, "legs": legs}
     (folder / "bust.yaml").write_text(yaml.safe_dump(doc))
-    ch = read_character(folder / "bust.yaml")
+    return folder / "bust.yaml"
+
+
+def test_a_character_yaml_says_legs_torso_and_the_animator_follows_it(tmp_path, figure):
+    ch = read_character(_bust_yaml(tmp_path / "c", figure, "torso"))
     assert ch.legs == "torso" and any("legs torso" in n for n in ch.notes)
     walk = synthetic.clip_points("bruno", "walk", 12)
     kp = Animator(ch, n_vertices=300).retarget(walk)
@@ -57,12 +61,7 @@ def test_a_character_yaml_says_legs_torso_and_the_animator_follows_it(tmp_path, 
 
 
 def test_a_bad_legs_choice_names_the_file_and_field(tmp_path, figure):
-    folder = tmp_path / "c"
-    folder.mkdir()
-    assert cv2.imwrite(str(folder / "bust.png"), cv2.cvtColor(figure.texture, cv2.COLOR_RGBA2BGRA))
-    doc = {"joints": {j: [float(x), float(y)] for j, (x, y) in zip(JOINTS, figure.keypoints)}, "legs": "still"}
-    (folder / "bust.yaml").write_text(yaml.safe_dump(doc))
     with pytest.raises(InputError, match=r"bust\.yaml: legs: expected motion or torso"):
-        read_character(folder / "bust.yaml")
+        read_character(_bust_yaml(tmp_path / "c", figure, "still"))
     with pytest.raises(InputError, match=r"legs"):
         retarget(synthetic.clip_points("bruno", "walk", 4), figure.keypoints, legs="still")
