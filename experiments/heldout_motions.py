@@ -10,14 +10,15 @@ kick and dance, a boxing clip in 3ds Max's naming (``Boxing_Toes``) and a CMU cl
     python -m experiments.heldout_motions --data /work/shared/data /work/extra-drawings /work/extra-drawings-tuning --out reports
 
 Answer (``reports/reshape_heldout_motions.{csv,json}``, every frame of the first 240, the default
-method): about as well as on the tuned motions. On the tuning drawings (26 × 6 = 156 clips, 37,440
-frames) 8 frames have a detached piece (0.02 %: one each in gdquest_bear × dab and
-noto_person_cartwheeling × Boxing_Toes, and 6 in noto_person_juggling × Boxing_Toes and × 29_01, a
-3-5 px fleck split off the sleeve's outer edge; tuned motions 0 of 13,754), 37.0 % have cracks
-beyond the drawing's (31.1 %), 50.9 % a notch (46.9 %) and 29.8 % spikes (30.8 %). On the held-out drawings
-(8 × 6 = 48 clips, 11,520 frames, looked at only to check) 35 frames (0.30 %) have a detached
-piece, 20 of them gdquest_wolf × Boxing_Toes (tuned motions 7 of 4,232, 0.17 %); cracks 50.2 %
-(47.3 %), notches 50.6 % (49.0 %), spikes 48.6 % (51.4 %).
+method): about as well as on the tuned motions. On the tuning drawings (27 × 6 = 162 clips, 38,880
+frames) 9 frames have a detached piece (0.02 %: one each in gdquest_bear × dab,
+noto_person_cartwheeling × Boxing_Toes and robot × dab, a 3 px tip of a claw, and 6 in
+noto_person_juggling × Boxing_Toes and × 29_01, a 3-5 px fleck split off the sleeve's outer edge;
+tuned motions 0 of 14,283), 41.1 % have cracks beyond the drawing's (33.0 %), 49.7 % a notch
+(49.8 %) and 28.8 % spikes (30.3 %). On the held-out drawings (8 × 6 = 48 clips, 11,520 frames,
+looked at only to check) 32 frames (0.28 %) have a detached piece, 20 of them gdquest_wolf ×
+Boxing_Toes (tuned motions 7 of 4,232, 0.17 %); cracks 50.3 % (46.4 %), notches 48.7 % (48.7 %),
+spikes 49.0 % (51.7 %).
 
 Writes ``OUT/reshape_heldout_motions.csv`` (one row per drawing × motion × method, the columns of
 ``reshape_eval.csv``), ``OUT/reshape_heldout_motions.json`` (totals per set on these motions and, as

@@ -64,6 +64,8 @@ DRAWINGS = [
            "behind the head, the near arm along the chest's edge"),
     ("tuning", "noto_person_juggling", NOTO, "png/512/emoji_u1f939.png",
      None, "U+1F939 JUGGLING, cut off at the trousers (no legs), arms raised, two balls apart from the body"),
+    ("tuning", "noto_superhero", NOTO, "png/512/emoji_u1f9b8.png",
+     None, "U+1F9B8 SUPERHERO, flying: a raised fist a few pixels of page from the hair, a cape behind the legs"),
     ("tuning", "fluent_person_running", FLUENT, "assets/Person running/Default/3D/person_running_3d_default.png",
      "513208dfab89a1e4689529199a51befc2375479f", "Fluent Emoji 3D \"Person running\", a shaded side view"),
     ("tuning", "gopher_sketch_ballet", GOPHERS, "sketch/arts/ballet-v2.png",

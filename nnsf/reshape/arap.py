@@ -59,8 +59,7 @@ class Handles:
         return out.reshape(-1, F, 2).transpose(1, 0, 2)
 
     def __add__(self, other: "Handles") -> "Handles":
-        return Handles(sp.vstack([self.matrix, other.matrix]).tocsr(),
-                       np.concatenate([self.weights, other.weights]))
+        return Handles(sp.vstack([self.matrix, other.matrix]).tocsr(), np.concatenate([self.weights, other.weights]))
 
     @classmethod
     def at_vertices(cls, n_vertices: int, index, weight=1.0) -> "Handles":
@@ -113,8 +112,7 @@ def _similarity_rows(vertices: np.ndarray, triangles: np.ndarray) -> sp.csr_matr
             rows.append(row)
             cols.append(col)
             vals.append(np.broadcast_to(val, row.shape))
-    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                         shape=(6 * t, 2 * n))
+    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(6 * t, 2 * n))
 
 
 def _edge_rows(n: int, triangles: np.ndarray) -> sp.csr_matrix:
@@ -135,8 +133,7 @@ def _factorise(G: sp.spmatrix, what: str):
     msg = (f"ARAP {what} system is singular: the handles must pin at least two distinct points "
            "of every connected piece of the mesh")
     try:
-        lu = splu(G.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                  options={"SymmetricMode": True})
+        lu = splu(G.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
     except RuntimeError:
         raise ValueError(msg) from None
     pivots = np.abs(lu.U.diagonal())

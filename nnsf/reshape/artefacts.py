@@ -50,9 +50,8 @@ def detached(cov: np.ndarray, min_area: int = 3) -> int:
     return int((np.sort(st[1:, cv2.CC_STAT_AREA])[::-1][1:] >= min_area).sum())
 
 
-def cracks(cov: np.ndarray, width: float = CRACK_WIDTH, connectivity: int = 8,
-           isolated: bool = True, near: np.ndarray | None = None,
-           labels: np.ndarray | None = None) -> tuple[int, int]:
+def cracks(cov: np.ndarray, width: float = CRACK_WIDTH, connectivity: int = 8, isolated: bool = True,
+           near: np.ndarray | None = None, labels: np.ndarray | None = None) -> tuple[int, int]:
     """``(count, pixels)`` of enclosed background components no wider than ``width`` px.
 
     A component's width is the diameter of the largest disc it holds, measured on the image at twice

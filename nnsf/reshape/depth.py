@@ -172,8 +172,7 @@ def depth_metric(orders: np.ndarray, part_z: np.ndarray, margin: float, pairs=No
     flips = int(changed.sum()) if len(behind) > 1 else 0
     return {
         "depth_agreement": float(agree[count].mean()) if n else float("nan"),
-        "depth_pairs": n,
-        "order_flips": flips,
+        "depth_pairs": n, "order_flips": flips,
         "order_flips_per_100_frames": 100.0 * flips / max(len(z) - 1, 1),
     }
 

@@ -138,8 +138,7 @@ def _contours(mask: np.ndarray) -> list[np.ndarray]:
     """Outer contour of the largest component and its holes, ``(k, 2)`` float each."""
     contours, hierarchy = cv2.findContours(mask.astype(np.uint8), cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
     hierarchy = hierarchy[0]
-    outer = max((i for i in range(len(contours)) if hierarchy[i][3] < 0),
-                key=lambda i: cv2.contourArea(contours[i]))
+    outer = max((i for i in range(len(contours)) if hierarchy[i][3] < 0), key=lambda i: cv2.contourArea(contours[i]))
     keep = [outer] + [i for i in range(len(contours)) if hierarchy[i][3] == outer]
     return [contours[i][:, 0, :].astype(np.float64) for i in keep]
 
@@ -457,6 +456,13 @@ def build_mesh(character, rig, n_vertices: int = 800) -> Mesh:
     cover, radius = _covered(V, T, parts, shape)
     candidates = rig.cuts(0.5 * (V[a] + V[b]), parts[pairs[:, 0]], parts[pairs[:, 2]], radius)
     cut_edges, under = _lying_over(V, T, parts, pairs, candidates, cover, rig)
+    # Two parts that share no joint, which the mesh joins only across the page (its margin bridging a gap
+    # between a hand and a leg, a fist and the hair), lie apart in the drawing: cut, with nothing beneath.
+    p, q, m8 = parts[pairs[:, 0]], parts[pairs[:, 2]], np.asarray(character.mask, np.uint8)
+    drawn = np.any([_lookup(m8, V[a] + f * (V[b] - V[a])) > 0 for f in np.linspace(0, 1, 5)], axis=0)
+    for x, y in {(min(i, j), max(i, j)) for i, j in zip(p, q) if i != j and rig.parent[i] != j and rig.parent[j] != i}:
+        sel = candidates & ~cut_edges & (((p == x) & (q == y)) | ((p == y) & (q == x)))
+        cut_edges |= sel & ~drawn[sel].any()
     # A limb the body is drawn over (a leg under a skirt) is a layer beneath it, cut from every part but its
     # own segments; its length hidden under them (their triangles within its radius of its bones) is painted in.
     hid, chain = np.isin(parts, rig.covered), rig.chains()[parts]
@@ -468,7 +474,6 @@ def build_mesh(character, rig, n_vertices: int = 800) -> Mesh:
     # A cut ending inside the mesh where a third part meets both sides leaves limb and part beneath
     # one vertex there, which drags the part after the limb (a forearm folded back along its upper
     # arm over the body): the limb's edges with that part are cut too, or where a joint keeps them, the part's.
-    p, q = parts[pairs[:, 0]], parts[pairs[:, 2]]
     t1, k1, t2, k2 = pairs.T
     for side in (0, 1):
         T2, _ = cut(T, cut_edges, pairs)

@@ -244,11 +244,20 @@ class Rig:
         loose &= mask
         if loose.any() and (mask & ~loose).any():
             flood = np.where(mask & ~loose, labels + 1, np.where(mask, 0, self.n_parts + 1)).astype(np.int32)
+            # The page steps into the drawing only after every step within it (colours halved, the page white).
+            inside = flood.copy()
+            cv2.watershed(np.where(mask[..., None], image // 2, 255).astype(np.uint8), inside)
             cv2.watershed(image, flood)
-            # The watershed's own boundary pixels take the nearest part's.
-            iy, ix = ndimage.distance_transform_edt((flood <= 0) | (flood > self.n_parts), return_distances=False,
-                                                    return_indices=True)
+            # The watershed's boundary pixels, and drawn pixels the page's flood took, take the nearest part's;
+            # where that lies across the page (a fist touching the hair), the nearest that reaches them through the drawing.
+            off = (flood <= 0) | (flood > self.n_parts)
+            dist, (iy, ix) = ndimage.distance_transform_edt(off, return_indices=True)
+            jy, jx = ndimage.distance_transform_edt((inside <= 0) | (inside > self.n_parts), return_distances=False, return_indices=True)
             labels[mask] = (flood[iy, ix][mask] - 1).astype(np.int16)
+            ys, xs = np.nonzero(mask & (dist > 1.5))   # a nearest pixel beside one is never across the page
+            across = ~np.all([mask[np.rint(ys + f * (iy[ys, xs] - ys)).astype(int), np.rint(xs + f * (ix[ys, xs] - xs)).astype(int)]
+                              for f in np.linspace(0, 1, int(np.ceil(dist[ys, xs].max(initial=0))) + 2)], axis=0)
+            labels[ys[across], xs[across]] = inside[jy, jx][ys[across], xs[across]] - 1
         for c in {chain[p] for p in self.covered}:    # a covered limb's flood goes to its nearest segment
             mine = np.flatnonzero(chain == c)
             ys, xs = np.nonzero(np.isin(labels, mine))

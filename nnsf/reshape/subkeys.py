@@ -26,9 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from nnsf.reshape.limbs import (
-    LIMB_PAIRS, N_LIMBS, control_from_omega, endpoints, limb_curves, rot90,
-)
+from nnsf.reshape.limbs import LIMB_PAIRS, N_LIMBS, control_from_omega, endpoints, limb_curves, rot90
 
 
 # --------------------------------------------------------------------------- Eq. 13-14
@@ -180,8 +178,7 @@ def init_subkeys(vertices: np.ndarray, keypoints: np.ndarray, omega: np.ndarray,
     pc = control_from_omega(p0, p1, omega)
     q = vertices[idx]
     lam_star, s = closest_on_bezier(p0[limb], pc[limb], p1[limb], q)
-    return Subkeys(limb=limb, vertex=idx, lam=lam_star,
-                   offset=_to_frame(q - s, p0[limb], p1[limb]))
+    return Subkeys(limb=limb, vertex=idx, lam=lam_star, offset=_to_frame(q - s, p0[limb], p1[limb]))
 
 
 def _frame(p0, p1):
