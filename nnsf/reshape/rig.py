@@ -249,7 +249,7 @@ class Rig:
             cv2.watershed(np.where(mask[..., None], image // 2, 255).astype(np.uint8), inside)
             cv2.watershed(image, flood)
             # The watershed's boundary pixels, and drawn pixels the page's flood took, take the nearest part's;
-            # where that lies across the page (a fist touching the hair), the nearest that reaches them through the drawing.
+            # where that lies across the page (a fist beside the hair), the nearest that reaches them through the drawing.
             off = (flood <= 0) | (flood > self.n_parts)
             dist, (iy, ix) = ndimage.distance_transform_edt(off, return_indices=True)
             jy, jx = ndimage.distance_transform_edt((inside <= 0) | (inside > self.n_parts), return_distances=False, return_indices=True)
