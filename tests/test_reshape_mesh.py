@@ -722,7 +722,6 @@ def test_a_fist_beside_the_head_is_cut_from_it_only_across_the_page(gap):
         assert np.linalg.norm(V[head] - a.mesh.vertices[head], axis=1).max() < 1.0
 
 
-
 def test_the_faint_edge_of_a_fist_beside_the_hair_is_the_forearms():
     """noto_superhero's raised fist ends a few pixels of page from the hair, in a faint anti-aliased
     rim.  The rim the page's flood takes goes to the part that reaches it through the drawing, the
