@@ -35,15 +35,15 @@ triangle's map stretched over the pixels the rasteriser gives it along its edges
     python -m experiments.crack_origins --data /work/shared/data /work/extra-drawings /work/extra-drawings-tuning --out reports
 
 Answer (``reports/reshape_crack_origins.{csv,json}``, every frame): the crack counts are the
-measure's own (per drawing × motion, equal to ``reshape_eval_frames.csv``).  Of the 8,019 cracks
-on the tuning set (27 drawings), 96.8 % are the drawing's page (53.2 % a gap or concavity of the
-drawing, 43.0 % the mesh's margin, 0.6 % far page, mostly texels a thin or folded triangle
-stretched beyond itself), 1.5 % thinned strokes and 141 openings (1.8 %): 139 in
-gopher_sketch_ballet, at its shoulders and bow, 1 in a drawing whose forearm crosses its torso,
-1 (one uncovered pixel, not a tear) in the cartwheel; of the 3,020 held-out ones (8 drawings)
-76.9 % page (27.6 % gap, 48.6 % margin, 0.6 % far), 21.1 % openings (635 in noto_person_walking:
-the slit round its hand's place at the hips, which its mesh cut open once the hand no longer took
-the hips from the body, docs/method.md §13; 1 uncovered pixel in cowboy_pixel) and 2.1 % thinned.
+measure's own (per drawing × motion, equal to ``reshape_eval_frames.csv``).  Of the 8,330 cracks
+on the tuning set (27 drawings), 97.1 % are the drawing's page (53.0 % a gap or concavity of the
+drawing, 43.4 % the mesh's margin, 0.6 % far page, mostly texels a thin or folded triangle
+stretched beyond itself), 1.2 % thinned strokes and 144 openings (1.7 %): 143 in
+gopher_sketch_ballet, at its shoulders and bow (142 tears), and 1 uncovered pixel (not a tear) in
+the cartwheel; of the 3,027 held-out ones (8 drawings) 76.7 % page (27.6 % gap, 48.5 % margin,
+0.6 % far), 21.2 % openings (642 in noto_person_walking: the slit round its hand's place at the
+hips, which its mesh cut open once the hand no longer took the hips from the body, docs/method.md
+§13; 1 uncovered pixel in cowboy_pixel) and 2.0 % thinned.
 
 Writes ``OUT/reshape_crack_origins.csv`` (one row per drawing × motion), ``OUT/reshape_crack_origins.json``
 (totals per set, the frames with openings, how it ran) and ``OUT/figures/crack_origins.png`` (for each

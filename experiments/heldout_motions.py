@@ -14,11 +14,11 @@ method): about as well as on the tuned motions. On the tuning drawings (27 × 6 
 frames) 9 frames have a detached piece (0.02 %: one each in gdquest_bear × dab,
 noto_person_cartwheeling × Boxing_Toes and robot × dab, a 3 px tip of a claw, and 6 in
 noto_person_juggling × Boxing_Toes and × 29_01, a 3-5 px fleck split off the sleeve's outer edge;
-tuned motions 0 of 14,283), 41.1 % have cracks beyond the drawing's (33.0 %), 49.7 % a notch
-(49.8 %) and 28.8 % spikes (30.3 %). On the held-out drawings (8 × 6 = 48 clips, 11,520 frames,
-looked at only to check) 32 frames (0.28 %) have a detached piece, 20 of them gdquest_wolf ×
-Boxing_Toes (tuned motions 7 of 4,232, 0.17 %); cracks 50.3 % (46.4 %), notches 48.7 % (48.7 %),
-spikes 49.0 % (51.7 %).
+tuned motions 0 of 14,283), 41.8 % have cracks beyond the drawing's (34.7 %), 50.0 % a notch
+(49.4 %) and 28.7 % spikes (29.2 %). On the held-out drawings (8 × 6 = 48 clips, 11,520 frames,
+looked at only to check) 33 frames (0.29 %) have a detached piece, 20 of them gdquest_wolf ×
+Boxing_Toes (tuned motions 7 of 4,232, 0.17 %); cracks 50.4 % (46.4 %), notches 48.7 % (48.7 %),
+spikes 49.0 % (51.6 %).
 
 Writes ``OUT/reshape_heldout_motions.csv`` (one row per drawing × motion × method, the columns of
 ``reshape_eval.csv``), ``OUT/reshape_heldout_motions.json`` (totals per set on these motions and, as

@@ -846,3 +846,29 @@ def test_styles_then_animate_on_a_bvh_folder_through_dvc_exp_run(tmp_path, make_
     shown = subprocess.run([sys.executable, "-m", "dvc", "exp", "show", "--json"], cwd=root, env=env,
                            capture_output=True, text=True, timeout=300)
     assert shown.returncode == 0 and '"bvh"' in shown.stdout and "motions/bandai" in shown.stdout
+
+
+def test_a_figure_with_both_knees_bent_one_way_gets_a_hint_to_say_its_facing():
+    """Both knees drawn bent one way, each by a tenth of its shin or more: the figure may be turned that
+    way (``animate`` then suggests ``facing``).  One bent knee, knees bent apart or straight legs: no hint."""
+    from nnsf.animate.animation import turned_way
+    from nnsf.reshape.character import Character
+    from nnsf.skeleton import rest_pose
+
+    kp = (rest_pose() - rest_pose().min(axis=0)) * 100 + 20
+    H, W = int(kp[:, 1].max()) + 20, int(kp[:, 0].max()) + 20
+    tex = np.full((H, W, 4), 255, np.uint8)
+
+    def bent(left: float, right: float) -> Character:
+        k = kp.copy()
+        for side, by in (("l", left), ("r", right)):
+            shin = np.linalg.norm(k[JOINT_INDEX[f"{side}_ankle"]] - k[JOINT_INDEX[f"{side}_knee"]])
+            k[JOINT_INDEX[f"{side}_knee"], 0] += by * shin
+        return Character("bent", tex, np.ones((H, W), bool), k)
+
+    assert turned_way(bent(-0.3, -0.15)) == "left" and turned_way(bent(0.2, 0.12)) == "right"
+    for left, right in ((-0.3, 0.0), (-0.3, 0.05), (-0.2, 0.2), (0.0, 0.0)):
+        assert turned_way(bent(left, right)) is None, (left, right)
+    ch = bent(-0.3, -0.3)
+    ch.body = "quadruped"
+    assert turned_way(ch) is None

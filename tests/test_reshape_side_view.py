@@ -1,16 +1,22 @@
 """A figure drawn from the side: found as such, one drawn arm for two, seen from the side, facing its way."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import cv2
 import numpy as np
+import pytest
 
 from nnsf.reshape.animator import Animator
 from stick_figure import stick_figure
 from nnsf.reshape.character import Character
-from nnsf.reshape.drive import biped_facing, drawn_from_side, retarget
+from nnsf.reshape.drive import biped_facing, drawn_from_side, retarget, seen_from_side
+from nnsf.reshape.evaluation import _motion
 from nnsf.reshape.parts import PART_INDEX
 from nnsf.reshape.quadruped import facing
 from nnsf.skeleton import JOINT_INDEX as J
+
+SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 
 
 def _side_figure(faces: int = -1) -> Character:
@@ -107,3 +113,34 @@ def test_two_arms_drawn_as_one_give_the_drawing_to_one_part_and_the_other_pins_n
     far = np.linalg.norm(a.mesh.vertices[verts] - sh, axis=1) > 40
     moved_by = np.linalg.norm(V[1, verts[far]] - V[0, verts[far]], axis=1)
     assert np.median(moved_by) > 30
+
+
+
+def test_a_figure_whose_yaml_says_which_way_it_faces_is_seen_from_the_side():
+    """A three-quarter body (shoulders and hips drawn apart) is not found to be drawn from the side;
+    its character YAML's ``facing`` says it is."""
+    ch = _front_figure()
+    assert not seen_from_side(ch)
+    for way in ("left", "right"):
+        ch.facing = way
+        assert seen_from_side(ch)
+
+
+def test_a_punch_is_seen_from_the_side_and_goes_out_the_way_the_figure_faces():
+    """With ``facing``, a BVH punch is seen from the side and mirrored to face the figure's way: the
+    punching hand goes out ahead of its shoulder on that side (without it, the motion's front view)."""
+    bvh = "bandai-namco-1/data/dataset-1_punch_normal_001.bvh"
+    if not (SHARED / bvh).is_file():
+        pytest.skip(f"Bandai-Namco punch not found under {SHARED}")
+    ch = _front_figure()
+    assert _motion(bvh, [str(SHARED)], ch)[4] == "front"
+    arm = np.linalg.norm(ch.keypoints[J["l_wrist"]] - ch.keypoints[J["l_shoulder"]])
+    for way, sign in (("left", -1.0), ("right", 1.0)):
+        ch.facing = way
+        _, points, _, _, view = _motion(bvh, [str(SHARED)], ch)
+        assert view == "side"
+        kp = Animator(ch, n_vertices=300).retarget(points[:240])
+        reach = {s: kp[:, J[f"{s}_wrist"], 0] - kp[:, J[f"{s}_shoulder"], 0] for s in "lr"}
+        # The punch: the hand and frame reaching farthest from its shoulder along x, either way.
+        s, t = max(((s, int(np.argmax(np.abs(r)))) for s, r in reach.items()), key=lambda st: abs(reach[st[0]][st[1]]))
+        assert np.sign(reach[s][t]) == sign and abs(reach[s][t]) > 0.5 * arm, (way, s, t, reach[s][t])

@@ -39,6 +39,7 @@ from nnsf.io import atomic_path, check_writable
 from nnsf.reshape.animator import BACKGROUND, Animator, canvas
 from nnsf.reshape.character import MAX_SIZE, Character
 from nnsf.reshape.drive import seen_from_side
+from nnsf.skeleton import JOINT_INDEX as J
 from nnsf.skeleton.layout import BONE_NAMES, bone_lengths
 from nnsf.params import ARM_CHOICES, HEAD_CHOICES
 from nnsf.reshape.drive import read_motion
@@ -49,6 +50,20 @@ from nnsf.reshape.stage import extra_arms_notes
 #: Frame rate of a built-in synthetic clip (nnsf.datasets.synthetic.FPS).
 SYNTHETIC_FPS = 24.0
 OUTPUT_KINDS = ("mp4", "gif", "png", "sheet")
+
+
+def turned_way(ch: Character, share: float = 0.1) -> str | None:
+    """``"left"`` or ``"right"`` when both knees of a biped are drawn bent that way, each by ``share`` of
+    its shin or more (a figure turned to one side, such as a three-quarter body), else None.  A hint
+    only: knees bent one way do not prove it (a dancer's one bent leg, a child's drawing)."""
+    if ch.body != "biped":
+        return None
+    kp = ch.keypoints
+    bend = [(kp[J[f"{s}_knee"], 0] - 0.5 * (kp[J[f"{s}_hip"], 0] + kp[J[f"{s}_ankle"], 0]))
+            / max(float(np.linalg.norm(kp[J[f"{s}_ankle"]] - kp[J[f"{s}_knee"]])), 1e-9) for s in "lr"]
+    if min(abs(b) for b in bend) < share or bend[0] * bend[1] <= 0:
+        return None
+    return "right" if bend[0] > 0 else "left"
 
 
 # --------------------------------------------------------------------------- motion
@@ -303,6 +318,11 @@ def animate_files(character, motion, style="none", model=None, view="auto", out=
     if drawn_side and mo.view == "front":
         mo.notes.append(f"{ch.name} is drawn from the side: a front view swings its legs "
                         "towards the camera, out of the picture (--view side shows them)")
+    turned = turned_way(ch) if auto and not drawn_side else None
+    if turned:
+        mo.notes.append(f"{ch.name}: both knees are drawn bent to the {turned}: if the figure is turned that "
+                        f"way, facing: {turned} in its character YAML has the motion seen from the side, "
+                        f"punching and stepping to the {turned} (docs/usage.md)")
     out_fps = float(fps) if fps else mo.fps
     ph.stop()
     for note in list(ch.notes) + mo.notes:

@@ -247,8 +247,7 @@ class FrameMeasures:
         turning = outline_turning(cov)
         return {"detached": detached(cov), "cracks": n_cracks, "crack_px": crack_px,
                 "joint_cracks": cracks(cov, near=discs > 0)[0] if n_cracks else 0,
-                "specks": cracks(cov, connectivity=4, isolated=False)[0],
-                "notch_px": int(notch.sum()),
+                "specks": cracks(cov, connectivity=4, isolated=False)[0], "notch_px": int(notch.sum()),
                 "notch_beyond_rest": int(np.maximum(notch - self.rest_notches, 0).sum()),
                 "spikes": count_spikes(turning, self.spike_threshold),
                 "outline_roughness": float(np.mean(turning)) if len(turning) else float("nan"),

@@ -170,11 +170,8 @@ def depth_metric(orders: np.ndarray, part_z: np.ndarray, margin: float, pairs=No
         pp = np.asarray(pairs, dtype=bool)[:, iu[0], iu[1]]
         changed &= pp[1:] & pp[:-1]
     flips = int(changed.sum()) if len(behind) > 1 else 0
-    return {
-        "depth_agreement": float(agree[count].mean()) if n else float("nan"),
-        "depth_pairs": n, "order_flips": flips,
-        "order_flips_per_100_frames": 100.0 * flips / max(len(z) - 1, 1),
-    }
+    return {"depth_agreement": float(agree[count].mean()) if n else float("nan"), "depth_pairs": n,
+            "order_flips": flips, "order_flips_per_100_frames": 100.0 * flips / max(len(z) - 1, 1)}
 
 
 # --------------------------------------------------------------------------- user overrides

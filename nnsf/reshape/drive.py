@@ -81,9 +81,10 @@ def drawn_from_side(mask: np.ndarray, keypoints: np.ndarray, share: float = 0.25
 
 
 def seen_from_side(ch) -> bool:
-    """Whether a character's motion is seen from the side, the view it is drawn in: a quadruped, or a
-    biped :func:`drawn_from_side`."""
-    return ch.body == "quadruped" or drawn_from_side(ch.mask, ch.keypoints)
+    """Whether a character's motion is seen from the side, the view it is drawn in: a quadruped, a biped
+    :func:`drawn_from_side`, or one whose YAML says which way it faces (a three-quarter body with its head
+    and feet in profile: seen from the front, a punch forwards would go out sideways, often behind it)."""
+    return ch.body == "quadruped" or ch.facing is not None or drawn_from_side(ch.mask, ch.keypoints)
 
 
 def biped_facing(mask: np.ndarray, keypoints: np.ndarray, share: float = 0.1) -> float:
