@@ -501,7 +501,7 @@ def build_mesh(character, rig, n_vertices: int = 800) -> Mesh:
         cut_edges &= ~(edge & (hops[p, q] == hops[p, q][edge].min()))
     # An underlay patch that shares no edge with its part would float; an underlay triangle centred on the page (a copy of
     # a limb's rim across a gap of page) shows only the edge it samples, a fleck once the limb has gone: both are left out.
-    on = _lookup(np.asarray(character.mask, np.uint8), V[origin[tris]].mean(axis=1)) > 0
+    on = _lookup(m8, V[origin[tris]].mean(axis=1)) > 0
     keep = (np.isin(comp, comp[layer == 0]) | np.isin(all_parts, rig.covered)) & ((layer == 0) | on)
     tris, layer, all_parts = tris[keep], layer[keep], all_parts[keep]
     used, inv = np.unique(tris, return_inverse=True)
